@@ -1,0 +1,47 @@
+"""Wavefront OBJ: ``v`` and ``f`` records; polygons kept as written."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import LoadError
+from .base import PolygonMesh
+from .text import decode_text
+
+
+def read_obj(path, data: bytes) -> PolygonMesh:
+    """Read OBJ bytes. Face corners ``v``, ``v/t``, ``v//n`` and ``v/t/n`` are accepted;
+    negative indices count back from the latest vertex, as the format says."""
+    vertices: list[list[str]] = []
+    sizes: list[int] = []
+    corners: list[int] = []
+    warnings: list[str] = []
+    skipped = 0
+    for number, line in enumerate(decode_text(data).splitlines(), start=1):
+        fields = line.split()
+        if not fields:
+            continue
+        tag = fields[0]
+        if tag == "v":
+            if len(fields) < 4:
+                raise LoadError(path, "vertex with fewer than three coordinates", number)
+            vertices.append(fields[1:4])
+        elif tag == "f":
+            try:
+                refs = [int(f.split("/", 1)[0]) for f in fields[1:]]
+            except ValueError:
+                raise LoadError(path, f"face corner is not an index: {line.strip()[:60]!r}", number) from None
+            count = len(vertices)
+            refs = [r - 1 if r > 0 else count + r for r in refs]
+            if len(refs) < 3 or min(refs) < 0 or max(refs) >= count:
+                skipped += 1
+                continue
+            sizes.append(len(refs))
+            corners.extend(refs)
+    if skipped:
+        warnings.append(f"{skipped} face(s) with fewer than three corners or out-of-range indices skipped")
+    try:
+        points = np.array(vertices, dtype=np.float64).reshape(-1, 3)
+    except ValueError as exc:
+        raise LoadError(path, f"vertex coordinate is not a number ({exc})") from None
+    return PolygonMesh(points, np.array(sizes, dtype=np.int64), np.array(corners, dtype=np.int64), "obj", warnings)

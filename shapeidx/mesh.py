@@ -1,0 +1,323 @@
+"""Mesh operations on the way from polygons as read to a clean surface.
+
+:func:`shapeidx.solid.make_solid` applies them in this order:
+
+1. :func:`triangulate_polygons`: triangles as they are, quadrilaterals split by the
+   rule of Ip et al. (2002, section 3.2.1), larger polygons triangulated in their plane
+   (correct for concave ones).
+2. :func:`merge_vertices` and :func:`remove_bad_faces`: duplicate points merged,
+   degenerate and duplicate triangles dropped.
+3. :func:`orient_shells`: the triangles split into shells (connected through edges that
+   have exactly two triangles) and each shell's winding made consistent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+
+# ----------------------------------------------------------------------------------
+# geometry helpers
+
+
+def triangle_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Cross products (b - a) x (c - a): normal direction times twice the area, (k, 3)."""
+    a = vertices[faces[:, 0]]
+    return np.cross(vertices[faces[:, 1]] - a, vertices[faces[:, 2]] - a)
+
+
+def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area of every triangle, (k,)."""
+    if len(faces) == 0:
+        return np.zeros(0)
+    return 0.5 * np.linalg.norm(triangle_cross(vertices, faces), axis=1)
+
+
+def signed_volumes(vertices: np.ndarray, faces: np.ndarray, origin=None) -> np.ndarray:
+    """Signed volume of the tetrahedron (origin, a, b, c) of every triangle, (k,).
+
+    Summed over a closed, outward-wound shell this is the enclosed volume. ``origin`` is one
+    point, or one point per triangle, (k, 3).
+    """
+    origin = np.zeros(3) if origin is None else np.asarray(origin)
+    a = vertices[faces[:, 0]] - origin
+    b = vertices[faces[:, 1]] - origin
+    c = vertices[faces[:, 2]] - origin
+    return np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
+
+
+# ----------------------------------------------------------------------------------
+# 1. triangulation
+
+
+def polygon_starts(face_sizes: np.ndarray) -> np.ndarray:
+    """Offset of each polygon's first corner in the flat index array."""
+    starts = np.zeros(len(face_sizes), dtype=np.int64)
+    np.cumsum(face_sizes[:-1], out=starts[1:])
+    return starts
+
+
+def split_quads(vertices: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """Split quadrilaterals into two triangles each, by the rule of Ip et al. (2002).
+
+    Section 3.2.1: from the first corner ``a``, take the vectors to the other three corners
+    ``b, c, d``. When the widest angle is between ``ab`` and ``ad``, the remaining vector
+    ``ac`` lies inside the quadrilateral and is the diagonal to split along. (That is always
+    so for a convex quadrilateral.) When it is not, ``a`` is a reflex corner or ``c`` lies
+    outside angle ``bad``, and the only diagonal inside the quadrilateral is ``bd``.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+    quads : (q, 4) int
+        Corner indices ``a, b, c, d`` in winding order.
+
+    Returns
+    -------
+    (2q, 3) int
+        Triangles with the quadrilateral's winding; those of quad ``i`` are rows ``2i`` and
+        ``2i + 1``.
+    """
+    a, b, c, d = (vertices[quads[:, k]] for k in range(4))
+
+    def unit(v):
+        n = np.linalg.norm(v, axis=1, keepdims=True)
+        return v / np.where(n > 0, n, 1.0)
+
+    ab, ac, ad = unit(b - a), unit(c - a), unit(d - a)
+    cos_bd = np.einsum("ij,ij->i", ab, ad)
+    cos_bc = np.einsum("ij,ij->i", ab, ac)
+    cos_cd = np.einsum("ij,ij->i", ac, ad)
+    # the widest angle has the smallest cosine
+    along_ac = cos_bd <= np.minimum(cos_bc, cos_cd)
+    out = np.empty((len(quads), 2, 3), dtype=np.int64)
+    qa, qb, qc, qd = quads.T
+    out[along_ac, 0] = np.stack([qa, qb, qc], axis=1)[along_ac]
+    out[along_ac, 1] = np.stack([qa, qc, qd], axis=1)[along_ac]
+    other = ~along_ac
+    out[other, 0] = np.stack([qa, qb, qd], axis=1)[other]
+    out[other, 1] = np.stack([qb, qc, qd], axis=1)[other]
+    return out.reshape(-1, 3)
+
+
+def _polygon_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Newell normal and an in-plane basis (e1, e2, normal right-handed) per polygon.
+
+    ``points`` is (k, s, 3); polygons are seen counter-clockwise in (e1, e2) coordinates.
+    """
+    nxt = np.roll(points, -1, axis=1)
+    normal = np.cross(points, nxt).sum(axis=1)  # Newell's method: robust for non-planar
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.where(length > 0, normal / np.where(length > 0, length, 1), [0.0, 0.0, 1.0])
+    # any vector not parallel to the normal
+    helper = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    e1 = np.cross(normal, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(normal, e1)
+    return normal, e1, e2
+
+
+def _triangulate_ngons(vertices: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Triangulate (k, s) polygons of one size s >= 5; returns (k, s - 2, 3) corner indices.
+
+    Convex, simple polygons (checked in their own plane) are fanned; the others go through
+    an ear-clipping triangulator (manifold3d), which handles concave polygons.
+    """
+    import manifold3d
+
+    k, s = corners.shape
+    pts = vertices[corners]
+    centre = pts.mean(axis=1, keepdims=True)
+    _, e1, e2 = _polygon_frames(pts - centre)
+    rel = pts - centre
+    uv = np.stack([np.einsum("ksj,kj->ks", rel, e1), np.einsum("ksj,kj->ks", rel, e2)], axis=2)
+
+    edge = np.roll(uv, -1, axis=1) - uv
+    nxt = np.roll(edge, -1, axis=1)
+    turn = np.arctan2(edge[..., 0] * nxt[..., 1] - edge[..., 1] * nxt[..., 0], np.einsum("ksj,ksj->ks", edge, nxt))
+    convex = (turn >= -1e-12).all(axis=1) & (np.abs(turn.sum(axis=1) - 2 * np.pi) < 1e-6)
+
+    fan = np.stack(
+        [np.zeros(s - 2, dtype=np.int64), np.arange(1, s - 1), np.arange(2, s)], axis=1
+    )  # (s-2, 3) local corner numbers
+    local = np.broadcast_to(fan, (k, s - 2, 3)).copy()
+    for row in np.flatnonzero(~convex):
+        try:
+            tri = np.asarray(manifold3d.triangulate([uv[row]]), dtype=np.int64)
+        except Exception:
+            continue  # keep the fan: degenerate polygon, nothing better to do
+        if tri.shape == (s - 2, 3):
+            local[row] = tri
+    return np.take_along_axis(corners[:, None, :], local.reshape(k, -1)[:, None, :], axis=2).reshape(k, s - 2, 3)
+
+
+def triangulate_polygons(vertices: np.ndarray, face_sizes: np.ndarray, face_indices: np.ndarray) -> np.ndarray:
+    """Triangulate polygons given as sizes and flat corner indices.
+
+    Every polygon of ``s`` corners gives ``s - 2`` triangles (some may be degenerate), in
+    polygon order and with the polygon's winding. Quadrilaterals follow :func:`split_quads`;
+    larger polygons are triangulated in their best-fit plane, correctly when concave.
+
+    Returns
+    -------
+    (sum(face_sizes - 2), 3) int64
+    """
+    face_sizes = np.asarray(face_sizes, dtype=np.int64)
+    face_indices = np.asarray(face_indices, dtype=np.int64)
+    starts = polygon_starts(face_sizes)
+    per_polygon = face_sizes - 2
+    out_start = polygon_starts(per_polygon)
+    out = np.empty((int(per_polygon.sum()), 3), dtype=np.int64)
+
+    for size in np.unique(face_sizes):
+        which = np.flatnonzero(face_sizes == size)
+        corners = face_indices[starts[which, None] + np.arange(size)]
+        if size == 3:
+            out[out_start[which]] = corners
+        elif size == 4:
+            tri = split_quads(vertices, corners).reshape(-1, 2, 3)
+            out[out_start[which]] = tri[:, 0]
+            out[out_start[which] + 1] = tri[:, 1]
+        else:
+            tri = _triangulate_ngons(vertices, corners)
+            rows = out_start[which, None] + np.arange(size - 2)
+            out[rows.reshape(-1)] = tri.reshape(-1, 3)
+    return out
+
+
+# ----------------------------------------------------------------------------------
+# 2. merging and dropping
+
+
+def merge_vertices(vertices: np.ndarray, faces: np.ndarray, relative_tolerance: float = 1e-9):
+    """Merge points that coincide up to ``relative_tolerance`` times the bounding-box diagonal.
+
+    Returns
+    -------
+    vertices : (n', 3) float64
+        The distinct points still used by a face.
+    faces : (k, 3) int64
+        Re-indexed.
+    """
+    used, inverse = np.unique(faces.reshape(-1), return_inverse=True)
+    points = vertices[used]
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    step = max(float(np.linalg.norm(hi - lo)), 1e-300) * relative_tolerance
+    keys = np.round((points - lo) / step).astype(np.int64)
+    _, first, group = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    return points[first], group.reshape(-1)[inverse].reshape(-1, 3)
+
+
+def remove_bad_faces(vertices: np.ndarray, faces: np.ndarray, relative_area: float = 1e-14):
+    """Drop degenerate triangles (a repeated corner or no area) and duplicates (same corners).
+
+    Of duplicated triangles the first is kept, whatever its winding.
+
+    Returns
+    -------
+    faces : (k', 3) int64
+    degenerate : int
+    duplicate : int
+    """
+    if len(faces) == 0:
+        return faces, 0, 0
+    diag2 = float(np.sum((vertices.max(axis=0) - vertices.min(axis=0)) ** 2))
+    repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+    flat = triangle_areas(vertices, faces) <= relative_area * diag2
+    bad = repeated | flat
+    faces = faces[~bad]
+    _, first = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
+    first.sort()
+    return faces[first], int(bad.sum()), int(len(faces) - len(first))
+
+
+# ----------------------------------------------------------------------------------
+# 3. shells and consistent winding
+
+
+@dataclass
+class Shells:
+    """Faces grouped into shells, with consistent winding inside each shell."""
+
+    faces: np.ndarray  # (k, 3) re-wound
+    shell: np.ndarray  # (k,) shell number of each face, 0..count-1
+    count: int
+    closed: np.ndarray  # (count,) bool: every edge has exactly two faces, wound oppositely
+    orientable: np.ndarray  # (count,) bool
+    kept_file_winding: np.ndarray  # (count,) fraction of faces whose winding was not changed
+
+
+def _edge_table(faces: np.ndarray):
+    """Half-edges (u -> v) of every face, with an integer key for the undirected edge."""
+    k = len(faces)
+    u = faces.reshape(-1)
+    v = faces[:, [1, 2, 0]].reshape(-1)
+    face = np.repeat(np.arange(k), 3)
+    lo, hi = np.minimum(u, v), np.maximum(u, v)
+    n = int(faces.max()) + 1 if k else 1
+    key = lo * n + hi
+    return u, v, face, key
+
+
+def orient_shells(faces: np.ndarray) -> Shells:
+    """Split faces into shells and make the winding consistent within each.
+
+    Two faces are neighbours when they share an edge that has exactly two faces in the whole
+    mesh (non-manifold edges do not join shells). Neighbours are consistently wound when
+    they traverse the shared edge in opposite directions. Finding which faces to flip is a
+    two-colouring of a signed graph, solved for all shells at once as connected components
+    of the doubled graph whose nodes are (face, flipped?): node ``f`` is face ``f`` as read,
+    node ``f + k`` the same face flipped.
+    """
+    k = len(faces)
+    u, _, face, key = _edge_table(faces)
+    order = np.argsort(key, kind="stable")
+    skey = key[order]
+    group_start = np.flatnonzero(np.concatenate([[True], skey[1:] != skey[:-1]]))
+    group_size = np.diff(np.concatenate([group_start, [len(skey)]]))
+    pairs = group_start[group_size == 2]
+    h1, h2 = order[pairs], order[pairs + 1]
+    f1, f2 = face[h1], face[h2]
+    must_flip_one = u[h1] == u[h2]  # both traverse the shared edge the same way
+
+    partner = f2 + k * must_flip_one
+    rows = np.concatenate([f1, f1 + k])
+    cols = np.concatenate([partner, (partner + k) % (2 * k)])
+    doubled = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(2 * k, 2 * k))
+    _, label = connected_components(doubled, directed=False)
+    as_read, flipped = label[:k], label[k:]
+    orientable_face = as_read != flipped
+    flip = orientable_face & (as_read > flipped)  # canonical choice: the smaller label is kept
+
+    new_faces = faces.copy()
+    new_faces[flip] = new_faces[flip][:, ::-1]
+
+    plain = coo_matrix((np.ones(len(f1), dtype=np.int8), (f1, f2)), shape=(k, k))
+    count, shell = connected_components(plain, directed=False)
+
+    orientable = np.ones(count, dtype=bool)
+    np.logical_and.at(orientable, shell, orientable_face)
+    kept = np.bincount(shell, weights=(~flip).astype(float), minlength=count) / np.bincount(shell, minlength=count)
+    closed = _closed_shells(new_faces, shell, count) & orientable
+    return Shells(new_faces, shell, count, closed, orientable, kept)
+
+
+def _closed_shells(faces: np.ndarray, shell: np.ndarray, count: int) -> np.ndarray:
+    """Per shell: does every edge have exactly two of the shell's faces, wound oppositely?"""
+    u, v, face, key = _edge_table(faces)
+    owner = shell[face]
+    order = np.lexsort((key, owner))
+    skey, sowner = key[order], owner[order]
+    forward = (u < v)[order].astype(np.int64)
+    new_group = np.concatenate([[True], (skey[1:] != skey[:-1]) | (sowner[1:] != sowner[:-1])])
+    start = np.flatnonzero(new_group)
+    size = np.diff(np.concatenate([start, [len(skey)]]))
+    n_forward = np.add.reduceat(forward, start)
+    good_edge = (size == 2) & (n_forward == 1)
+    closed = np.ones(count, dtype=bool)
+    np.logical_and.at(closed, sowner[start], good_edge)
+    return closed

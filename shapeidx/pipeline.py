@@ -1,0 +1,43 @@
+"""The road from a part file to its signature, in one place.
+
+    file --io.load--> PolygonMesh --solid.make_solid--> Solid
+         --sampling.sample_surface--> points
+         --classify.classify_pairs--> distances, classes
+         --Signature.from_pairs--> Signature
+"""
+
+from __future__ import annotations
+
+import os
+
+from .classify import classify_pairs
+from .io import LoadLimits, load
+from .sampling import DEFAULT_SEED, sample_surface
+from .signature import BIN_DIVISOR, Signature
+from .solid import Solid, make_solid
+
+DEFAULT_POINTS = 1024
+
+
+def solid_of_file(path: str | os.PathLike, limits: LoadLimits | None = None) -> Solid:
+    """Load a part file and make it a clean, oriented solid (raises LoadError)."""
+    return make_solid(load(path, limits), path)
+
+
+def signature_of_solid(
+    solid: Solid, points: int = DEFAULT_POINTS, seed: int = DEFAULT_SEED, divisor: int = BIN_DIVISOR
+) -> Signature:
+    """Sample ``points`` surface points, classify all pairs, and histogram them."""
+    samples, face_index = sample_surface(solid.vertices, solid.faces, points, seed)
+    distances, classes = classify_pairs(solid.vertices, solid.faces, samples, face_index, solid.watertight)
+    return Signature.from_pairs(distances, classes, points, seed, divisor)
+
+
+def signature_of_file(
+    path: str | os.PathLike,
+    points: int = DEFAULT_POINTS,
+    seed: int = DEFAULT_SEED,
+    limits: LoadLimits | None = None,
+) -> Signature:
+    """The signature of a part file (raises LoadError for a file that is not a usable part)."""
+    return signature_of_solid(solid_of_file(path, limits), points, seed)

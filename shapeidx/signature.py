@@ -1,0 +1,110 @@
+"""The Signature value: four D2 histograms and the class fractions (Ip et al. 2002, 3.2.4)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .classify import CLASS_NAMES
+
+#: Bin width = mean distance of the set / BIN_DIVISOR (the paper's 1/50).
+BIN_DIVISOR = 50
+#: Histogram names, in the order used everywhere (store, distances, JSON).
+HISTOGRAMS = ("all",) + CLASS_NAMES
+
+
+@dataclass(frozen=True)
+class Histogram:
+    """A D2 histogram whose bins are ``mean / BIN_DIVISOR`` wide, starting at distance 0.
+
+    Attributes
+    ----------
+    counts : (bins,) int64
+        Pairs per bin. Empty when the set has no pairs (a class absent from the part).
+    mean : float
+        Mean distance of the set (0 when empty), in the part's units.
+    bin_width : float
+        ``mean / BIN_DIVISOR`` (0 when empty).
+    """
+
+    counts: np.ndarray
+    mean: float
+    bin_width: float
+
+    @classmethod
+    def of(cls, distances: np.ndarray, divisor: int = BIN_DIVISOR) -> "Histogram":
+        """Histogram of a set of distances, bin width its mean over ``divisor``."""
+        if len(distances) == 0:
+            return cls(np.zeros(0, dtype=np.int64), 0.0, 0.0)
+        mean = float(distances.mean())
+        if mean <= 0:  # every pair at distance 0: one bin holds them all
+            return cls(np.array([len(distances)], dtype=np.int64), 0.0, 0.0)
+        width = mean / divisor
+        return cls(np.bincount((distances / width).astype(np.int64)), mean, width)
+
+    @property
+    def total(self) -> int:
+        return int(self.counts.sum())
+
+    @property
+    def p(self) -> np.ndarray:
+        """Probabilities per bin, summing to 1 (empty for an empty histogram)."""
+        total = self.total
+        return self.counts / total if total else np.zeros(0)
+
+
+@dataclass(frozen=True)
+class Signature:
+    """A part's enhanced D2 signature.
+
+    Attributes
+    ----------
+    points : int
+        Surface samples used (pairs = points * (points - 1) / 2).
+    seed : int
+        Seed of the sampling.
+    histograms : dict
+        ``"all"``, ``"in"``, ``"out"``, ``"mixed"`` -> :class:`Histogram`.
+    """
+
+    points: int
+    seed: int
+    histograms: dict
+
+    @classmethod
+    def from_pairs(cls, distances: np.ndarray, classes: np.ndarray, points: int, seed: int, divisor: int = BIN_DIVISOR):
+        """Build the four histograms from classified pair distances."""
+        histograms = {"all": Histogram.of(distances, divisor)}
+        for code, name in enumerate(CLASS_NAMES):
+            histograms[name] = Histogram.of(distances[classes == code], divisor)
+        return cls(points=points, seed=seed, histograms=histograms)
+
+    @property
+    def fractions(self) -> dict:
+        """Share of the pairs in each class: ``{"in": ..., "out": ..., "mixed": ...}``, summing to 1."""
+        total = self.histograms["all"].total
+        return {name: self.histograms[name].total / total for name in CLASS_NAMES}
+
+    def to_dict(self) -> dict:
+        """Plain JSON-ready form (probabilities, not counts)."""
+        return {
+            "points": self.points,
+            "seed": self.seed,
+            "pairs": self.histograms["all"].total,
+            "fractions": self.fractions,
+            "histograms": {
+                name: {"bin_width": h.bin_width, "mean": h.mean, "pairs": h.total, "p": h.p.tolist()}
+                for name, h in self.histograms.items()
+            },
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Signature":
+        """Inverse of :meth:`to_dict` (counts are recovered from ``p`` and ``pairs``)."""
+        histograms = {}
+        for name in HISTOGRAMS:
+            h = data["histograms"][name]
+            counts = np.rint(np.asarray(h["p"], dtype=np.float64) * h["pairs"]).astype(np.int64)
+            histograms[name] = Histogram(counts, float(h["mean"]), float(h["bin_width"]))
+        return cls(points=int(data["points"]), seed=int(data["seed"]), histograms=histograms)
