@@ -17,6 +17,9 @@ from .signature import BIN_DIVISOR, Signature
 from .solid import Solid, make_solid
 
 DEFAULT_POINTS = 1024
+#: Raised whenever the same file and parameters could give a different signature (changes to
+#: loading, cleaning, sampling or classification). A store records it and refuses a mismatch.
+SIGNATURE_VERSION = 1
 
 
 def solid_of_file(path: str | os.PathLike, limits: LoadLimits | None = None) -> Solid:
