@@ -53,7 +53,7 @@ json_option = click.option("--json", "as_json", is_flag=True, help="Machine-read
 
 
 @main.command()
-@click.argument("file", type=click.Path(dir_okay=False, path_type=str))
+@click.argument("file", type=click.Path(path_type=str))
 @json_option
 def inspect(file, as_json):
     """What the loader sees in FILE: size, shells, watertightness, warnings."""
@@ -79,7 +79,7 @@ def inspect(file, as_json):
 
 
 @main.command()
-@click.argument("file", type=click.Path(dir_okay=False, path_type=str))
+@click.argument("file", type=click.Path(path_type=str))
 @points_option
 @seed_option
 @json_option
@@ -100,8 +100,8 @@ def signature(file, points, seed, as_json):
 
 
 @main.command()
-@click.argument("a", type=click.Path(dir_okay=False, path_type=str))
-@click.argument("b", type=click.Path(dir_okay=False, path_type=str))
+@click.argument("a", type=click.Path(path_type=str))
+@click.argument("b", type=click.Path(path_type=str))
 @points_option
 @seed_option
 @json_option

@@ -65,10 +65,15 @@ def split_quads(vertices: np.ndarray, quads: np.ndarray) -> np.ndarray:
     """Split quadrilaterals into two triangles each, by the rule of Ip et al. (2002).
 
     Section 3.2.1: from the first corner ``a``, take the vectors to the other three corners
-    ``b, c, d``. When the widest angle is between ``ab`` and ``ad``, the remaining vector
-    ``ac`` lies inside the quadrilateral and is the diagonal to split along. (That is always
-    so for a convex quadrilateral.) When it is not, ``a`` is a reflex corner or ``c`` lies
-    outside angle ``bad``, and the only diagonal inside the quadrilateral is ``bd``.
+    ``b, c, d``; the widest of the three angles between them is between the two that are not
+    the diagonal, and the remaining vector is the one to split along. For a convex
+    quadrilateral the widest angle is always ``b-a-d``, and the split is along ``a-c``.
+
+    The rule assumes ``a`` is not a reflex corner: there every angle is measured on the
+    wrong side and it would name an edge. So the rule's diagonal is kept whenever it splits
+    the quadrilateral into two triangles wound like the quadrilateral (its Newell normal);
+    otherwise the other diagonal is used, which for a concave quadrilateral is the one
+    through its reflex corner, the only one inside it.
 
     Parameters
     ----------
@@ -88,20 +93,24 @@ def split_quads(vertices: np.ndarray, quads: np.ndarray) -> np.ndarray:
         n = np.linalg.norm(v, axis=1, keepdims=True)
         return v / np.where(n > 0, n, 1.0)
 
+    def faces_along(n, p, q, r):
+        return np.einsum("ij,ij->i", np.cross(q - p, r - p), n) > 0
+
     ab, ac, ad = unit(b - a), unit(c - a), unit(d - a)
     cos_bd = np.einsum("ij,ij->i", ab, ad)
     cos_bc = np.einsum("ij,ij->i", ab, ac)
     cos_cd = np.einsum("ij,ij->i", ac, ad)
-    # the widest angle has the smallest cosine
-    along_ac = cos_bd <= np.minimum(cos_bc, cos_cd)
-    out = np.empty((len(quads), 2, 3), dtype=np.int64)
+    rule_says_ac = cos_bd <= np.minimum(cos_bc, cos_cd)  # widest angle: smallest cosine
+
+    normal = np.cross(a, b) + np.cross(b, c) + np.cross(c, d) + np.cross(d, a)  # Newell
+    ac_ok = faces_along(normal, a, b, c) & faces_along(normal, a, c, d)
+    bd_ok = faces_along(normal, a, b, d) & faces_along(normal, b, c, d)
+    along_ac = np.where(rule_says_ac, ac_ok | ~bd_ok, ac_ok & ~bd_ok)
+
     qa, qb, qc, qd = quads.T
-    out[along_ac, 0] = np.stack([qa, qb, qc], axis=1)[along_ac]
-    out[along_ac, 1] = np.stack([qa, qc, qd], axis=1)[along_ac]
-    other = ~along_ac
-    out[other, 0] = np.stack([qa, qb, qd], axis=1)[other]
-    out[other, 1] = np.stack([qb, qc, qd], axis=1)[other]
-    return out.reshape(-1, 3)
+    first = np.where(along_ac[:, None], np.stack([qa, qb, qc], 1), np.stack([qa, qb, qd], 1))
+    second = np.where(along_ac[:, None], np.stack([qa, qc, qd], 1), np.stack([qb, qc, qd], 1))
+    return np.stack([first, second], axis=1).reshape(-1, 3).astype(np.int64)
 
 
 def _polygon_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -196,12 +196,10 @@ def resolve_shells(vertices: np.ndarray, faces: np.ndarray, shells: Shells, warn
     """
     shell, count = shells.shell, shells.count
     lo, hi = shell_bounds(vertices, faces, shell, count)
+    # measured from each shell's own centre: exact for a closed shell whatever the origin,
+    # well conditioned, and a fair guess of "outward" for an open one
     centre = (lo + hi) / 2
-    volume = np.bincount(shell, weights=signed_volumes(vertices, faces), minlength=count)
-    # an open shell's volume depends on the origin: measure it from the shell's own centre
-    if not shells.closed.all():
-        per_face = signed_volumes(vertices, faces, centre[shell])
-        volume = np.where(shells.closed, volume, np.bincount(shell, weights=per_face, minlength=count))
+    volume = np.bincount(shell, weights=signed_volumes(vertices, faces, centre[shell]), minlength=count)
     faces = _flip(faces, (volume < 0)[shell])
 
     closed_ids = np.flatnonzero(shells.closed)
@@ -350,7 +348,9 @@ def make_solid(mesh: PolygonMesh, path=None) -> Solid:
     if not np.isfinite(read_area) or read_area <= 0:
         raise LoadError(path, "has zero surface area (every face is degenerate)")
 
-    vertices, faces = merge_vertices(vertices, triangles)
+    # work near the origin: volumes, winding numbers and booleans lose precision far from it
+    centre = (used.min(axis=0) + used.max(axis=0)) / 2
+    vertices, faces = merge_vertices(vertices - centre, triangles)
     faces, degenerate, duplicate = remove_bad_faces(vertices, faces)
     report.update(degenerate_removed=degenerate, duplicates_removed=duplicate)
     if len(faces) == 0:
@@ -368,9 +368,9 @@ def make_solid(mesh: PolygonMesh, path=None) -> Solid:
     report.update(result.report)
     volume = None
     if result.watertight:
-        volume = float(signed_volumes(result.vertices, result.faces, result.vertices.mean(axis=0)).sum())
+        volume = float(signed_volumes(result.vertices, result.faces).sum())
     return Solid(
-        vertices=result.vertices,
+        vertices=result.vertices + centre,
         faces=result.faces,
         watertight=result.watertight,
         volume=volume,

@@ -50,6 +50,7 @@ def load(path: str | os.PathLike, limits: LoadLimits | None = None) -> PolygonMe
     """
     limits = limits or LoadLimits()
     path = Path(path)
+    _check_is_a_nonempty_file(path)
     fmt = format_of(path)
     try:
         if fmt == "vrml":
@@ -71,6 +72,19 @@ def load(path: str | os.PathLike, limits: LoadLimits | None = None) -> PolygonMe
         raise LoadError(path, f"cannot read ({type(exc).__name__}: {exc})") from None
     check_polygon_mesh(path, mesh, limits)
     return mesh
+
+
+def _check_is_a_nonempty_file(path: Path) -> None:
+    try:
+        size = path.stat().st_size
+    except FileNotFoundError:
+        raise LoadError(path, "no such file") from None
+    except OSError as exc:
+        raise LoadError(path, f"cannot read: {exc.strerror or exc}") from None
+    if path.is_dir():
+        raise LoadError(path, "is a directory, not a file")
+    if size == 0:
+        raise LoadError(path, "is empty (0 bytes)")
 
 
 def check_polygon_mesh(path, mesh: PolygonMesh, limits: LoadLimits) -> None:

@@ -12,7 +12,7 @@ from .text import decode_text
 def read_obj(path, data: bytes) -> PolygonMesh:
     """Read OBJ bytes. Face corners ``v``, ``v/t``, ``v//n`` and ``v/t/n`` are accepted;
     negative indices count back from the latest vertex, as the format says."""
-    vertices: list[list[str]] = []
+    vertices: list[tuple[list[str], int]] = []  # coordinates as text, line number
     sizes: list[int] = []
     corners: list[int] = []
     warnings: list[str] = []
@@ -25,7 +25,7 @@ def read_obj(path, data: bytes) -> PolygonMesh:
         if tag == "v":
             if len(fields) < 4:
                 raise LoadError(path, "vertex with fewer than three coordinates", number)
-            vertices.append(fields[1:4])
+            vertices.append((fields[1:4], number))
         elif tag == "f":
             try:
                 refs = [int(f.split("/", 1)[0]) for f in fields[1:]]
@@ -41,7 +41,16 @@ def read_obj(path, data: bytes) -> PolygonMesh:
     if skipped:
         warnings.append(f"{skipped} face(s) with fewer than three corners or out-of-range indices skipped")
     try:
-        points = np.array(vertices, dtype=np.float64).reshape(-1, 3)
-    except ValueError as exc:
-        raise LoadError(path, f"vertex coordinate is not a number ({exc})") from None
+        points = np.array([v for v, _ in vertices], dtype=np.float64).reshape(-1, 3)
+    except ValueError:
+        fields, number = next((v, n) for v, n in vertices if not _all_numbers(v))
+        raise LoadError(path, f"vertex coordinate is not a number: {' '.join(fields)!r}", number) from None
     return PolygonMesh(points, np.array(sizes, dtype=np.int64), np.array(corners, dtype=np.int64), "obj", warnings)
+
+
+def _all_numbers(fields: list[str]) -> bool:
+    try:
+        [float(f) for f in fields]
+    except ValueError:
+        return False
+    return True

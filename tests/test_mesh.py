@@ -1,0 +1,179 @@
+"""Triangulation, merging and shell orientation (shapeidx.mesh)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from shapeidx.io import load
+from shapeidx.mesh import (
+    merge_vertices,
+    orient_shells,
+    remove_bad_faces,
+    split_quads,
+    triangle_areas,
+    triangle_cross,
+    triangulate_polygons,
+)
+
+
+def newell_area(points: np.ndarray) -> float:
+    """Area of a planar polygon from its corners (Newell): independent of any triangulation."""
+    return 0.5 * float(np.linalg.norm(np.cross(points, np.roll(points, -1, axis=0)).sum(axis=0)))
+
+
+def place_in_3d(xy: np.ndarray, seed: int = 0) -> np.ndarray:
+    """Put a 2-D polygon into a random plane of space."""
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    return np.c_[xy, np.zeros(len(xy))] @ q.T + rng.normal(size=3) * 10
+
+
+def assert_exact_cover(vertices, polygon, triangles):
+    """Triangles cover the polygon exactly once, with its winding: their areas add up to the
+    polygon's and every one faces the polygon's way (an overlap or a flip breaks one of these)."""
+    normal = np.cross(vertices[polygon], np.roll(vertices[polygon], -1, axis=0)).sum(axis=0)
+    cross = triangle_cross(vertices, triangles)
+    assert np.all(cross @ normal > -1e-12)
+    assert triangle_areas(vertices, triangles).sum() == pytest.approx(newell_area(vertices[polygon]), rel=1e-9)
+
+
+class TestQuadrilaterals:
+    def test_convex_quad_is_split_from_its_first_corner(self):
+        # the paper's rule: from corner a the widest angle is b-a-d, so split along a-c
+        v = np.array([[0, 0, 0], [2, 0, 0], [3, 2, 0], [0, 1, 0]], float)
+        tri = split_quads(v, np.array([[0, 1, 2, 3]]))
+        assert sorted(map(sorted, tri.tolist())) == [[0, 1, 2], [0, 2, 3]]
+
+    def test_quad_reflex_at_first_corner_is_split_through_it(self):
+        # corner a is reflex: the angles seen from it mislead the rule; b-d runs outside the
+        # quad, a-c is the only diagonal inside
+        v = np.array([[1, 1, 0], [0, 3, 0], [-3, -3, 0], [3, 0, 0]], float)
+        quad = np.array([0, 1, 2, 3])
+        tri = split_quads(v, quad[None])
+        assert sorted(map(sorted, tri.tolist())) == [[0, 1, 2], [0, 2, 3]]
+        assert_exact_cover(v, quad, tri)
+
+    @pytest.mark.parametrize("start", range(4))
+    def test_concave_quad_from_every_starting_corner(self, start):
+        v = np.array([[1, 1, 0], [0, 3, 0], [-3, -3, 0], [3, 0, 0]], float)
+        quad = np.roll(np.arange(4), start)
+        assert_exact_cover(v, quad, split_quads(v, quad[None]))
+
+    def test_quad_reflex_at_third_corner(self):
+        v = np.array([[0, 0, 0], [4, 0, 0], [1, 1, 0], [0, 4, 0]], float)
+        quad = np.array([0, 1, 2, 3])
+        tri = split_quads(v, quad[None])
+        assert_exact_cover(v, quad, tri)
+
+    def test_non_planar_quad_follows_the_angle_rule(self):
+        # folded quad: the rule, not the fold, decides; from a the widest angle is b-a-d
+        v = np.array([[0, 0, 0], [1, 0, 0.3], [1, 1, 0], [0, 1, 0.3]], float)
+        a, b, c, d = v
+        def angle(x, y):
+            return np.arccos(np.dot(x, y) / np.linalg.norm(x) / np.linalg.norm(y))
+        assert angle(b - a, d - a) > max(angle(b - a, c - a), angle(c - a, d - a))
+        tri = split_quads(v, np.array([[0, 1, 2, 3]]))
+        assert sorted(map(sorted, tri.tolist())) == [[0, 1, 2], [0, 2, 3]]
+
+
+class TestPolygons:
+    @pytest.mark.parametrize(
+        "xy",
+        [
+            [[0, 0], [4, 0], [4, 1], [1, 1], [1, 4], [0, 4]],  # L shape
+            [[0, 0], [5, 0], [5, 3], [4, 3], [4, 1], [3, 1], [3, 3], [2, 3], [2, 1], [1, 1], [1, 3], [0, 3]],  # comb
+            [[np.cos(t) * r, np.sin(t) * r] for t, r in zip(np.linspace(0, 2 * np.pi, 10, endpoint=False), [1, 0.4] * 5)],
+        ],
+        ids=["L", "comb", "star"],
+    )
+    def test_concave_polygon_in_any_plane(self, xy):
+        v = place_in_3d(np.array(xy, float))
+        polygon = np.arange(len(v))
+        tri = triangulate_polygons(v, np.array([len(v)]), polygon)
+        assert len(tri) == len(v) - 2
+        assert_exact_cover(v, polygon, tri)
+
+    def test_clockwise_polygon_keeps_its_winding(self):
+        v = place_in_3d(np.array([[0, 0], [4, 0], [4, 1], [1, 1], [1, 4], [0, 4]], float)[::-1], seed=3)
+        polygon = np.arange(len(v))
+        assert_exact_cover(v, polygon, triangulate_polygons(v, np.array([len(v)]), polygon))
+
+    def test_mixed_sizes_keep_polygon_order(self):
+        v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [3, 0, 0], [3.5, 1, 0], [2.5, 2, 0], [2, 1, 0]], float)
+        sizes = np.array([3, 5, 4])
+        indices = np.array([0, 1, 2, 4, 5, 6, 7, 8, 0, 1, 2, 3])
+        tri = triangulate_polygons(v, sizes, indices)
+        assert len(tri) == 1 + 3 + 2
+        assert tri[0].tolist() == [0, 1, 2]
+        assert set(tri[1:4].ravel()) == {4, 5, 6, 7, 8}
+        assert set(tri[4:].ravel()) == {0, 1, 2, 3}
+
+    def test_real_concave_polygon_file(self, data_dir):
+        mesh = load(data_dir / "mesh-wild/assimp-testmodels/usr/share/assimp/models/OBJ/concave_polygon.obj")
+        assert mesh.face_sizes.max() > 4
+        tri = triangulate_polygons(mesh.vertices, mesh.face_sizes, mesh.face_indices)
+        start = 0
+        for size in mesh.face_sizes:
+            polygon = mesh.face_indices[start : start + size]
+            start += size
+            assert newell_area(mesh.vertices[polygon]) > 0
+        # areas add up polygon by polygon: no fan across a reflex corner
+        total = sum(
+            newell_area(mesh.vertices[mesh.face_indices[s : s + n]])
+            for s, n in zip(np.concatenate([[0], np.cumsum(mesh.face_sizes)[:-1]]), mesh.face_sizes)
+        )
+        assert triangle_areas(mesh.vertices, tri).sum() == pytest.approx(total, rel=1e-9)
+
+
+class TestCleaning:
+    def cube_soup(self):
+        """A unit cube as an STL-style soup: 36 corners, one per triangle corner."""
+        c = np.array(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij")).reshape(3, -1).T.astype(float)
+        f = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
+                      [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])  # fmt: skip
+        return c[f].reshape(-1, 3), np.arange(36).reshape(-1, 3)
+
+    def test_duplicate_points_are_merged(self):
+        v, f = self.cube_soup()
+        v2, f2 = merge_vertices(v, f)
+        assert len(v2) == 8 and len(f2) == 12
+        assert orient_shells(f2).closed.all()
+
+    def test_points_within_rounding_are_merged(self):
+        v, f = self.cube_soup()
+        v = v + np.random.default_rng(0).normal(scale=1e-13, size=v.shape)
+        assert len(merge_vertices(v, f)[0]) == 8
+
+    def test_degenerate_and_duplicate_faces_are_dropped(self):
+        v, f = merge_vertices(*self.cube_soup())
+        a, b = 0, 1  # two corners of the cube joined by an edge
+        assert np.linalg.norm(v[a] - v[b]) == 1
+        v = np.vstack([v, (v[a] + v[b]) / 2])  # the edge's midpoint
+        faces = np.vstack([
+            f,
+            [[a, a, b]],  # repeated corner
+            [[a, b, len(v) - 1]],  # no area
+            f[:1],  # exact duplicate
+            f[1:2, ::-1],  # duplicate wound the other way
+        ])
+        kept, degenerate, duplicate = remove_bad_faces(v, faces)
+        assert (len(kept), degenerate, duplicate) == (12, 2, 2)
+        np.testing.assert_array_equal(kept, f)
+
+    def test_random_flips_are_made_consistent(self):
+        v, f = merge_vertices(*self.cube_soup())
+        rng = np.random.default_rng(1)
+        flipped = np.where(rng.random(12)[:, None] < 0.5, f[:, ::-1], f)
+        shells = orient_shells(flipped)
+        assert shells.count == 1 and shells.closed.all()
+        # consistent: every edge is used once in each direction
+        edges = {tuple(e) for t in shells.faces for e in zip(t, np.roll(t, -1))}
+        assert all((b, a) in edges for a, b in edges)
+
+    def test_open_and_separate_shells(self):
+        v, f = merge_vertices(*self.cube_soup())
+        two = np.vstack([f, f[:-2] + len(v)])
+        shells = orient_shells(two)
+        assert shells.count == 2
+        assert sorted(shells.closed.tolist()) == [False, True]
