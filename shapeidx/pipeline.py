@@ -28,11 +28,15 @@ def solid_of_file(path: str | os.PathLike, limits: LoadLimits | None = None) -> 
 
 
 def signature_of_solid(
-    solid: Solid, points: int = DEFAULT_POINTS, seed: int = DEFAULT_SEED, divisor: int = BIN_DIVISOR
+    solid: Solid, points: int = DEFAULT_POINTS, seed: int = DEFAULT_SEED, divisor: int = BIN_DIVISOR, threads: int = 1
 ) -> Signature:
-    """Sample ``points`` surface points, classify all pairs, and histogram them."""
+    """Sample ``points`` surface points, classify all pairs, and histogram them.
+
+    ``threads`` > 1 shares the ray queries among threads (for one-off signatures; a build
+    runs one signature per core instead).
+    """
     samples, face_index = sample_surface(solid.vertices, solid.faces, points, seed)
-    distances, classes = classify_pairs(solid.vertices, solid.faces, samples, face_index, solid.watertight)
+    distances, classes = classify_pairs(solid.vertices, solid.faces, samples, face_index, solid.watertight, threads=threads)
     return Signature.from_pairs(distances, classes, points, seed, divisor)
 
 

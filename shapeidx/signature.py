@@ -74,10 +74,24 @@ class Signature:
 
     @classmethod
     def from_pairs(cls, distances: np.ndarray, classes: np.ndarray, points: int, seed: int, divisor: int = BIN_DIVISOR):
-        """Build the four histograms from classified pair distances."""
+        """Build the four histograms from classified pair distances.
+
+        The three class histograms come from one pass: each pair's bin in its own class's
+        scale, offset by class, counted by a single ``bincount``.
+        """
         histograms = {"all": Histogram.of(distances, divisor)}
+        n_classes = len(CLASS_NAMES)
+        sizes = np.bincount(classes, minlength=n_classes)
+        means = np.bincount(classes, weights=distances, minlength=n_classes) / np.maximum(sizes, 1)
+        widths = means / divisor
+        bins = (distances / np.where(widths > 0, widths, 1.0)[classes]).astype(np.int64)
+        stride = int(bins.max()) + 1 if len(bins) else 1
+        key = classes.astype(np.int64) * stride + bins  # int64: uint8 classes would wrap
+        table = np.bincount(key, minlength=n_classes * stride).reshape(n_classes, stride)
         for code, name in enumerate(CLASS_NAMES):
-            histograms[name] = Histogram.of(distances[classes == code], divisor)
+            used = np.flatnonzero(table[code])
+            counts = table[code, : used[-1] + 1] if len(used) else np.zeros(0, dtype=np.int64)
+            histograms[name] = Histogram(counts, float(means[code]), float(widths[code]))
         return cls(points=points, seed=seed, histograms=histograms)
 
     @property

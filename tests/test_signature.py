@@ -33,6 +33,17 @@ class TestHistogram:
         edges = np.arange(len(h.counts) + 1) * h.bin_width
         np.testing.assert_array_equal(h.counts, np.histogram(d, bins=edges)[0])
 
+    def test_class_histograms_equal_histograms_of_each_class(self):
+        rng = np.random.default_rng(2)
+        d = rng.gamma(3.0, 1.0, size=20_000)
+        classes = rng.choice(3, size=20_000, p=[0.6, 0.0, 0.4]).astype(np.uint8)  # no OUT pairs
+        sig = Signature.from_pairs(d, classes, points=200, seed=0)
+        for code, name in enumerate(("in", "out", "mixed")):
+            alone = Histogram.of(d[classes == code])
+            np.testing.assert_array_equal(sig.histograms[name].counts, alone.counts)
+            assert sig.histograms[name].mean == pytest.approx(alone.mean)
+            assert sig.histograms[name].bin_width == pytest.approx(alone.bin_width)
+
     def test_empty_class(self):
         h = Histogram.of(np.zeros(0))
         assert h.total == 0 and len(h.p) == 0 and h.mean == 0

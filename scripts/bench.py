@@ -1,0 +1,206 @@
+#!/usr/bin/env python3
+"""Signature speed: shapeidx against the bare Embree query and a plain trimesh approach.
+
+For each part file, medians over ``--repeat`` runs after one warm-up run:
+
+* ``load``, ``solid``: reading the file, cleaning and uniting it;
+* ``sig``: sampling, classifying all 523,776 pairs and histogramming, on one thread;
+* ``sig_mt``: the same with the ray queries on every core (what ``shapeidx signature`` uses);
+* ``bare``: one embreex occlusion query per segment over the same 523,776 segments between
+  the same points (ends trimmed by 1e-6 so no ray stops on its own triangle), one thread:
+  the irreducible cost of asking Embree once per pair;
+* ``trimesh``: a straightforward implementation with trimesh (all hits along every segment
+  through ``mesh.ray.intersects_location``, then ``mesh.contains`` at the midpoint of the
+  segments that cross nothing), on the first ``--trimesh`` parts only: it is slow.
+
+Ratios are taken within one run on one machine: end-to-end (load + solid + sig) over bare.
+
+    python scripts/bench.py                       # mesh-wild STL parts and kicad6, one per class
+    python scripts/bench.py --files a.stl b.wrl   # chosen parts
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from shapeidx.classify import IN, MIXED, OUT, OcclusionScene, normalise, pair_indices
+from shapeidx.errors import LoadError
+from shapeidx.io import load
+from shapeidx.memory import keep_freed_memory
+from shapeidx.pipeline import signature_of_solid
+from shapeidx.sampling import sample_surface
+from shapeidx.solid import make_solid
+
+DATA = Path(os.environ.get("SHAPEIDX_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+
+
+def machine() -> str:
+    cpu = platform.processor() or "unknown cpu"
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import embreex
+    import trimesh
+
+    return (
+        f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, Python {platform.python_version()}, "
+        f"numpy {np.__version__}, embreex {getattr(embreex, '__version__', '?')}, trimesh {trimesh.__version__}"
+    )
+
+
+def median_time(fn, repeat: int):
+    fn()  # warm-up: caches, allocator, lazy imports
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        result = fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times), result
+
+
+def bare_query(solid, points: int):
+    """The same segments as the signature, as plain occlusion queries (one thread)."""
+    samples, _ = sample_surface(solid.vertices, solid.faces, points)
+    vertices, p, _ = normalise(solid.vertices, samples)
+    scene = OcclusionScene(vertices, solid.faces)
+    i, j = pair_indices(points)
+    delta = p[j] - p[i]
+    origins = (p[i] + 1e-6 * delta).astype(np.float32)
+    directions = delta.astype(np.float32)
+    reach = np.full(len(i), 1 - 2e-6, dtype=np.float32)
+    scene._scene.run(origins[:1], directions[:1], dists=reach[:1], query="OCCLUDED")  # build the BVH outside the timing
+    return lambda: scene._scene.run(origins, directions, dists=reach, query="OCCLUDED")
+
+
+def trimesh_classes(solid, points: int) -> np.ndarray:
+    """IN/OUT/MIXED the straightforward way, with trimesh."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(solid.vertices, solid.faces, process=False)
+    samples, _ = sample_surface(solid.vertices, solid.faces, points)
+    i, j = pair_indices(points)
+    origins, vectors = samples[i], samples[j] - samples[i]
+    lengths = np.linalg.norm(vectors, axis=1)
+    directions = vectors / lengths[:, None]
+    locations, ray, _ = mesh.ray.intersects_location(origins, directions, multiple_hits=True)
+    t = np.einsum("ij,ij->i", locations - origins[ray], directions[ray])
+    eps = 1e-9 * float(np.linalg.norm(mesh.extents))
+    inner = (t > eps) & (t < lengths[ray] - eps)
+    crossings = np.bincount(ray[inner], minlength=len(i))
+    classes = np.full(len(i), MIXED, dtype=np.uint8)
+    free = np.flatnonzero(crossings == 0)
+    inside = mesh.contains((samples[i[free]] + samples[j[free]]) / 2)
+    classes[free] = np.where(inside, IN, OUT)
+    return classes
+
+
+def default_files() -> list[Path]:
+    files = sorted(p for p in (DATA / "mesh-wild" / "voron2").rglob("*") if p.suffix.lower() == ".stl")
+    files += sorted(p for p in (DATA / "mesh-wild" / "trimesh-models").glob("*") if p.suffix.lower() == ".stl")
+    kicad = DATA / "kicad6"
+    if kicad.is_dir():
+        files += [sorted(folder.glob("*.wrl"))[0] for folder in sorted(kicad.iterdir()) if folder.is_dir()]
+    return files
+
+
+def bench_file(path: Path, points: int, repeat: int, threads: int, with_trimesh: bool) -> dict:
+    t_load, polygons = median_time(lambda: load(path), repeat)
+    t_solid, solid = median_time(lambda: make_solid(polygons, path), repeat)
+    t_sig, _ = median_time(lambda: signature_of_solid(solid, points), repeat)
+    t_sig_mt, _ = median_time(lambda: signature_of_solid(solid, points, threads=threads), repeat)
+    t_bare, _ = median_time(bare_query(solid, points), repeat)
+    row = {
+        "file": str(path.relative_to(DATA)) if path.is_relative_to(DATA) else str(path),
+        "triangles": int(len(solid.faces)),
+        "watertight": bool(solid.watertight),
+        "load": t_load,
+        "solid": t_solid,
+        "sig": t_sig,
+        "sig_mt": t_sig_mt,
+        "bare": t_bare,
+    }
+    if with_trimesh:
+        start = time.perf_counter()
+        trimesh_classes(solid, points)
+        row["trimesh"] = time.perf_counter() - start
+    return row
+
+
+def summarise(rows: list[dict]) -> dict:
+    def med(values):
+        return statistics.median(values) if values else float("nan")
+
+    e2e = [(r["load"] + r["solid"] + r["sig"]) / r["bare"] for r in rows]
+    e2e_mt = [(r["load"] + r["solid"] + r["sig_mt"]) / r["bare"] for r in rows]
+    tm = [r["trimesh"] / (r["load"] + r["solid"] + r["sig"]) for r in rows if "trimesh" in r]
+    return {
+        "parts": len(rows),
+        "median_signature_seconds": med([r["sig"] for r in rows]),
+        "median_end_to_end_seconds": med([r["load"] + r["solid"] + r["sig"] for r in rows]),
+        "median_bare_seconds": med([r["bare"] for r in rows]),
+        "median_sig_over_bare": med([r["sig"] / r["bare"] for r in rows]),
+        "median_end_to_end_over_bare": med(e2e),
+        "median_end_to_end_threaded_over_bare": med(e2e_mt),
+        "share_within_1.5x_bare": float(np.mean(np.array(e2e) <= 1.5)) if rows else float("nan"),
+        "share_within_1.5x_bare_threaded": float(np.mean(np.array(e2e_mt) <= 1.5)) if rows else float("nan"),
+        "median_trimesh_over_end_to_end": med(tm),
+    }
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--files", nargs="*", type=Path, help="part files (default: mesh-wild STL + kicad6 one per class)")
+    parser.add_argument("--points", type=int, default=1024)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--trimesh", type=int, default=5, help="run the trimesh implementation on the first N parts")
+    parser.add_argument("--limit", type=int, help="at most this many parts")
+    parser.add_argument("--json", type=Path, help="write all figures here")
+    args = parser.parse_args(argv)
+
+    keep_freed_memory()  # as the shapeidx command and build workers do
+    files = args.files or default_files()
+    if args.limit:
+        files = files[: args.limit]
+    command = "python " + " ".join([Path(sys.argv[0]).as_posix()] + (argv if argv is not None else sys.argv[1:]))
+    print(f"# {command}\n# {datetime.date.today()}  {machine()}")
+    print(f"{'part':58s} {'tris':>7s} {'load':>6s} {'solid':>6s} {'sig':>6s} {'sig_mt':>6s} {'bare':>6s} {'e2e/bare':>8s} {'trimesh':>8s}")
+    rows = []
+    for k, path in enumerate(files):
+        try:
+            row = bench_file(path, args.points, args.repeat, args.threads, k < args.trimesh)
+        except LoadError as exc:
+            print(f"skipped: {exc}")
+            continue
+        rows.append(row)
+        e2e = (row["load"] + row["solid"] + row["sig"]) / row["bare"]
+        tm = f"{row['trimesh']:8.2f}" if "trimesh" in row else ""
+        print(
+            f"{row['file'][-58:]:58s} {row['triangles']:7d} {row['load']*1e3:6.1f} {row['solid']*1e3:6.1f} "
+            f"{row['sig']*1e3:6.1f} {row['sig_mt']*1e3:6.1f} {row['bare']*1e3:6.1f} {e2e:8.2f} {tm}"
+        )
+    summary = summarise(rows)
+    print("# times in ms (trimesh in s); summary:")
+    for key, value in summary.items():
+        print(f"#   {key}: {value:.3f}" if isinstance(value, float) else f"#   {key}: {value}")
+    if args.json:
+        args.json.write_text(json.dumps({"command": command, "date": str(datetime.date.today()), "machine": machine(), "rows": rows, "summary": summary}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
