@@ -222,26 +222,33 @@ def merge_vertices(vertices: np.ndarray, faces: np.ndarray, relative_tolerance: 
 
 
 def remove_bad_faces(vertices: np.ndarray, faces: np.ndarray, relative_area: float = 1e-14):
-    """Drop degenerate triangles (a repeated corner or no area) and duplicates (same corners).
+    """Drop degenerate triangles (a repeated corner) and duplicates (the same three corners).
 
-    Of duplicated triangles the first is kept, whatever its winding.
+    Of duplicated triangles the first is kept, whatever its winding. A triangle with three
+    distinct corners but no area (a sliver whose corners lie on one line) is kept: exporters
+    write them to close T-junctions, and dropping one would open the surface. It gets no
+    sample point (sampling is by area) and Embree never reports a hit on it.
 
     Returns
     -------
     faces : (k', 3) int64
     degenerate : int
+        Triangles dropped for a repeated corner.
     duplicate : int
+    flat : int
+        Zero-area triangles kept.
     """
     if len(faces) == 0:
-        return faces, 0, 0
-    diag2 = float(np.sum((vertices.max(axis=0) - vertices.min(axis=0)) ** 2))
+        return faces, 0, 0, 0
     repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
-    flat = triangle_areas(vertices, faces) <= relative_area * diag2
-    bad = repeated | flat
-    faces = faces[~bad]
+    faces = faces[~repeated]
     _, first = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
     first.sort()
-    return faces[first], int(bad.sum()), int(len(faces) - len(first))
+    duplicate = len(faces) - len(first)
+    faces = faces[first]
+    diag2 = float(np.sum((vertices.max(axis=0) - vertices.min(axis=0)) ** 2))
+    flat = int(np.sum(triangle_areas(vertices, faces) <= relative_area * diag2))
+    return faces, int(repeated.sum()), int(duplicate), flat
 
 
 # ----------------------------------------------------------------------------------
@@ -255,7 +262,7 @@ class Shells:
     faces: np.ndarray  # (k, 3) re-wound
     shell: np.ndarray  # (k,) shell number of each face, 0..count-1
     count: int
-    closed: np.ndarray  # (count,) bool: every edge has exactly two faces, wound oppositely
+    closed: np.ndarray  # (count,) bool: no boundary (every edge traversed equally both ways)
     orientable: np.ndarray  # (count,) bool
     kept_file_winding: np.ndarray  # (count,) fraction of faces whose winding was not changed
 
@@ -316,7 +323,10 @@ def orient_shells(faces: np.ndarray) -> Shells:
 
 
 def _closed_shells(faces: np.ndarray, shell: np.ndarray, count: int) -> np.ndarray:
-    """Per shell: does every edge have exactly two of the shell's faces, wound oppositely?"""
+    """Per shell: is it closed, i.e. is every edge traversed as often in one direction as in
+    the other by the shell's faces? Then the shell has no boundary and encloses a volume
+    (its winding number is a whole number everywhere), also where two parts of it touch
+    along an edge that four faces share."""
     u, v, face, key = _edge_table(faces)
     owner = shell[face]
     order = np.lexsort((key, owner))
@@ -326,7 +336,7 @@ def _closed_shells(faces: np.ndarray, shell: np.ndarray, count: int) -> np.ndarr
     start = np.flatnonzero(new_group)
     size = np.diff(np.concatenate([start, [len(skey)]]))
     n_forward = np.add.reduceat(forward, start)
-    good_edge = (size == 2) & (n_forward == 1)
+    good_edge = 2 * n_forward == size
     closed = np.ones(count, dtype=bool)
     np.logical_and.at(closed, sowner[start], good_edge)
     return closed

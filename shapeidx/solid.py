@@ -321,6 +321,7 @@ class Solid:
                 "united": r["united"],
                 "degenerate_removed": r["degenerate_removed"],
                 "duplicates_removed": r["duplicates_removed"],
+                "flat_kept": r["flat_kept"],
             },
         }
 
@@ -351,9 +352,9 @@ def make_solid(mesh: PolygonMesh, path=None) -> Solid:
     # work near the origin: volumes, winding numbers and booleans lose precision far from it
     centre = (used.min(axis=0) + used.max(axis=0)) / 2
     vertices, faces = merge_vertices(vertices - centre, triangles)
-    faces, degenerate, duplicate = remove_bad_faces(vertices, faces)
-    report.update(degenerate_removed=degenerate, duplicates_removed=duplicate)
-    if len(faces) == 0:
+    faces, degenerate, duplicate, flat = remove_bad_faces(vertices, faces)
+    report.update(degenerate_removed=degenerate, duplicates_removed=duplicate, flat_kept=flat)
+    if len(faces) == flat:
         raise LoadError(path, "has zero surface area (every face is degenerate)")
     if duplicate:
         warnings.append(f"{duplicate} duplicate triangle(s) removed")

@@ -126,6 +126,40 @@ class TestPolygons:
         assert triangle_areas(mesh.vertices, tri).sum() == pytest.approx(total, rel=1e-9)
 
 
+def voxel_surface(cells):
+    """Outward triangles of a union of unit cubes (integer cells), built face by face."""
+    cells = set(map(tuple, cells))
+    corners, triangles = {}, []
+
+    def corner(p):
+        return corners.setdefault(p, len(corners))
+
+    for c in cells:
+        for axis in range(3):
+            for step in (-1, 1):
+                n = list(c)
+                n[axis] += step
+                if tuple(n) in cells:
+                    continue
+                # the square between c and its empty neighbour, wound to face the neighbour
+                u, w = [(axis + 1) % 3, (axis + 2) % 3]
+                base = list(c)
+                base[axis] += 1 if step > 0 else 0
+                quad = []
+                for du, dw in ((0, 0), (1, 0), (1, 1), (0, 1)):
+                    p = list(base)
+                    p[u] += du
+                    p[w] += dw
+                    quad.append(corner(tuple(p)))
+                if step < 0:
+                    quad.reverse()
+                triangles += [[quad[0], quad[1], quad[2]], [quad[0], quad[2], quad[3]]]
+    vertices = np.zeros((len(corners), 3))
+    for p, k in corners.items():
+        vertices[k] = p
+    return vertices, np.array(triangles)
+
+
 class TestCleaning:
     def cube_soup(self):
         """A unit cube as an STL-style soup: 36 corners, one per triangle corner."""
@@ -147,19 +181,27 @@ class TestCleaning:
 
     def test_degenerate_and_duplicate_faces_are_dropped(self):
         v, f = merge_vertices(*self.cube_soup())
-        a, b = 0, 1  # two corners of the cube joined by an edge
-        assert np.linalg.norm(v[a] - v[b]) == 1
-        v = np.vstack([v, (v[a] + v[b]) / 2])  # the edge's midpoint
-        faces = np.vstack([
-            f,
-            [[a, a, b]],  # repeated corner
-            [[a, b, len(v) - 1]],  # no area
-            f[:1],  # exact duplicate
-            f[1:2, ::-1],  # duplicate wound the other way
-        ])
-        kept, degenerate, duplicate = remove_bad_faces(v, faces)
-        assert (len(kept), degenerate, duplicate) == (12, 2, 2)
+        faces = np.vstack([f, [[0, 0, 1]], f[:1], f[1:2, ::-1]])  # repeated corner, duplicate, reversed duplicate
+        kept, degenerate, duplicate, flat = remove_bad_faces(v, faces)
+        assert (len(kept), degenerate, duplicate, flat) == (12, 1, 2, 0)
         np.testing.assert_array_equal(kept, f)
+
+    def test_a_sliver_closing_a_t_junction_is_kept(self):
+        # a square split as a fan from its centre (4 triangles), except that one side is
+        # split at its midpoint m: the triangle on that side becomes two, and a zero-area
+        # sliver (a, m, b) written below joins the long edge a-b of a second square glued
+        # on. Dropping the sliver would leave a-m, m-b and a-b each with one triangle.
+        v = np.array([[0, 0, 0], [2, 0, 0], [1, 0, 0], [1, 1, 0], [1, -1, 0]], float)  # a, b, m, top, bottom
+        top = [[0, 2, 3], [2, 1, 3]]  # above the split edge
+        bottom = [[1, 0, 4]]  # below the whole edge a-b
+        sliver = [[0, 1, 2]]  # a, b, m: zero area, joins a-b with a-m and m-b
+        faces = np.array(top + bottom + sliver)
+        kept, degenerate, duplicate, flat = remove_bad_faces(v, faces)
+        assert (len(kept), degenerate, flat) == (4, 0, 1)
+        u, w = kept.ravel(), kept[:, [1, 2, 0]].ravel()
+        undirected = {tuple(sorted(e)) for e in zip(u, w)}
+        counts = {e: sum(1 for x in zip(u, w) if tuple(sorted(x)) == e) for e in undirected}
+        assert counts[(0, 1)] == 2 and counts[(0, 2)] == 2 and counts[(1, 2)] == 2
 
     def test_random_flips_are_made_consistent(self):
         v, f = merge_vertices(*self.cube_soup())
@@ -170,6 +212,19 @@ class TestCleaning:
         # consistent: every edge is used once in each direction
         edges = {tuple(e) for t in shells.faces for e in zip(t, np.roll(t, -1))}
         assert all((b, a) in edges for a, b in edges)
+
+    def test_surface_pinched_along_an_edge_is_closed(self):
+        # two cubes touching only along a vertical edge, joined through a slab above: the
+        # edge has four faces, the surface still encloses a volume
+        cells = [(0, 0, 0), (1, 1, 0), (0, 0, 1), (1, 0, 1), (0, 1, 1), (1, 1, 1)]
+        v, f = voxel_surface(cells)
+        shells = orient_shells(f)
+        assert shells.count == 1 and shells.closed.all()
+        from shapeidx.io.base import PolygonMesh
+        from shapeidx.solid import make_solid
+
+        solid = make_solid(PolygonMesh.from_triangles(v, f[:, ::-1], "test"))  # wound inward on purpose
+        assert solid.watertight and solid.volume == pytest.approx(6.0)
 
     def test_open_and_separate_shells(self):
         v, f = merge_vertices(*self.cube_soup())
