@@ -217,8 +217,28 @@ def merge_vertices(vertices: np.ndarray, faces: np.ndarray, relative_tolerance: 
     lo, hi = points.min(axis=0), points.max(axis=0)
     step = max(float(np.linalg.norm(hi - lo)), 1e-300) * relative_tolerance
     keys = np.round((points - lo) / step).astype(np.int64)
-    _, first, group = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-    return points[first], group.reshape(-1)[inverse].reshape(-1, 3)
+    first, group = group_rows(keys)
+    return points[first], group[inverse].reshape(-1, 3)
+
+
+def group_rows(rows: np.ndarray):
+    """Group equal rows of a 2-D integer array (``np.unique(axis=0)``, several times faster).
+
+    Returns
+    -------
+    first : (g,) int
+        Index of the first row of each group, groups ordered by row value.
+    group : (n,) int
+        Group of each row.
+    """
+    order = np.lexsort(rows.T[::-1])
+    ordered = rows[order]
+    starts = np.concatenate([[True], np.any(ordered[1:] != ordered[:-1], axis=1)])
+    group_sorted = np.cumsum(starts) - 1
+    group = np.empty(len(rows), dtype=np.int64)
+    group[order] = group_sorted
+    first = order[np.flatnonzero(starts)]
+    return first, group
 
 
 def remove_bad_faces(vertices: np.ndarray, faces: np.ndarray, relative_area: float = 1e-14):
@@ -242,7 +262,7 @@ def remove_bad_faces(vertices: np.ndarray, faces: np.ndarray, relative_area: flo
         return faces, 0, 0, 0
     repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
     faces = faces[~repeated]
-    _, first = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
+    first, _ = group_rows(np.sort(faces, axis=1))
     first.sort()
     duplicate = len(faces) - len(first)
     faces = faces[first]

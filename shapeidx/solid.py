@@ -338,7 +338,9 @@ def make_solid(mesh: PolygonMesh, path=None) -> Solid:
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     triangles = triangulate_polygons(vertices, mesh.face_sizes, mesh.face_indices)
     read_area = float(triangle_areas(vertices, triangles).sum())
-    used = vertices[np.unique(triangles)]
+    referenced = np.zeros(len(vertices), dtype=bool)
+    referenced[triangles] = True
+    used = vertices[referenced]
     report = {
         "format": mesh.format,
         "polygons": int(len(mesh.face_sizes)),
