@@ -1,0 +1,87 @@
+#!/usr/bin/env python
+"""Speed of the VRML reader on real files: MB/s and triangles/s.
+
+Measures :func:`shapeidx.io.vrml.load_vrml` (read, parse, count, expand: everything up to
+the PolygonMesh; triangulation is not the reader's and is not timed) on
+
+- the largest files of ``vrml-wild`` (the KUKA robot exports, 1-14 MB, few large face sets);
+- KiCad 6 parts that hold one Shape per CAD face: the one closest to 1,000 Shapes and the
+  one with the most.
+
+Each file is read ``--repeat`` times; the best time counts (the machine's noise only ever
+adds). MB/s is file bytes (as stored) per second; triangles/s counts the triangles the
+polygons read will give (a polygon of n corners gives n - 2).
+
+Usage::
+
+    python scripts/bench_vrml.py [--data ../shared/data] [--repeat 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from shapeidx.io import LoadLimits
+from shapeidx.io.vrml import load_vrml
+
+DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def largest_files(folder: Path, count: int) -> list[Path]:
+    files = [p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in (".wrl", ".wrz", ".gz")]
+    return sorted(files, key=lambda p: p.stat().st_size, reverse=True)[:count]
+
+
+def kicad_parts(folder: Path) -> list[tuple[Path, int]]:
+    """The KiCad part with the Shape count closest to 1,000 and the one with the most."""
+    counts = [(p, p.read_bytes().count(b"Shape")) for p in folder.rglob("*.wrl")]
+    near_thousand = min(counts, key=lambda item: abs(item[1] - 1000))
+    most = max(counts, key=lambda item: item[1])
+    return [near_thousand, most] if most[0] != near_thousand[0] else [most]
+
+
+def best_time(path: Path, repeat: int) -> tuple[float, int]:
+    """Best wall time of ``repeat`` loads, and the triangles the polygons give."""
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        mesh = load_vrml(path, LoadLimits(root=path.parent))
+        times.append(time.perf_counter() - start)
+    return min(times), int(np.sum(mesh.face_sizes - 2))
+
+
+def report(label: str, path: Path, repeat: int) -> None:
+    seconds, triangles = best_time(path, repeat)
+    megabytes = path.stat().st_size / 1e6
+    print(
+        f"{label:<16} {path.name[:44]:<44} {megabytes:7.2f} MB {seconds:8.3f} s "
+        f"{megabytes / seconds:8.1f} MB/s {triangles / seconds / 1e6:7.2f} M triangles/s"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=DEFAULT_DATA, help="the shared data folder")
+    parser.add_argument("--repeat", type=int, default=5, help="loads per file; the best counts")
+    args = parser.parse_args()
+
+    print("command:", shlex.join([sys.executable, *sys.argv]))
+    print(f"machine: {platform.platform()}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs")
+    print(f"python {platform.python_version()}, numpy {np.__version__}")
+    print()
+    for path in largest_files(args.data / "vrml-wild" / "freecad-kuka", 4):
+        report("large (KUKA)", path, args.repeat)
+    for path, shapes in kicad_parts(args.data / "kicad6"):
+        report(f"{shapes:,} Shapes", path, args.repeat)
+
+
+if __name__ == "__main__":
+    main()
