@@ -10,8 +10,14 @@ import click
 
 from . import __version__
 from .errors import ShapeidxError
+from .build import MERGE_AFTER, BuildOptions, DEFAULT_COMMIT_INTERVAL, run_build
+from .distance import METRICS
 from .pipeline import DEFAULT_POINTS, signature_of_solid, solid_of_file
+from .progress import BuildReporter, duration
+from .query import query_store
 from .sampling import DEFAULT_SEED
+from .store import DEFAULT_STORE, STORE_ENV, describe_store, open_store, resolve_store_path
+from .workers import DEFAULT_TIMEOUT
 
 
 class _Group(click.Group):
@@ -117,6 +123,112 @@ def compare(a, b, points, seed, as_json):
         return
     for name, label in (("all", "ALL (plain D2)"), ("avg3", "AvgOf3"), ("avg4", "AvgOf4"), ("weighted", "Weighted")):
         click.echo(f"{label:15s} {distances[name]:.6g}")
+
+
+# --------------------------------------------------------------------------- the store
+
+store_option = click.option(
+    "--store",
+    default=DEFAULT_STORE,
+    show_default=True,
+    envvar=STORE_ENV,
+    show_envvar=True,
+    type=click.Path(dir_okay=False, path_type=str),
+    help="The signature store (HDF5 file).",
+)
+#: Exit status of ``build --strict`` when the store holds failed files.
+EXIT_FAILED_FILES = 3
+
+
+def _size(n: int) -> str:
+    for unit in ("B", "kB", "MB", "GB"):
+        if n < 1000 or unit == "GB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000
+
+
+@main.command()
+@click.argument("directory", type=click.Path(file_okay=False, path_type=str))
+@store_option
+@click.option("--points", type=click.IntRange(2, 8192), help="Surface samples [default: the store's, else 1024].")
+@click.option("--seed", type=int, help="Sampling seed [default: the store's, else the fixed default].")
+@click.option("--workers", "-j", type=click.IntRange(1), help="Worker processes [default: one per core].")
+@click.option("--full", is_flag=True, help="Recompute every file, changed or not.")
+@click.option("--rehash", is_flag=True, help="Hash every file, even when its size and time are unchanged.")
+@click.option("--retry-failed", is_flag=True, help="Try failed files again even if unchanged.")
+@click.option("--timeout", type=click.FloatRange(0), default=DEFAULT_TIMEOUT, show_default=True,
+              help="Seconds one file may take before it is recorded as failed (0: no limit).")
+@click.option("--commit-interval", type=click.FloatRange(0.05), default=DEFAULT_COMMIT_INTERVAL, show_default=True,
+              help="Seconds between commits: the most work a crash can lose.")
+@click.option("--wait", is_flag=True, help="If another build holds the store, wait for it instead of exiting.")
+@click.option("--strict", is_flag=True, help=f"Exit with status {EXIT_FAILED_FILES} if the store holds failed files.")
+@click.option("--quiet", "-q", is_flag=True, help="Print nothing but warnings and errors.")
+@click.option("--verbose", "-v", is_flag=True, help="A line per indexed file and per commit.")
+@click.option("--merge-after", type=click.IntRange(1), default=MERGE_AFTER, hidden=True)
+@click.pass_context
+def build(ctx, directory, store, points, seed, workers, full, rehash, retry_failed, timeout, commit_interval,
+          wait, strict, quiet, verbose, merge_after):
+    """Index every part file under DIRECTORY into the store (incremental)."""
+    options = BuildOptions(points=points, seed=seed, workers=workers or 0, full=full, rehash=rehash,
+                           retry_failed=retry_failed, timeout=timeout, wait=wait,
+                           commit_interval=commit_interval, merge_after=merge_after)
+    reporter = BuildReporter(quiet=quiet, verbose=verbose)
+    try:
+        summary = run_build(directory, resolve_store_path(store), options, reporter)
+    finally:
+        reporter.close()
+    if not quiet:
+        click.echo(
+            f"shapeidx build: {summary.line()} in {duration(summary.seconds)};"
+            f" store: {summary.store_ok} ok, {summary.store_failed} failed, {_size(summary.store_bytes)}"
+        )
+    if strict and summary.store_failed:
+        ctx.exit(EXIT_FAILED_FILES)
+
+
+@main.command()
+@click.argument("file", required=False, type=click.Path(dir_okay=False, path_type=str))
+@store_option
+@click.option("--top", "-k", default=10, show_default=True, type=click.IntRange(1), help="How many hits.")
+@click.option("--metric", type=click.Choice(METRICS), default="weighted", show_default=True, help="The distance.")
+@click.option("--id", "entry", metavar="PATH", help="Query with an entry of the store (its path in the store).")
+@json_option
+def query(file, store, top, metric, entry, as_json):
+    """The store's parts nearest to FILE (or to --id PATH), nearest first."""
+    if (file is None) == (entry is None):
+        raise click.UsageError("give either FILE or --id PATH")
+    hits = query_store(resolve_store_path(store), file=file, entry=entry, top=top, metric=metric)
+    if as_json:
+        _emit_json(hits)
+        return
+    for hit in hits:
+        click.echo(f"{hit['rank']:>4}  {hit['distance']:<11.6g} {hit['path']}")
+
+
+@main.command()
+@store_option
+@json_option
+def stats(store, as_json):
+    """Entries by status, parameters and size of the store."""
+    with open_store(resolve_store_path(store)) as reader:
+        facts = describe_store(reader)
+    if as_json:
+        _emit_json(facts)
+        return
+    p = facts["parameters"]
+    click.echo(f"{facts['store']}: {_size(facts['bytes'])}, updated {facts['updated']}")
+    click.echo(f"  root        {facts['root']}")
+    click.echo(f"  entries     {facts['entries']:,}: {facts['ok']:,} ok, {facts['failed']:,} failed")
+    click.echo(f"  parameters  {p['points']} points, bin divisor {p['bin_divisor']}, seed {p['seed']} ({p['seed_policy']})")
+    click.echo(f"  versions    signature {p['signature_version']}, layout {facts['schema_version']},"
+               f" shapeidx {facts['shapeidx_version']}")
+    if facts["journal_batches"]:
+        click.echo(f"  journal     {facts['journal_batches']} committed batch(es) not merged yet (a build runs or was stopped)")
+    for item in facts["failure_reasons"][:5]:
+        click.echo(f"  failed      {item['count']:>5}  {item['reason']}")
+
+
+main.add_command(click.Command("info", callback=stats.callback, params=stats.params, help="Same as stats."))
 
 
 if __name__ == "__main__":  # pragma: no cover

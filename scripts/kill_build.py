@@ -1,0 +1,238 @@
+#!/usr/bin/env python3
+"""kill -9 a real ``shapeidx build`` at random moments, and check the store after each kill.
+
+Usage::
+
+    python scripts/kill_build.py TREE --store S.h5 [--kills 6] [--seed 1] [--points 128]
+
+Each round starts ``shapeidx build TREE`` (committing every 0.2 s, merging every 3
+batches, so kills land in every phase: computing, writing a batch, writing a merged main
+file, renaming) and kills it with SIGKILL: a random fraction of a second after a random
+number of indexed files, or during start-up, or as soon as a merge starts writing its
+temporary file. Then it checks:
+
+* the store opens (``shapeidx stats`` exits 0) and its entries are unique, sorted, and
+  files of the tree;
+* it holds at least every entry whose commit the build reported before the kill;
+* a query answers, with the queried entry at rank 1;
+* the killed build's worker processes are gone;
+* the next build plans exactly the files that are not in the store yet.
+
+A last build runs to the end: every file of the tree is then in the store exactly once,
+and one more build finds nothing to do. Exits 1 on the first broken promise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import random
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+PLAN = re.compile(r"(\d+) files: (\d+) to index, (\d+) unchanged")
+COMMITTED = re.compile(r"committed batch \d+ \((\d+) records\)")
+
+
+def shapeidx(*args) -> list[str]:
+    """The command line running shapeidx with this interpreter."""
+    return [sys.executable, "-m", "shapeidx.cli", *map(str, args)]
+
+
+def children_of(pid: int) -> list[int]:
+    """Processes whose parent is ``pid``."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                found.append(int(entry.name))
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return False
+    return fields[0] != "Z"
+
+
+def gone_within(pids: list, seconds: float) -> bool:
+    """Whether these processes end within ``seconds`` (a worker still starting up notices
+    its parent's death only once it runs; one already working is killed at once)."""
+    deadline = time.monotonic() + seconds
+    while any(alive(pid) for pid in pids):
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
+def merge_in_progress(store: Path, pid: int) -> bool:
+    """Process ``pid`` writing a new main file over an existing one (not the first, empty one).
+
+    The temporary file's name carries the writer's pid: one left by an earlier killed build
+    does not count.
+    """
+    return store.exists() and store.with_name(f"{store.name}.tmp-{pid}").exists()
+
+
+class Moment:
+    """When to kill a build: ``after`` indexed files plus ``delay`` s, at ``start`` s, or as a merge starts."""
+
+    def __init__(self, kind: str, count: int = 0, delay: float = 0.0):
+        self.kind, self.count, self.delay = kind, count, delay
+
+    def __str__(self) -> str:
+        if self.kind == "merge":
+            return "as a merge started writing"
+        if self.kind == "start":
+            return f"{self.delay:.2f} s after starting"
+        return f"{self.delay:.2f} s after indexed file {self.count}"
+
+
+def run_and_kill(command: list, store: Path, moment: Moment, log: Path) -> dict:
+    """Start ``command`` and SIGKILL it at ``moment`` (if it has not ended by then).
+
+    Returns what happened: exit status, whether it was killed, its workers, its stderr.
+    """
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    lines: list = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True)
+    reader.start()
+    started = time.monotonic()
+    due_at = started + moment.delay if moment.kind == "start" else None
+    workers: list = []
+    while proc.poll() is None:
+        workers = children_of(proc.pid) or workers
+        now = time.monotonic()
+        if due_at is None and moment.kind == "after":
+            if sum(line.startswith("indexed ") for line in list(lines)) >= moment.count:
+                due_at = now + moment.delay
+        if (due_at is not None and now >= due_at) or (moment.kind == "merge" and merge_in_progress(store, proc.pid)):
+            proc.send_signal(signal.SIGKILL)
+            break
+        time.sleep(0.001)
+    status = proc.wait()
+    reader.join(timeout=10)
+    log.write_text("".join(lines))
+    return {"status": status, "killed": status == -signal.SIGKILL, "workers": workers, "log": "".join(lines),
+            "mid_merge": merge_in_progress(store, proc.pid)}
+
+
+def store_paths(store: Path) -> list[str]:
+    """Entry paths of the store, read by a separate process like any user would."""
+    out = subprocess.run(
+        [sys.executable, "-c", "import sys, json; from shapeidx.store import open_store;"
+         " r = open_store(sys.argv[1]); print(json.dumps(list(r.paths)))", str(store)],
+        capture_output=True, text=True,
+    )
+    check(out.returncode == 0, f"the store does not open: {out.stderr.strip()}")
+    return json.loads(out.stdout)
+
+
+def check(condition: bool, message: str) -> None:
+    if not condition:
+        raise AssertionError(message)
+
+
+def check_store(store: Path, tree_files: set, at_least: int) -> list[str]:
+    """The promises that must hold after any kill; returns the entry paths."""
+    if not store.exists() and at_least == 0:
+        return []  # killed before it created the store: nothing was committed, nothing is lost
+    stats = subprocess.run(shapeidx("stats", "--store", store, "--json"), capture_output=True, text=True)
+    check(stats.returncode == 0, f"stats failed: {stats.stderr.strip()}")
+    paths = store_paths(store)
+    check(len(paths) == len(set(paths)), "an entry is in the store twice")
+    check(paths == sorted(paths), "entries are not sorted by path")
+    check(set(paths) <= tree_files, f"entries not in the tree: {sorted(set(paths) - tree_files)[:3]}")
+    check(len(paths) >= at_least, f"{len(paths)} entries, but {at_least} were reported committed")
+    check(json.loads(stats.stdout)["entries"] == len(paths), "stats and the reader disagree")
+    if paths:
+        query = subprocess.run(
+            shapeidx("query", "--store", store, "--id", paths[len(paths) // 2], "--top", "3", "--json"),
+            capture_output=True, text=True,
+        )
+        check(query.returncode == 0, f"query failed: {query.stderr.strip()}")
+        check(json.loads(query.stdout)[0]["path"] == paths[len(paths) // 2], "the queried entry is not at rank 1")
+    return paths
+
+
+def moments(rng: random.Random, round_: int, left: int) -> Moment:
+    """Round 0 and every third: as a merge starts; round 1: during start-up; else mid-work."""
+    if round_ % 3 == 0:
+        return Moment("merge")
+    if round_ == 1:
+        return Moment("start", delay=rng.uniform(0.1, 1.5))
+    return Moment("after", count=rng.randint(1, max(1, left // 2)), delay=rng.uniform(0.0, 0.4))
+
+
+def kill_campaign(tree: Path, store: Path, kills: int, seed: int, build_args=(), log_dir: Path | None = None,
+                  say=print) -> dict:
+    """Kill builds of ``tree`` ``kills`` times at :func:`moments`, check after each, then finish.
+
+    Returns counts: rounds, kills that left a merge's temporary file behind, final entries.
+    """
+    rng = random.Random(seed)
+    tree_files = set(tree_file_paths(tree))
+    log_dir = log_dir or store.parent
+    command = shapeidx("build", tree, "--store", store, "--verbose", "--commit-interval", "0.2",
+                       "--merge-after", "3", *build_args)
+    entries, mid_merge = 0, 0
+    for round_ in range(kills):
+        moment = moments(rng, round_, len(tree_files) - entries)
+        result = run_and_kill(command, store, moment, log_dir / f"build-{round_}.log")
+        plan = PLAN.search(result["log"])
+        if plan:
+            check(int(plan.group(2)) == len(tree_files) - entries,
+                  f"round {round_}: planned {plan.group(2)} files, {len(tree_files) - entries} were left")
+        committed = sum(int(n) for n in COMMITTED.findall(result["log"]))
+        mid_merge += result["killed"] and result["mid_merge"]
+        check(gone_within(result["workers"], 5.0), f"round {round_}: workers outlived the build")
+        entries = len(check_store(store, tree_files, entries + committed))
+        say(f"round {round_}: {'killed' if result['killed'] else 'ended'} {moment}; {entries} entries")
+    final = subprocess.run(command, capture_output=True, text=True)
+    check(final.returncode == 0, f"the final build failed: {final.stderr[-500:]}")
+    paths = check_store(store, tree_files, len(tree_files))
+    check(set(paths) == tree_files, "the final store misses files")
+    again = subprocess.run(shapeidx("build", tree, "--store", store, *build_args), capture_output=True, text=True)
+    check(again.returncode == 0 and " 0 indexed" in again.stdout, f"a build after the last did work: {again.stdout}")
+    return {"rounds": kills, "mid_merge": mid_merge, "entries": len(paths), "final": final.stdout.strip()}
+
+
+def tree_file_paths(tree: Path) -> list[str]:
+    """What shapeidx build should index under ``tree``."""
+    from shapeidx.build import walk_parts
+
+    return [f.path for f in walk_parts(tree.resolve()).files]
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("tree", type=Path)
+    parser.add_argument("--store", type=Path, required=True)
+    parser.add_argument("--kills", type=int, default=6)
+    parser.add_argument("--seed", type=int, default=int(time.time()))
+    parser.add_argument("--points", type=int, default=128)
+    args = parser.parse_args()
+    print(f"seed {args.seed}")
+    try:
+        report = kill_campaign(args.tree, args.store.resolve(), args.kills, args.seed, ("--points", args.points))
+    except AssertionError as exc:
+        print(f"FAILED: {exc}", file=sys.stderr)
+        return 1
+    print(json.dumps(report, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

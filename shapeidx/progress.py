@@ -1,0 +1,112 @@
+"""What a build tells its user while it runs, on stderr.
+
+* On a terminal: a progress bar with the rate and the time left.
+* Elsewhere (cron, a log file): plain lines, a progress line every :data:`LOG_EVERY` seconds.
+* Either way: each failed file on one line (``failed PATH: reason``), unless ``quiet``;
+  ``verbose`` adds a line per indexed file and per commit.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import click
+
+#: Seconds between progress lines when stderr is not a terminal.
+LOG_EVERY = 30.0
+
+
+def duration(seconds: float) -> str:
+    """``42s``, ``3m05s``, ``2h07m``."""
+    seconds = int(round(seconds))
+    if seconds < 60:
+        return f"{seconds}s"
+    if seconds < 3600:
+        return f"{seconds // 60}m{seconds % 60:02d}s"
+    return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"
+
+
+class BuildReporter:
+    """Prints a build's progress; see the module docstring.
+
+    Parameters
+    ----------
+    quiet, verbose : bool
+    terminal : bool or None
+        Draw a progress bar; None: when stderr is a terminal.
+    """
+
+    def __init__(self, quiet: bool = False, verbose: bool = False, terminal: bool | None = None):
+        self.quiet = quiet
+        self.verbose = verbose and not quiet
+        self.terminal = sys.stderr.isatty() if terminal is None else terminal
+        self.bar = None
+        self.total = self.done = self.failed = 0
+        self.started = self.last_line = time.monotonic()
+
+    def _say(self, text: str) -> None:
+        if self.bar is not None:
+            text = "\r\033[K" + text  # over the bar, which redraws on its next step
+        click.echo(text, err=True)
+
+    def waiting(self, holder: str) -> None:
+        if not self.quiet:
+            self._say(f"shapeidx build: waiting for the store's lock ({holder})")
+
+    def warning(self, text: str) -> None:
+        self._say(f"shapeidx build: warning: {text}")
+
+    def planned(self, plan) -> None:
+        self.total = len(plan.tasks)
+        self.started = self.last_line = time.monotonic()
+        if self.quiet:
+            return
+        self._say(
+            f"shapeidx build: {plan.found} files: {len(plan.tasks)} to index, {plan.unchanged} unchanged,"
+            f" {len(plan.removed)} to remove"
+        )
+        if self.terminal and self.total:
+            self.bar = click.progressbar(
+                length=self.total, file=sys.stderr, show_eta=True, show_pos=True, item_show_func=self._rate_text
+            )
+            self.bar.__enter__()
+
+    def _rate_text(self, _item=None) -> str:
+        elapsed = max(time.monotonic() - self.started, 1e-9)
+        failed = f", {self.failed} failed" if self.failed else ""
+        return f"{self.done / elapsed:.1f} files/s{failed}"
+
+    def outcome(self, outcome) -> None:
+        self.done += 1
+        if outcome.kind == "failed":
+            self.failed += 1
+            if not self.quiet:
+                self._say(f"failed {outcome.task.path}: {outcome.entry.reason}")
+        elif self.verbose and outcome.kind == "indexed":
+            self._say(f"indexed {outcome.task.path} ({outcome.seconds:.1f}s)")
+        if self.bar is not None:
+            self.bar.update(1)
+        elif not self.quiet and time.monotonic() - self.last_line >= LOG_EVERY:
+            self._progress_line()
+
+    def _progress_line(self) -> None:
+        self.last_line = time.monotonic()
+        elapsed = self.last_line - self.started
+        rate = self.done / max(elapsed, 1e-9)
+        left = duration((self.total - self.done) / rate) if rate > 0 else "?"
+        percent = 100.0 * self.done / max(self.total, 1)
+        self._say(f"shapeidx build: {self.done}/{self.total} files ({percent:.0f}%), {self._rate_text()}, {left} left")
+
+    def committed(self, seq: int, records: int) -> None:
+        if self.verbose:
+            self._say(f"committed batch {seq} ({records} records)")
+
+    def merged(self) -> None:
+        if self.verbose:
+            self._say("merged the journal into the store")
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(None, None, None)
+            self.bar = None

@@ -1,0 +1,302 @@
+"""Indexing files in worker processes that may crash, hang or run out of memory.
+
+Each worker is a separate process (``spawn``: nothing of the parent's state, open files or
+lock is inherited) that receives one task at a time over a pipe. The parent watches every
+busy worker's pipe, its process and its deadline together:
+
+* a result arrives: hand it on, give the worker its next task;
+* the process dies (a segfault in a native library, the kernel's OOM killer): the file
+  it held is recorded as failed with the signal's name, and a fresh worker takes its place;
+* the deadline passes: the worker is killed, the file is recorded as timed out, and a
+  fresh worker takes its place.
+
+So no file, however hostile, stops a build, and one bad file costs only itself.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import multiprocessing
+import os
+import signal
+import time
+from dataclasses import dataclass
+from multiprocessing.connection import wait
+from pathlib import Path
+
+from .errors import LoadError, ShapeidxError
+from .store import Entry, StoreParams
+
+#: Default per-file time limit, seconds: ample for a part of millions of triangles at 1024
+#: points, short enough that a pathological file cannot stall a nightly run for long.
+DEFAULT_TIMEOUT = 600.0
+_HASH_CHUNK = 1 << 20
+_REASON_LIMIT = 300
+
+
+@dataclass(frozen=True)
+class Task:
+    """One file to look at.
+
+    ``known_hash`` is the stored content hash when the file's size and time changed but its
+    content may not have: a worker that finds the same hash does no signature work.
+    """
+
+    path: str  # relative to the root, '/'-separated
+    absolute: str
+    known_hash: str | None = None
+    in_store: bool = False
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What a worker found: ``kind`` is "indexed", "failed", "same" (content unchanged) or "missing"."""
+
+    task: Task
+    kind: str
+    entry: Entry | None = None
+    size: int = 0
+    mtime_ns: int = 0
+    seconds: float = 0.0
+
+
+def file_hash(path: str) -> str:
+    """SHA-256 of a file's bytes, as 64 hex digits."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(_HASH_CHUNK):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def one_line(text: str) -> str:
+    """A reason on one line, of bounded length."""
+    text = " ".join(str(text).split())
+    return text if len(text) <= _REASON_LIMIT else text[: _REASON_LIMIT - 3] + "..."
+
+
+def reason_of(error: LoadError, absolute: str) -> str:
+    """The reason of a LoadError without the file's own (absolute) path, which the entry has."""
+    if error.path is not None and os.path.abspath(error.path) != os.path.abspath(absolute):
+        return one_line(str(error))  # about another file (e.g. an inlined one): keep its name
+    where = f"line {error.line}: " if error.line is not None else ""
+    return one_line(where + error.reason)
+
+
+def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
+    """Hash and, unless the content is known, sign one file. Never raises for a bad file."""
+    from .io import LoadLimits
+    from .pipeline import signature_of_solid, solid_of_file
+
+    started = time.monotonic()
+    try:
+        stat = os.stat(task.absolute)
+        digest = file_hash(task.absolute)
+    except FileNotFoundError:
+        return Outcome(task, "missing")
+    except OSError as exc:
+        entry = Entry.failed(task.path, "", 0, 0, one_line(f"cannot read: {exc.strerror or exc}"))
+        return Outcome(task, "failed", entry)
+    size, mtime = stat.st_size, stat.st_mtime_ns
+    if task.known_hash is not None and digest == task.known_hash:
+        return Outcome(task, "same", size=size, mtime_ns=mtime)
+    try:
+        solid = solid_of_file(task.absolute, LoadLimits(root=Path(root)))
+        signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor)
+        entry = Entry.indexed(task.path, digest, size, mtime, signature, solid.describe())
+        kind = "indexed"
+    except LoadError as exc:
+        entry, kind = Entry.failed(task.path, digest, size, mtime, reason_of(exc, task.absolute)), "failed"
+    except MemoryError:
+        entry, kind = Entry.failed(task.path, digest, size, mtime, "out of memory"), "failed"
+    except Exception as exc:  # a bug in a later stage must cost one file, not the build
+        reason = one_line(f"internal error: {type(exc).__name__}: {exc}")
+        entry, kind = Entry.failed(task.path, digest, size, mtime, reason), "failed"
+    return Outcome(task, kind, entry, size, mtime, time.monotonic() - started)
+
+
+def _die_with_parent() -> None:
+    """Ask Linux to kill this worker when its parent dies (even by kill -9)."""
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass  # not Linux: the worker still ends when its pipe closes
+
+
+#: Signals a worker ignores: Ctrl-C or a SIGTERM sent to the whole process group is the
+#: parent's to handle (it commits, then stops its workers), never a failure of a file.
+_PARENT_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+
+
+def _worker_main(conn, params: StoreParams, root: str, parent: int) -> None:
+    _die_with_parent()
+    if os.getppid() != parent:  # the parent died before the request above took effect
+        return
+    for signum in _PARENT_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _PARENT_SIGNALS)  # blocked since the spawn
+    while True:
+        try:
+            task = conn.recv()
+        except (EOFError, OSError):
+            return
+        if task is None:
+            return
+        conn.send(index_file(task, params, root))
+
+
+def death_reason(exitcode: int | None) -> str:
+    """Why a worker process ended while indexing a file, in words."""
+    if exitcode is not None and exitcode < 0:
+        try:
+            name = signal.Signals(-exitcode).name
+        except ValueError:
+            name = f"signal {-exitcode}"
+        hint = " (out of memory?)" if -exitcode == signal.SIGKILL else ""
+        return f"worker process died ({name}{hint}) while indexing this file"
+    return f"worker process ended (status {exitcode}) while indexing this file"
+
+
+class _Worker:
+    def __init__(self, context, params: StoreParams, root: str):
+        self.conn, child = context.Pipe()
+        self.process = context.Process(target=_worker_main, args=(child, params, root, os.getpid()), daemon=True)
+        # the new process inherits blocked signals: none can reach it before it ignores them
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, _PARENT_SIGNALS)
+        try:
+            self.process.start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        child.close()
+        self.task: Task | None = None
+        self.deadline = float("inf")
+
+    def give(self, task: Task, timeout: float | None) -> None:
+        self.task = task
+        self.deadline = time.monotonic() + timeout if timeout else float("inf")
+        self.conn.send(task)
+
+    def kill(self) -> None:
+        if self.process.is_alive():
+            self.process.kill()
+        self.process.join()
+        self.conn.close()
+
+
+class WorkerPool:
+    """``workers`` processes indexing tasks; see the module docstring for failure handling.
+
+    Parameters
+    ----------
+    workers : int
+    params : StoreParams
+    root : str
+        The indexed directory (VRML Inline may not leave it).
+    timeout : float or None
+        Seconds one file may take; None or 0 for no limit.
+    """
+
+    def __init__(self, workers: int, params: StoreParams, root: str, timeout: float | None = DEFAULT_TIMEOUT):
+        self.context = multiprocessing.get_context("spawn")
+        self.size = max(1, workers)
+        self.params = params
+        self.root = root
+        self.timeout = timeout or None
+        self.workers: list[_Worker] = []
+
+    def run(self, tasks, wake_every: float = 1.0):
+        """Yield an :class:`Outcome` per task (in completion order), or None at least every ``wake_every`` s.
+
+        The None ticks let the caller commit on time while every worker is busy on slow files.
+        """
+        pending = iter(tasks)
+        idle = [self._spawn() for _ in range(self.size)]
+        busy: list[_Worker] = []
+        exhausted = False
+        try:
+            while True:
+                while idle and not exhausted:
+                    task = next(pending, None)
+                    if task is None:
+                        exhausted = True
+                        break
+                    worker = idle.pop()
+                    if not worker.process.is_alive():  # died while idle (killed from outside)
+                        worker = self._replace(worker)
+                    worker.give(task, self.timeout)
+                    busy.append(worker)
+                if not busy:
+                    return
+                yield from self._collect(busy, idle, wake_every)
+        finally:
+            self.close()
+
+    def _spawn(self) -> _Worker:
+        worker = _Worker(self.context, self.params, self.root)
+        self.workers.append(worker)
+        return worker
+
+    def _replace(self, worker: _Worker) -> _Worker:
+        worker.kill()
+        self.workers.remove(worker)
+        return self._spawn()
+
+    def _collect(self, busy: list, idle: list, wake_every: float):
+        now = time.monotonic()
+        until = min([w.deadline for w in busy] + [now + wake_every])
+        ready = wait([w.conn for w in busy] + [w.process.sentinel for w in busy], max(0.0, until - now))
+        yielded = False
+        for worker in list(busy):
+            outcome, lost = self._outcome_of(worker, ready)
+            if outcome is None:
+                continue
+            busy.remove(worker)
+            worker.task, worker.deadline = None, float("inf")
+            idle.append(self._replace(worker) if lost else worker)
+            yielded = True
+            yield outcome
+        if not yielded:
+            yield None
+
+    def _outcome_of(self, worker: _Worker, ready) -> tuple[Outcome | None, bool]:
+        """The worker's outcome if it has one, and whether the worker is lost (dead or killed)."""
+        task = worker.task
+        if worker.conn in ready:
+            try:
+                return worker.conn.recv(), False
+            except (EOFError, OSError):
+                pass  # died while sending: judged below by its exit code
+        if worker.conn in ready or worker.process.sentinel in ready:
+            worker.process.join(timeout=5)
+            if worker.process.exitcode and worker.process.exitcode > 0:
+                # Python itself failed in the worker (a broken installation, not a bad file):
+                # recording every file as failed would hide it, and they would not be retried
+                raise ShapeidxError(f"a worker process failed to run (exit status {worker.process.exitcode})")
+            return _failure(task, death_reason(worker.process.exitcode)), True
+        if time.monotonic() >= worker.deadline:
+            return _failure(task, f"timed out after {self.timeout:g} s (the per-file limit, --timeout)"), True
+        return None, False
+
+    def close(self) -> None:
+        """Stop every worker: idle ones are asked to exit, busy ones killed."""
+        for worker in self.workers:
+            try:
+                if worker.task is None and worker.process.is_alive():
+                    worker.conn.send(None)
+            except OSError:
+                pass
+            worker.process.join(timeout=0.5)
+            worker.kill()
+        self.workers = []
+
+
+def _failure(task: Task, reason: str) -> Outcome:
+    """A file whose worker died or timed out: failed, with what is known of it."""
+    try:
+        stat = os.stat(task.absolute)
+        size, mtime = stat.st_size, stat.st_mtime_ns
+    except OSError:
+        size = mtime = 0
+    return Outcome(task, "failed", Entry.failed(task.path, "", size, mtime, reason), size, mtime)
