@@ -80,7 +80,7 @@ class OcclusionScene:
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
         from embreex import mesh_construction, rtcore_scene
 
-        self._scene = rtcore_scene.EmbreeScene()
+        self._scene = rtcore_scene.EmbreeScene(_embree_device())
         self._mesh = mesh_construction.TriangleMesh(
             self._scene,
             np.ascontiguousarray(vertices, dtype=np.float32),
@@ -102,13 +102,22 @@ class OcclusionScene:
         With ``threads > 1`` the segments are split into that many chunks, gathered and
         queried concurrently (embreex releases the GIL; Embree queries are thread-safe).
         """
+        def query(rows):  # np.take gathers rows about twice as fast as fancy indexing
+            return self.blocked(np.take(points, start_rows[rows], axis=0), np.take(points, end_rows[rows], axis=0))
+
         if threads <= 1 or len(start_rows) < 10_000:
-            return self.blocked(points[start_rows], points[end_rows])
+            return query(slice(None))
         self.blocked(points[:1], points[1:2])  # commit the scene once, before the threads race to
-        chunks = np.array_split(np.arange(len(start_rows)), threads)
-        pool = _thread_pool(threads)
-        parts = pool.map(lambda rows: self.blocked(points[start_rows[rows]], points[end_rows[rows]]), chunks)
-        return np.concatenate(list(parts))
+        chunks = [slice(c[0], c[-1] + 1) for c in np.array_split(np.arange(len(start_rows)), threads) if len(c)]
+        return np.concatenate(list(_thread_pool(threads).map(query, chunks)))
+
+
+@lru_cache(maxsize=1)
+def _embree_device():
+    """One Embree device per process: starting a device costs milliseconds, a scene does not."""
+    from embreex import rtcore
+
+    return rtcore.EmbreeDevice()
 
 
 @lru_cache(maxsize=2)

@@ -10,6 +10,7 @@ import click
 
 from . import __version__
 from .errors import ShapeidxError
+from .memory import keep_freed_memory
 from .build import MERGE_AFTER, BuildOptions, DEFAULT_COMMIT_INTERVAL, run_build
 from .distance import METRICS
 from .pipeline import DEFAULT_POINTS, signature_of_solid, solid_of_file
@@ -45,6 +46,11 @@ class _Group(click.Group):
 @click.version_option(__version__, prog_name="shapeidx")
 def main():
     """Search CAD parts by shape: IN/OUT/MIXED D2 shape distributions (Ip et al. 2002)."""
+    keep_freed_memory()
+
+
+#: One-off signatures (signature, compare, query) share their ray queries among all cores.
+THREADS = os.cpu_count() or 1
 
 
 def _emit_json(data) -> None:
@@ -92,7 +98,7 @@ def inspect(file, as_json):
 def signature(file, points, seed, as_json):
     """The IN/OUT/MIXED D2 signature of FILE."""
     solid = solid_of_file(file)
-    sig = signature_of_solid(solid, points, seed)
+    sig = signature_of_solid(solid, points, seed, threads=THREADS)
     if as_json:
         _emit_json({**sig.to_dict(), "mesh": solid.describe()})
         return
@@ -115,8 +121,8 @@ def compare(a, b, points, seed, as_json):
     """The paper's four distances between parts A and B (0 = same shape)."""
     from .distance import compare as distances_between
 
-    sig_a = signature_of_solid(solid_of_file(a), points, seed)
-    sig_b = signature_of_solid(solid_of_file(b), points, seed)
+    sig_a = signature_of_solid(solid_of_file(a), points, seed, threads=THREADS)
+    sig_b = signature_of_solid(solid_of_file(b), points, seed, threads=THREADS)
     distances = distances_between(sig_a, sig_b)
     if as_json:
         _emit_json({"a": a, "b": b, **distances, "fractions": {"a": sig_a.fractions, "b": sig_b.fractions}})
@@ -197,7 +203,7 @@ def query(file, store, top, metric, entry, as_json):
     """The store's parts nearest to FILE (or to --id PATH), nearest first."""
     if (file is None) == (entry is None):
         raise click.UsageError("give either FILE or --id PATH")
-    hits = query_store(resolve_store_path(store), file=file, entry=entry, top=top, metric=metric)
+    hits = query_store(resolve_store_path(store), file=file, entry=entry, top=top, metric=metric, threads=THREADS)
     if as_json:
         _emit_json(hits)
         return

@@ -102,6 +102,7 @@ def query_store(
     entry: str | None = None,
     top: int = 10,
     metric: str = "weighted",
+    threads: int = 1,
 ) -> list[dict]:
     """Rank a store against a part file, or against one of its own entries.
 
@@ -112,6 +113,7 @@ def query_store(
     entry : a relative path already in the store (``--id``), instead of ``file``
     top : how many hits
     metric : one of :data:`METRICS`
+    threads : threads for the query file's ray queries
 
     Raises
     ------
@@ -129,7 +131,7 @@ def query_store(
         else:
             params = reader.params
             solid = solid_of_file(file)
-            signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor)
+            signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor, threads)
             own = entry_path_of(file, reader)
             first = table.index_of(own) if own is not None else None
         return top_hits(table.rank(signature, metric), table.paths, top, first)

@@ -131,7 +131,10 @@ _PARENT_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 
 
 def _worker_main(conn, params: StoreParams, root: str, parent: int) -> None:
+    from .memory import keep_freed_memory
+
     _die_with_parent()
+    keep_freed_memory()
     if os.getppid() != parent:  # the parent died before the request above took effect
         return
     for signum in _PARENT_SIGNALS:
