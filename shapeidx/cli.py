@@ -237,5 +237,45 @@ def stats(store, as_json):
 main.add_command(click.Command("info", callback=stats.callback, params=stats.params, help="Same as stats."))
 
 
+METRIC_LABELS = {"all": "ALL (plain D2)", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted": "Weighted", "combined": "combined"}
+
+
+@main.command()
+@click.argument("directory", type=click.Path(file_okay=False, path_type=str))
+@store_option
+@click.option("--metric", "metrics", multiple=True, type=click.Choice(METRICS), help="Distances to score [default: all].")
+@click.option("--per-class", is_flag=True, help="Also each class's figures.")
+@click.option("--cross-validate", is_flag=True, help="Also learn the combined metric on this collection (class-wise cross-validated).")
+@click.option("--points", type=click.IntRange(2, 8192), help="Surface samples for a new store [default: 1024].")
+@click.option("--workers", "-j", type=click.IntRange(1), help="Worker processes for the build [default: one per core].")
+@click.option("--quiet", "-q", is_flag=True, help="No build progress.")
+@json_option
+def evaluate(directory, store, metrics, per_class, cross_validate, points, workers, quiet, as_json):
+    """Retrieval quality on DIRECTORY, whose sub-folders are the classes: NN, FT, ST, E, DCG."""
+    from .evaluate import evaluate as evaluate_store
+
+    store_path = resolve_store_path(store)
+    reporter = BuildReporter(quiet=quiet)
+    try:
+        run_build(directory, store_path, BuildOptions(points=points, workers=workers or 0), reporter)
+    finally:
+        reporter.close()
+    with open_store(store_path) as reader:
+        result = evaluate_store(reader, metrics or METRICS, per_class=per_class, cross_validated=cross_validate)
+    if as_json:
+        _emit_json({"collection": directory, "store": str(store_path), **result})
+        return
+    click.echo(
+        f"{directory}: {result['models']} models in {result['classes']} classes, {result['points']} points"
+        + (f" ({result['unlabelled']} files outside class folders left out)" if result["unlabelled"] else "")
+    )
+    click.echo(f"{'distance':30s} {'NN':>6s} {'FT':>6s} {'ST':>6s} {'E':>6s} {'DCG':>6s}")
+    for name, scores in result["metrics"].items():
+        label = METRIC_LABELS.get(name, name)
+        click.echo(f"{label:30s} " + " ".join(f"{scores[s]:6.3f}" for s in ("nn", "ft", "st", "e", "dcg")))
+        for cls, figures in scores.get("per_class", {}).items():
+            click.echo(f"  {cls[:28]:28s} " + " ".join(f"{figures[s]:6.3f}" for s in ("nn", "ft", "st", "e", "dcg")))
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

@@ -16,17 +16,38 @@ Edge cases, decided so that no distance is ever NaN or infinite:
 * the Weighted weight ``1 / (1 - Diff)`` tends to infinity as ``Diff`` tends to 1 (one part all
   in a class, the other not at all). ``1 - Diff`` is floored at :data:`MIN_AGREEMENT`, so a
   weight is at most 1000.
+
+Beyond the paper, **combined** is a learned, non-negative weighted sum of ten per-pair
+features (:data:`FEATURES`): the four ``D`` values, the three ``|%A - %B|`` and, per class,
+how much the two parts differ in the ratio of that class's mean distance to the ALL mean
+(``|ln(mA_c / mA_all) - ln(mB_c / mB_all)|``). The paper's per-histogram normalisation by its
+own mean discards that scale information; the store keeps the means, so it costs nothing.
+The weights come from ``shapeidx/combined_metric.json``, written by
+``scripts/learn_metric.py`` (neighbourhood component analysis on a labelled collection,
+with class-wise cross-validation figures recorded beside the weights).
 """
 
 from __future__ import annotations
+
+import json
+from functools import lru_cache
+from importlib import resources
 
 import numpy as np
 
 from .signature import HISTOGRAMS, Signature
 
-METRICS = ("all", "avg3", "avg4", "weighted")
+#: The distances Ip et al. (2002) define.
+PAPER_METRICS = ("all", "avg3", "avg4", "weighted")
+METRICS = PAPER_METRICS + ("combined",)
 #: Floor of ``1 - Diff`` in the Weighted distance (weights are at most its inverse).
 MIN_AGREEMENT = 1e-3
+#: The per-pair quantities all metrics are made of, in the order of the combined weights.
+FEATURES = tuple(f"d_{h}" for h in HISTOGRAMS) + tuple(f"gap_{c}" for c in HISTOGRAMS[1:]) + tuple(
+    f"scale_{c}" for c in HISTOGRAMS[1:]
+)
+#: A class with no pairs counts, in the scale features, as a mean this share of the ALL mean.
+EMPTY_CLASS_SCALE = 1e-3
 
 
 def histogram_distance(p: np.ndarray, q: np.ndarray) -> float:
@@ -55,12 +76,55 @@ def combine(d: dict, fraction_gap: dict) -> dict:
     }
 
 
-def compare(a: Signature, b: Signature) -> dict:
-    """The four distances between two signatures: ``{"all", "avg3", "avg4", "weighted"}``."""
-    d = {h: histogram_distance(a.histograms[h].p, b.histograms[h].p) for h in HISTOGRAMS}
+def class_scales(means: np.ndarray) -> np.ndarray:
+    """``ln(class mean / ALL mean)`` for IN, OUT, MIXED from means in :data:`HISTOGRAMS` order.
+
+    ``means`` is (4,) or (N, 4); a class with no pairs (mean 0) counts as
+    :data:`EMPTY_CLASS_SCALE` of the ALL mean.
+    """
+    means = np.asarray(means, dtype=np.float64)
+    overall = np.maximum(means[..., :1], np.finfo(float).tiny)
+    return np.log(np.maximum(means[..., 1:], EMPTY_CLASS_SCALE * overall) / overall)
+
+
+def signature_means(signature: Signature) -> np.ndarray:
+    """The four histograms' mean distances, in :data:`HISTOGRAMS` order."""
+    return np.array([signature.histograms[h].mean for h in HISTOGRAMS])
+
+
+def metric_values(features: dict, metrics=METRICS) -> dict:
+    """Metrics from per-pair features (numbers, or arrays with one value per pair)."""
+    d = {h: features[f"d_{h}"] for h in HISTOGRAMS}
+    gap = {c: features[f"gap_{c}"] for c in HISTOGRAMS[1:]}
+    values = combine(d, gap)
+    if "combined" in metrics:
+        weights = combined_weights()["weights"]
+        values["combined"] = sum(weights[name] * features[name] for name in FEATURES)
+    return {m: values[m] for m in metrics}
+
+
+@lru_cache(maxsize=1)
+def combined_weights() -> dict:
+    """The learned weights of the combined metric and how they were obtained."""
+    data = json.loads(resources.files("shapeidx").joinpath("combined_metric.json").read_text())
+    if set(data["weights"]) != set(FEATURES):
+        raise ValueError("combined_metric.json does not match shapeidx.distance.FEATURES")
+    return data
+
+
+def features_between(a: Signature, b: Signature) -> dict:
+    """The per-pair features (:data:`FEATURES`) of two signatures."""
+    features = {f"d_{h}": histogram_distance(a.histograms[h].p, b.histograms[h].p) for h in HISTOGRAMS}
     fa, fb = a.fractions, b.fractions
-    gap = {c: abs(fa[c] - fb[c]) for c in HISTOGRAMS[1:]}
-    return {name: float(value) for name, value in combine(d, gap).items()}
+    features.update({f"gap_{c}": abs(fa[c] - fb[c]) for c in HISTOGRAMS[1:]})
+    scale_gap = np.abs(class_scales(signature_means(a)) - class_scales(signature_means(b)))
+    features.update({f"scale_{c}": float(v) for c, v in zip(HISTOGRAMS[1:], scale_gap)})
+    return features
+
+
+def compare(a: Signature, b: Signature) -> dict:
+    """Every metric between two signatures: ``{"all", "avg3", "avg4", "weighted", "combined"}``."""
+    return {name: float(value) for name, value in metric_values(features_between(a, b)).items()}
 
 
 def one_to_many(query_p: np.ndarray, table: np.ndarray, lengths: np.ndarray) -> np.ndarray:
@@ -94,6 +158,7 @@ METRIC_HISTOGRAMS = {
     "avg3": HISTOGRAMS[1:],
     "avg4": HISTOGRAMS,
     "weighted": HISTOGRAMS[1:],
+    "combined": HISTOGRAMS,
 }
 #: Values per working block of :meth:`HistogramBank.distances`: small enough to stay in the
 #: CPU cache, so each stored probability is read from memory once per query.
@@ -200,19 +265,36 @@ def _padded_l1(block: np.ndarray, query_p: np.ndarray, width: int) -> np.ndarray
     return sums
 
 
-def rank_distances(query: Signature, banks: dict, fractions: np.ndarray, metrics=METRICS) -> dict:
-    """The paper's distances from one signature to every row of a table, vectorised.
+def rank_features(query: Signature, banks: dict, fractions: np.ndarray, means: np.ndarray | None = None, histograms=HISTOGRAMS) -> dict:
+    """The per-pair features (:data:`FEATURES`) from one signature to every row of a table.
 
     Parameters
     ----------
     query : Signature
     banks : dict
-        Histogram name -> :class:`HistogramBank`, all of the same rows; only the names the
-        asked metrics need (:data:`METRIC_HISTOGRAMS`) must be present.
+        Histogram name -> :class:`HistogramBank`, all of the same rows; those in
+        ``histograms`` must be present (the ``D`` of the others are left at 0).
     fractions : (N, 3) float64
         Each row's IN, OUT and MIXED fractions, in that order.
-    metrics : iterable of str
-        Names from :data:`METRICS`.
+    means : (N, 4) float64, optional
+        Each row's histogram means in :data:`HISTOGRAMS` order; without them the scale
+        features are left out.
+    """
+    features = {f"d_{h}": banks[h].distances(query.histograms[h].p) if h in histograms else 0.0 for h in HISTOGRAMS}
+    query_fractions = query.fractions
+    for i, c in enumerate(HISTOGRAMS[1:]):
+        features[f"gap_{c}"] = np.abs(fractions[:, i] - query_fractions[c])
+    if means is not None:
+        scale_gap = np.abs(class_scales(means) - class_scales(signature_means(query)))
+        for i, c in enumerate(HISTOGRAMS[1:]):
+            features[f"scale_{c}"] = scale_gap[:, i]
+    return features
+
+
+def rank_distances(query: Signature, banks: dict, fractions: np.ndarray, means: np.ndarray | None = None, metrics=PAPER_METRICS) -> dict:
+    """Distances from one signature to every row of a table, vectorised.
+
+    Parameters are those of :func:`rank_features`; ``means`` is needed for ``combined``.
 
     Returns
     -------
@@ -220,8 +302,5 @@ def rank_distances(query: Signature, banks: dict, fractions: np.ndarray, metrics
         Metric name -> (N,) float64, each equal to :func:`compare` for that pair.
     """
     needed = {h for m in metrics for h in METRIC_HISTOGRAMS[m]}
-    d = {h: banks[h].distances(query.histograms[h].p) if h in needed else 0.0 for h in HISTOGRAMS}
-    query_fractions = query.fractions
-    gap = {c: np.abs(fractions[:, i] - query_fractions[c]) for i, c in enumerate(HISTOGRAMS[1:])}
-    values = combine(d, gap)
-    return {m: values[m] for m in metrics}
+    features = rank_features(query, banks, fractions, means, needed)
+    return metric_values(features, metrics)

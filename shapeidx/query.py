@@ -37,19 +37,23 @@ class SignatureTable:
         Histogram name -> :class:`~shapeidx.distance.HistogramBank` (only those loaded).
     fractions : (N, 3) float64
         IN, OUT, MIXED.
+    means : (N, 4) float64
+        Mean pair distance of each histogram, in ``HISTOGRAMS`` order.
     """
 
     paths: np.ndarray
     rows: np.ndarray
     banks: dict
     fractions: np.ndarray
+    means: np.ndarray
 
     @classmethod
     def load(cls, reader: StoreReader, histograms=HISTOGRAMS) -> "SignatureTable":
         """Read the ok entries' histograms ``histograms`` (default all four) from a store."""
         rows = np.flatnonzero(reader.column("entries/status") == STATUS_OK)
         banks = {name: HistogramBank.from_counts(*reader.counts(name, rows)) for name in histograms}
-        return cls(reader.paths[rows], rows, banks, reader.column("entries/fractions")[rows])
+        means = np.stack([reader.column(f"histograms/{name}/mean")[rows] for name in HISTOGRAMS], axis=1)
+        return cls(reader.paths[rows], rows, banks, reader.column("entries/fractions")[rows], means)
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -61,7 +65,7 @@ class SignatureTable:
         missing = set(METRIC_HISTOGRAMS[metric]) - set(self.banks)
         if missing:
             raise ValueError(f"metric {metric} needs histograms not loaded: {', '.join(sorted(missing))}")
-        return rank_distances(signature, self.banks, self.fractions, (metric,))[metric]
+        return rank_distances(signature, self.banks, self.fractions, self.means, (metric,))[metric]
 
     def index_of(self, path: str) -> int | None:
         i = int(np.searchsorted(self.paths, path))

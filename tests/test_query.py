@@ -54,7 +54,7 @@ class TestRankingEqualsCompare:
             signatures = [reader.signature(int(i)) for i in table.rows]
         assert len(table) == 30
         for i, query in enumerate(signatures):
-            ranked = rank_distances(query, table.banks, table.fractions)
+            ranked = rank_distances(query, table.banks, table.fractions, table.means, METRICS)
             for j, other in enumerate(signatures):
                 expected = compare(query, other)
                 assert {m: ranked[m][j] for m in METRICS} == expected, (i, j)

@@ -1,0 +1,63 @@
+#!/usr/bin/env python3
+"""Learn the weights of the combined metric on a labelled collection; write them with their
+cross-validated figures to shapeidx/combined_metric.json.
+
+    python scripts/learn_metric.py ../shared/data/kicad6 --store kicad6.h5
+
+The store is built (or updated) first, as ``shapeidx build`` would. The weights are learned
+on every model of the collection; the figures recorded beside them are class-wise
+cross-validated (each query ranked with weights that never saw its class; see
+shapeidx/learn.py), so they say what to expect on a collection of new classes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import sys
+from pathlib import Path
+
+from shapeidx.build import BuildOptions, run_build
+from shapeidx.evaluate import labelled_features
+from shapeidx.learn import cross_validate, fit_weights, weights_by_name
+from shapeidx.memory import keep_freed_memory
+from shapeidx.pipeline import SIGNATURE_VERSION
+from shapeidx.progress import BuildReporter
+from shapeidx.store import open_store
+
+OUTPUT = Path(__file__).resolve().parents[1] / "shapeidx" / "combined_metric.json"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("collection", type=Path, help="labelled folder: its sub-folders are the classes")
+    parser.add_argument("--store", type=Path, required=True)
+    parser.add_argument("--folds", type=int, default=4)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--output", type=Path, default=OUTPUT)
+    args = parser.parse_args(argv)
+
+    keep_freed_memory()
+    run_build(args.collection, args.store, BuildOptions(), BuildReporter(quiet=True))
+    with open_store(args.store) as reader:
+        data = labelled_features(reader)
+        points = reader.params.points
+    cv = cross_validate(data.features, data.labels, folds=args.folds, repeats=args.repeats)
+    weights = fit_weights(data.features, data.labels)
+    command = "python " + " ".join([Path(sys.argv[0]).as_posix()] + (argv if argv is not None else sys.argv[1:]))
+    record = {
+        "weights": weights_by_name(weights),
+        "trained_on": {"collection": args.collection.resolve().name, "models": int(len(data.labels)),
+                       "classes": int(len(set(data.labels))), "points": points, "signature_version": SIGNATURE_VERSION},
+        "cross_validation": cv,
+        "command": command,
+        "date": str(datetime.date.today()),
+    }
+    args.output.write_text(json.dumps(record, indent=2) + "\n")
+    print(json.dumps(record, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

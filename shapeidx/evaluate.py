@@ -1,0 +1,111 @@
+"""``shapeidx evaluate``: how well each distance retrieves a labelled collection.
+
+A labelled collection is a folder whose immediate sub-folders are the classes. Its store is
+built (or brought up to date) like ``shapeidx build`` does, then every model is ranked against
+all the others with the same store reader and distance code as ``shapeidx query``
+(:func:`shapeidx.distance.rank_features`), and :mod:`shapeidx.retrieval` scores the rankings.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+
+import numpy as np
+
+from .distance import FEATURES, METRICS, metric_values, rank_features
+from .learn import cross_validate
+from .query import SignatureTable
+from .retrieval import SCORES, retrieval_scores
+from .store import StoreReader
+
+
+@dataclass
+class LabelledFeatures:
+    """The per-pair features of every labelled model against every other."""
+
+    paths: np.ndarray  # (n,) relative paths
+    labels: np.ndarray  # (n,) class of each model: its first folder
+    features: np.ndarray  # (len(FEATURES), n, n)
+    unlabelled: int  # ok entries outside any class folder, left out
+
+
+def class_of(path: str) -> str | None:
+    """The class of a store path: its first folder (None for a file at the top)."""
+    head, sep, _ = path.partition("/")
+    return head if sep else None
+
+
+def labelled_features(reader: StoreReader) -> LabelledFeatures:
+    """Features between all labelled ok entries, through the ranking code of ``query``."""
+    table = SignatureTable.load(reader)
+    classes = [class_of(str(p)) for p in table.paths]
+    chosen = np.array([i for i, c in enumerate(classes) if c is not None], dtype=np.int64)
+    features = np.zeros((len(FEATURES), len(chosen), len(chosen)))
+    for k, i in enumerate(chosen):
+        values = rank_features(reader.signature(int(table.rows[i])), table.banks, table.fractions, table.means)
+        for f, name in enumerate(FEATURES):
+            features[f, k] = values[name][chosen]
+    return LabelledFeatures(
+        paths=table.paths[chosen],
+        labels=np.array([classes[i] for i in chosen], dtype=object),
+        features=features,
+        unlabelled=len(table.paths) - len(chosen),
+    )
+
+
+def distance_matrices(data: LabelledFeatures, metrics=METRICS) -> dict:
+    """Metric name -> (n, n) distances between the labelled models."""
+    return metric_values({name: data.features[f] for f, name in enumerate(FEATURES)}, metrics)
+
+
+def per_class_scores(scores: dict, labels: np.ndarray) -> dict:
+    """Class -> mean of each score over that class's queries."""
+    per = scores["per_query"]
+    grouped = defaultdict(list)
+    for position, query in enumerate(per["index"]):
+        grouped[labels[query]].append(position)
+    return {
+        cls: {s: float(np.mean(per[s][positions])) for s in SCORES} | {"queries": len(positions)}
+        for cls, positions in sorted(grouped.items())
+    }
+
+
+def evaluate(reader: StoreReader, metrics=METRICS, per_class: bool = False, cross_validated: bool = False) -> dict:
+    """Retrieval scores of each metric over the labelled entries of a store.
+
+    Parameters
+    ----------
+    reader : StoreReader
+        A store whose entries' first folders are their classes.
+    metrics : iterable of str
+    per_class : bool
+        Add each class's scores.
+    cross_validated : bool
+        Add ``"combined (cross-validated)"``: the combined metric's weights learned on this
+        very collection, each query scored with weights that never saw its class.
+
+    Returns
+    -------
+    dict
+        ``models``, ``classes``, ``unlabelled``, ``points``, and ``metrics``: name -> scores.
+    """
+    data = labelled_features(reader)
+    matrices = distance_matrices(data, metrics)
+    result = {
+        "models": int(len(data.labels)),
+        "classes": int(len(set(data.labels))),
+        "unlabelled": data.unlabelled,
+        "points": reader.params.points,
+        "metrics": {},
+    }
+    for name in metrics:
+        scores = retrieval_scores(matrices[name], data.labels, per_query=per_class)
+        entry = {s: scores[s] for s in SCORES}
+        if per_class:
+            entry["per_class"] = per_class_scores(scores, data.labels)
+        result["metrics"][name] = entry
+    if cross_validated:
+        result["metrics"]["combined (cross-validated)"] = cross_validate(data.features, data.labels)
+    result["queries"] = int(retrieval_scores(matrices[metrics[0]], data.labels)["queries"]) if metrics else 0
+    return result

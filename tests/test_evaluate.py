@@ -1,0 +1,103 @@
+"""shapeidx evaluate and the learned combined metric."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import shapeidx.learn as learn
+from shapeidx.cli import main
+from shapeidx.distance import FEATURES, METRICS, combined_weights, compare
+from shapeidx.evaluate import evaluate
+from shapeidx.retrieval import retrieval_scores
+from shapeidx.store import open_store
+
+CLASSES = ["Crystal", "Fuse", "Relay_THT", "LED_THT"]
+
+
+@pytest.fixture(scope="module")
+def collection(tmp_path_factory, data_dir):
+    """Four real kicad6 classes (linked, not copied) plus a stray file at the top."""
+    root = tmp_path_factory.mktemp("labelled")
+    for name in CLASSES:
+        (root / name).symlink_to(data_dir / "kicad6" / name, target_is_directory=True)
+    (root / "stray.stl").symlink_to(data_dir / "mesh-wild/trimesh-models/unit_cube.STL")
+    store = tmp_path_factory.mktemp("store") / "labelled.h5"
+    result = CliRunner().invoke(main, ["build", str(root), "--store", str(store), "--points", "256", "-q"])
+    assert result.exit_code == 0, result.stderr
+    return root, store
+
+
+def test_scores_equal_an_independent_computation(collection):
+    _, store = collection
+    with open_store(store) as reader:
+        got = evaluate(reader)
+        ok = [i for i, p in enumerate(reader.paths) if "/" in p]
+        labels = [reader.paths[i].split("/")[0] for i in ok]
+        signatures = [reader.signature(i) for i in ok]
+    assert got["models"] == 40 and got["classes"] == 4 and got["unlabelled"] == 1
+    for metric in METRICS:
+        d = np.array([[compare(a, b)[metric] for b in signatures] for a in signatures])
+        expected = retrieval_scores(d, labels)
+        assert {s: got["metrics"][metric][s] for s in ("nn", "ft", "st", "e", "dcg")} == pytest.approx(
+            {s: expected[s] for s in ("nn", "ft", "st", "e", "dcg")}
+        ), metric
+
+
+def test_cli_json_per_class_and_cross_validation(collection):
+    root, store = collection
+    result = CliRunner().invoke(main, ["evaluate", str(root), "--store", str(store), "--json", "--per-class", "--cross-validate", "-q"])
+    assert result.exit_code == 0, result.stderr
+    data = json.loads(result.stdout)
+    assert set(data["metrics"]) == set(METRICS) | {"combined (cross-validated)"}
+    per_class = data["metrics"]["weighted"]["per_class"]
+    assert set(per_class) == set(CLASSES) and all(c["queries"] == 10 for c in per_class.values())
+    # the mean over classes of equal size is the overall mean
+    assert np.mean([c["ft"] for c in per_class.values()]) == pytest.approx(data["metrics"]["weighted"]["ft"])
+
+
+def test_cli_table(collection):
+    root, store = collection
+    result = CliRunner().invoke(main, ["evaluate", str(root), "--store", str(store), "--metric", "weighted", "-q"])
+    assert result.exit_code == 0 and "Weighted" in result.stdout and "40 models in 4 classes" in result.stdout
+
+
+def test_learning_finds_the_informative_feature():
+    rng = np.random.default_rng(0)
+    labels = np.repeat(np.arange(8), 6)
+    position = labels + rng.normal(scale=0.2, size=len(labels))  # a feature that separates classes
+    informative = np.abs(position[:, None] - position[None, :])
+    noise = [np.abs(rng.normal(size=(len(labels), 1)) - rng.normal(size=(1, len(labels)))) for _ in range(3)]
+    features = np.stack([informative] + noise)
+    weights = learn.fit_weights(features, labels)
+    scaled = weights * np.array([np.median(f) for f in features])
+    assert scaled[0] > 5 * scaled[1:].max()
+    cv = learn.cross_validate(features, labels, folds=4, repeats=2)
+    assert cv["nn"] > 0.9
+
+
+def test_cross_validation_never_trains_on_the_held_out_class(monkeypatch):
+    labels = np.repeat(np.arange(6), 3)
+    features = np.random.default_rng(1).random((2, 18, 18))
+    seen = []
+    real = learn.fit_weights
+
+    def spy(features, labels_, rows=None):
+        seen.append(set(labels_[rows]))
+        return real(features, labels_, rows)
+
+    monkeypatch.setattr(learn, "fit_weights", spy)
+    learn.cross_validate(features, labels, folds=3, repeats=1)
+    assert len(seen) == 3
+    assert all(len(s) == 4 for s in seen)  # each fold trains on the other two folds' classes
+    assert set().union(*[set(range(6)) - s for s in seen]) == set(range(6))
+
+
+def test_shipped_weights_match_the_features():
+    data = combined_weights()
+    assert set(data["weights"]) == set(FEATURES)
+    assert all(w >= 0 for w in data["weights"].values())
+    assert data["cross_validation"]["queries"] == data["trained_on"]["models"]
