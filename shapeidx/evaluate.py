@@ -8,12 +8,13 @@ all the others with the same store reader and distance code as ``shapeidx query`
 
 from __future__ import annotations
 
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import dataclass
 
 import numpy as np
 
 from .distance import FEATURES, METRICS, metric_values, rank_features
+from .errors import ShapeidxError
 from .learn import cross_validate
 from .query import SignatureTable
 from .retrieval import SCORES, retrieval_scores
@@ -91,6 +92,12 @@ def evaluate(reader: StoreReader, metrics=METRICS, per_class: bool = False, cros
         ``models``, ``classes``, ``unlabelled``, ``points``, and ``metrics``: name -> scores.
     """
     data = labelled_features(reader)
+    sizes = Counter(data.labels)
+    if sum(size for size in sizes.values() if size > 1) < 2:
+        raise ShapeidxError(
+            f"{reader.path}: {len(data.labels)} indexed part(s) in {len(sizes)} class folder(s); evaluate needs"
+            " a folder whose sub-folders (the classes) hold at least two parts each"
+        )
     matrices = distance_matrices(data, metrics)
     result = {
         "models": int(len(data.labels)),

@@ -50,6 +50,9 @@ def retrieval_scores(distances: np.ndarray, labels, per_query: bool = False) -> 
     _, class_of = np.unique(labels, return_inverse=True)
     class_size = np.bincount(class_of)[class_of]
     queries = np.flatnonzero(class_size > 1)
+    if len(queries) == 0:  # no model has a relevant answer: nothing to score
+        result = {name: float("nan") for name in SCORES} | {"queries": 0}
+        return result | ({"per_query": {"index": queries} | {s: np.zeros(0) for s in SCORES}} if per_query else {})
     ranked = rank_lists(distances)[queries]
     relevant = class_of[ranked] == class_of[queries][:, None]  # (q, n - 1) bool
     wanted = class_size[queries] - 1  # C - 1 per query

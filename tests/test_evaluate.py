@@ -101,3 +101,13 @@ def test_shipped_weights_match_the_features():
     assert set(data["weights"]) == set(FEATURES)
     assert all(w >= 0 for w in data["weights"].values())
     assert data["cross_validation"]["queries"] == data["trained_on"]["models"]
+
+
+def test_a_folder_without_classes_is_refused_in_one_line(tmp_path, data_dir):
+    (tmp_path / "flat").mkdir()
+    (tmp_path / "flat" / "cube.stl").symlink_to(data_dir / "mesh-wild/trimesh-models/unit_cube.STL")
+    for folder in (tmp_path / "flat", tmp_path / "empty"):
+        folder.mkdir(exist_ok=True)
+        result = CliRunner().invoke(main, ["evaluate", str(folder), "--store", str(tmp_path / f"{folder.name}.h5"), "-q"])
+        assert result.exit_code == 1, result.stderr
+        assert "sub-folders" in result.stderr and len(result.stderr.strip().splitlines()) == 1

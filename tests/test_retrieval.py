@@ -60,3 +60,9 @@ def test_perfect_and_singleton_classes():
     s = retrieval_scores(d, labels)
     assert s["queries"] == 4
     assert all(s[k] == pytest.approx(1.0) for k in ("nn", "ft", "st", "dcg"))
+
+
+def test_no_query_has_a_relevant_answer():
+    s = retrieval_scores(np.zeros((2, 2)), ["a", "b"])
+    assert s["queries"] == 0 and np.isnan(s["nn"])
+    assert retrieval_scores(np.zeros((0, 0)), [])["queries"] == 0
