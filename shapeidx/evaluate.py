@@ -95,7 +95,7 @@ def evaluate(reader: StoreReader, metrics=METRICS, per_class: bool = False, cros
     sizes = Counter(data.labels)
     if sum(size for size in sizes.values() if size > 1) < 2:
         raise ShapeidxError(
-            f"{reader.path}: {len(data.labels)} indexed part(s) in {len(sizes)} class folder(s); evaluate needs"
+            f"{reader.attrs.get('root', reader.path)}: {len(data.labels)} indexed part(s) in {len(sizes)} class folder(s); evaluate needs"
             " a folder whose sub-folders (the classes) hold at least two parts each"
         )
     matrices = distance_matrices(data, metrics)
