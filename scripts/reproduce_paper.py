@@ -90,7 +90,7 @@ def fractions_table(lines: list[str]) -> dict:
     return gaps
 
 
-def on_face_share(lines: list[str], gaps: dict) -> None:
+def on_face_share(lines: list[str]) -> None:
     """Could the gaps come from segments lying on a face (IN for us, by the closed-set rule)?"""
     lines += [
         "### Where the IN excess does not come from",
@@ -269,7 +269,7 @@ def main(argv=None) -> int:
         ]
         summary_at = len(lines)
         gaps = fractions_table(lines)
-        on_face_share(lines, gaps)
+        on_face_share(lines)
         agreement = distances_table(lines, signatures)
         twins = queries(lines, store)
         lines[summary_at:summary_at] = summary(gaps, agreement, twins)
