@@ -168,19 +168,23 @@ BLOCK_VALUES = 1 << 15
 class HistogramBank:
     """Many probability histograms of differing bin counts, ready for one-to-many ``D``.
 
-    Rows are grouped by bin count, each group a dense ``(rows, bins)`` float64 array: a
-    query costs a few numpy operations per *distinct* bin count (hundreds at most), never a
-    Python loop per row, and no row is padded to the widest histogram of the bank (a single
-    freak histogram of 10,000 bins would otherwise make every row that wide).
+    Rows are grouped by bin count, each group a dense ``(rows, bins)`` array of the stored
+    counts (uint32: half the memory of probabilities, and no pass to compute them at load)
+    with each row's total. A query costs a few numpy operations per *distinct* bin count
+    (hundreds at most), never a Python loop per row, and no row is padded to the widest
+    histogram of the bank (a single freak histogram of 10,000 bins would otherwise make every
+    row that wide).
 
     :meth:`distances` gives, bit for bit, what :func:`histogram_distance` gives for each
-    pair: it sums the same values in the same order (numpy sums each row of a C-contiguous
-    block exactly as it sums that row alone), so :func:`compare` and a store ranking agree.
+    pair: probabilities are ``count / total`` in float64 as :attr:`Histogram.p` computes
+    them, and it sums the same values in the same order (numpy sums each row of a
+    C-contiguous block exactly as it sums that row alone), so :func:`compare` and a store
+    ranking agree.
     """
 
     def __init__(self, size: int, groups: list):
         self.size = size
-        #: ``(bins, rows, block)`` per distinct bin count: rows index the bank.
+        #: ``(bins, rows, counts, totals)`` per distinct bin count: rows index the bank.
         self.groups = groups
 
     def __len__(self) -> int:
@@ -188,11 +192,7 @@ class HistogramBank:
 
     @classmethod
     def from_counts(cls, counts: np.ndarray, lengths: np.ndarray) -> "HistogramBank":
-        """Build from histograms laid end to end: row ``i`` is the next ``lengths[i]`` counts.
-
-        Probabilities are ``counts / row total`` in float64, exactly as
-        :attr:`shapeidx.signature.Histogram.p` computes them.
-        """
+        """Build from histograms laid end to end: row ``i`` is the next ``lengths[i]`` counts."""
         lengths = np.asarray(lengths, dtype=np.int64)
         offsets = np.zeros(len(lengths) + 1, dtype=np.int64)
         np.cumsum(lengths, out=offsets[1:])
@@ -203,12 +203,20 @@ class HistogramBank:
         order = np.argsort(lengths, kind="stable")
         sorted_lengths = lengths[order]
         starts = np.concatenate([[0], np.flatnonzero(np.diff(sorted_lengths)) + 1, [len(order)]])
+        # every window of consecutive counts, as a view: taking rows of it copies each
+        # histogram as one contiguous run (several times faster than an index per value)
+        windows = {}
         groups = []
         for lo, hi in zip(starts[:-1], starts[1:]):
             if lo < hi:
                 rows = order[lo:hi]
                 bins = int(sorted_lengths[lo])
-                groups.append((bins, rows, _probabilities(counts, offsets[rows], totals[rows], bins)))
+                if bins == 0:
+                    block = np.zeros((len(rows), 0), dtype=counts.dtype)
+                else:
+                    window = windows.setdefault(bins, np.lib.stride_tricks.sliding_window_view(counts, bins))
+                    block = window[offsets[rows]]
+                groups.append((bins, rows, block, np.maximum(totals[rows], 1)))
         return cls(len(lengths), groups)
 
     def distances(self, query_p: np.ndarray) -> np.ndarray:
@@ -225,43 +233,31 @@ class HistogramBank:
         """
         query_p = np.asarray(query_p, dtype=np.float64)
         out = np.zeros(self.size)
-        for bins, rows, block in self.groups:
+        for bins, rows, counts, totals in self.groups:
             width = max(bins, len(query_p))
             if width:
-                out[rows] = _padded_l1(block, query_p, width) / width
+                out[rows] = _padded_l1(counts, totals, query_p, width) / width
         return out
 
 
-def _probabilities(counts: np.ndarray, starts: np.ndarray, totals: np.ndarray, bins: int) -> np.ndarray:
-    """(rows, bins) float64 ``counts / total`` of the rows starting at ``starts``, in small steps."""
-    block = np.empty((len(starts), bins))
-    if bins == 0:
-        return block
-    # every window of ``bins`` consecutive counts, as a view: taking rows of it copies each
-    # histogram as one contiguous run (several times faster than an index per value)
-    windows = np.lib.stride_tricks.sliding_window_view(counts, bins)
-    step = max(1, BLOCK_VALUES // bins)
-    for lo in range(0, len(starts), step):
-        hi = lo + step
-        np.divide(windows[starts[lo:hi]], np.maximum(totals[lo:hi], 1)[:, None], out=block[lo:hi])
-    return block
-
-
-def _padded_l1(block: np.ndarray, query_p: np.ndarray, width: int) -> np.ndarray:
-    """Row sums of ``|row - query|`` over ``width`` bins, both zero-padded, block by block."""
-    bins = block.shape[1]
+def _padded_l1(counts: np.ndarray, totals: np.ndarray, query_p: np.ndarray, width: int) -> np.ndarray:
+    """Row sums of ``|counts / total - query|`` over ``width`` bins, both zero-padded, in
+    blocks small enough to stay in the CPU cache."""
+    bins = counts.shape[1]
     query = np.zeros(width)
     query[: len(query_p)] = query_p
     step = max(1, BLOCK_VALUES // width)
-    work = np.empty((min(step, len(block)), width))
+    work = np.empty((min(step, len(counts)), width))
     work[:, bins:] = query[bins:]  # bins only the query has: |0 - q| = q, left as they are
-    sums = np.empty(len(block))
-    for start in range(0, len(block), step):
-        part = block[start : start + step]
-        diff = work[: len(part), :bins]
-        np.subtract(part, query[:bins], out=diff)
+    sums = np.empty(len(counts))
+    for start in range(0, len(counts), step):
+        part = slice(start, start + step)
+        n = len(counts[part])
+        diff = work[:n, :bins]
+        np.divide(counts[part], totals[part, None], out=diff)  # the probabilities, as Histogram.p
+        np.subtract(diff, query[:bins], out=diff)
         np.abs(diff, out=diff)
-        sums[start : start + len(part)] = work[: len(part)].sum(axis=1)
+        sums[start : start + n] = work[:n].sum(axis=1)
     return sums
 
 
