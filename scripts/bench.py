@@ -170,6 +170,7 @@ def main(argv=None) -> int:
     parser.add_argument("--trimesh", type=int, default=5, help="run the trimesh implementation on the first N parts")
     parser.add_argument("--limit", type=int, help="at most this many parts")
     parser.add_argument("--json", type=Path, help="write all figures here")
+    parser.add_argument("--markdown", type=Path, help="write the summary and the table here (docs/performance.md)")
     args = parser.parse_args(argv)
 
     keep_freed_memory()  # as the shapeidx command and build workers do
@@ -199,7 +200,50 @@ def main(argv=None) -> int:
         print(f"#   {key}: {value:.3f}" if isinstance(value, float) else f"#   {key}: {value}")
     if args.json:
         args.json.write_text(json.dumps({"command": command, "date": str(datetime.date.today()), "machine": machine(), "rows": rows, "summary": summary}, indent=1))
+    if args.markdown:
+        args.markdown.write_text(markdown(command, rows, summary))
     return 0
+
+
+def markdown(command: str, rows: list[dict], summary: dict) -> str:
+    """The figures as a document: how measured, the summary by collection, every part."""
+    def block(title, selected):
+        s = summarise(selected)
+        return [
+            f"| {title} | {s['parts']} | {s['median_end_to_end_seconds'] * 1e3:.0f} ms | {s['median_bare_seconds'] * 1e3:.0f} ms"
+            f" | {s['median_sig_over_bare']:.2f} | {s['median_end_to_end_over_bare']:.2f} | {s['share_within_1.5x_bare']:.0%}"
+            f" | {s['median_end_to_end_threaded_over_bare']:.2f} | {s['share_within_1.5x_bare_threaded']:.0%} |"
+        ]
+
+    kicad = [r for r in rows if r["file"].startswith("kicad6/")]
+    others = [r for r in rows if not r["file"].startswith("kicad6/")]
+    lines = [
+        "# Signature speed",
+        "",
+        f"Produced by `{command}` on {datetime.date.today()}; {machine()}.",
+        "",
+        __doc__.split("\n\n", 1)[1].split("    python scripts/bench.py")[0].rstrip(),
+        "",
+        "| parts | count | end-to-end (median) | bare query (median) | signature / bare | end-to-end / bare | within 1.5x | threaded end-to-end / bare | within 1.5x |",
+        "|---|---|---|---|---|---|---|---|---|",
+        *block("mesh-wild STL", others),
+        *block("kicad6 VRML, one per class", kicad),
+        *block("all", rows),
+        "",
+        f"The straightforward trimesh implementation took {summary['median_trimesh_over_end_to_end']:.1f} times shapeidx's end-to-end time"
+        f" (median over the {sum('trimesh' in r for r in rows)} parts it ran on).",
+        "",
+        "| part | triangles | load ms | solid ms | signature ms | threaded ms | bare ms | end-to-end / bare | trimesh s |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        e2e = (r["load"] + r["solid"] + r["sig"]) / r["bare"]
+        tm = f"{r['trimesh']:.2f}" if "trimesh" in r else ""
+        lines.append(
+            f"| {r['file']} | {r['triangles']} | {r['load'] * 1e3:.1f} | {r['solid'] * 1e3:.1f} | {r['sig'] * 1e3:.1f} | "
+            f"{r['sig_mt'] * 1e3:.1f} | {r['bare'] * 1e3:.1f} | {e2e:.2f} | {tm} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":
