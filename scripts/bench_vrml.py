@@ -6,15 +6,20 @@ the PolygonMesh; triangulation is not the reader's and is not timed) on
 
 - the largest files of ``vrml-wild`` (the KUKA robot exports, 1-14 MB, few large face sets);
 - KiCad 6 parts that hold one Shape per CAD face: the one closest to 1,000 Shapes and the
-  one with the most.
+  one with the most;
+- end to end through :func:`shapeidx.io.load` (what the signature pipeline calls): the
+  HTQFP-64 part (~1,000 Shapes, 450 kB), median of ``--repeat`` loads, and the whole
+  ``kicad6`` folder (520 parts), the total of one load of each file, median of
+  ``--folder-repeat`` rounds.
 
 Each file is read ``--repeat`` times; the best time counts (the machine's noise only ever
 adds). MB/s is file bytes (as stored) per second; triangles/s counts the triangles the
-polygons read will give (a polygon of n corners gives n - 2).
+polygons read will give (a polygon of n corners gives n - 2). The machine may be shared:
+the load average is printed first, and times are only comparable when it is low.
 
 Usage::
 
-    python scripts/bench_vrml.py [--data ../shared/data] [--repeat 5]
+    python scripts/bench_vrml.py [--data ../shared/data] [--repeat 5] [--folder-repeat 3]
 """
 
 from __future__ import annotations
@@ -23,16 +28,18 @@ import argparse
 import os
 import platform
 import shlex
+import statistics
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from shapeidx.io import LoadLimits
+from shapeidx.io import LoadLimits, load
 from shapeidx.io.vrml import load_vrml
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+HTQFP = Path("Package_QFP") / "HTQFP-64-1EP_10x10mm_P0.5mm_EP8x8mm.wrl"
 
 
 def largest_files(folder: Path, count: int) -> list[Path]:
@@ -67,20 +74,58 @@ def report(label: str, path: Path, repeat: int) -> None:
     )
 
 
+def load_times(path: Path, repeat: int) -> list[float]:
+    """Wall times of ``repeat`` calls of shapeidx.io.load (after one untimed load)."""
+    load(path)
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        load(path)
+        times.append(time.perf_counter() - start)
+    return times
+
+
+def folder_totals(folder: Path, rounds: int) -> tuple[int, list[float]]:
+    """Total wall time of one shapeidx.io.load of every .wrl file in ``folder``, per round."""
+    files = sorted(folder.rglob("*.wrl"))
+    for path in files[:20]:  # warm up: imports, caches
+        load(path)
+    totals = []
+    for _ in range(rounds):
+        start = time.perf_counter()
+        for path in files:
+            load(path)
+        totals.append(time.perf_counter() - start)
+    return len(files), totals
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA, help="the shared data folder")
     parser.add_argument("--repeat", type=int, default=5, help="loads per file; the best counts")
+    parser.add_argument("--folder-repeat", type=int, default=3, help="rounds over the kicad6 folder")
     args = parser.parse_args()
 
     print("command:", shlex.join([sys.executable, *sys.argv]))
     print(f"machine: {platform.platform()}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs")
     print(f"python {platform.python_version()}, numpy {np.__version__}")
+    print("load average: {:.2f} {:.2f} {:.2f} (1, 5, 15 min)".format(*os.getloadavg()))
     print()
     for path in largest_files(args.data / "vrml-wild" / "freecad-kuka", 4):
         report("large (KUKA)", path, args.repeat)
     for path, shapes in kicad_parts(args.data / "kicad6"):
         report(f"{shapes:,} Shapes", path, args.repeat)
+    print()
+    times = load_times(args.data / "kicad6" / HTQFP, max(args.repeat, 5))
+    print(
+        f"shapeidx.io.load {HTQFP.name}: median {statistics.median(times) * 1e3:.1f} ms, "
+        f"best {min(times) * 1e3:.1f} ms ({len(times)} loads)"
+    )
+    count, totals = folder_totals(args.data / "kicad6", args.folder_repeat)
+    print(
+        f"shapeidx.io.load kicad6 folder ({count} files): median total {statistics.median(totals):.2f} s "
+        f"(rounds: {', '.join(f'{t:.2f}' for t in totals)} s)"
+    )
 
 
 if __name__ == "__main__":

@@ -44,6 +44,10 @@ BOX = "Shape { geometry Box { } }"
         (vrml2("ROUTE a.b TO\n}"), 2, "malformed ROUTE"),
         (vrml2("PROTO P [ field SFVec3f v 0 0 0 ]\n Group { }"), 3, "expected '{'"),
         (vrml1("Separator {\n Cube { width 1 }\n"), 2, "never closed"),
+        # a bad character met while looking ahead, where it could have become part of a word
+        (vrml1("Separator {\n Texture2 {\n filename wood\x00.jpg } }"), 4, "unexpected character"),
+        (vrml2("Group {\n children\n\x00 }"), 4, "unexpected character"),
+        (vrml2("Shape { geometry IndexedFaceSet {\n coordIndex [ 0 1 2 # ] in a comment\n 3"), 3, "unterminated '['"),
     ],
 )
 def test_syntax_errors_name_file_line_and_reason(tmp_path, text, line, reason):

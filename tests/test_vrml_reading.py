@@ -131,6 +131,20 @@ def test_vrml1_strings_may_go_without_quotes(tmp_path):
     assert measure(read(tmp_path, text))[:2] == (12, pytest.approx(6.0))
 
 
+@pytest.mark.parametrize(
+    "word",
+    [
+        'a"b',  # read one token at a time: a word; read as a list of tokens: a string up to the next quote
+        "a#b",  # ... or a comment up to the end of the line
+    ],
+)
+def test_vrml1_strings_without_quotes_may_hold_quotes_and_hashes(tmp_path, word):
+    # 200 of them on one line: the token list is rebuilt after each, across several windows
+    infos = f"Info {{ string {word} }} " * 200
+    text = vrml1(f'Separator {{ {infos} Info {{ string "quoted" }} Cube {{ }} }}')
+    assert measure(read(tmp_path, text))[:2] == (12, pytest.approx(24.0))  # the 2 x 2 x 2 cube
+
+
 # -- VRML 2.0 transforms --------------------------------------------------------------------
 
 
@@ -251,6 +265,18 @@ def test_def_use_shares_geometry_coordinates_and_nodes(tmp_path):
     mesh = read(tmp_path, text)
     assert measure(mesh)[:2] == (4, pytest.approx(2.0))
     np.testing.assert_allclose(bounds(mesh)[:, 0], [0, 31])
+
+
+def test_face_sets_sharing_coordinates_share_their_vertices(tmp_path):
+    # the two halves of the cube use one Coordinate: its 8 points are placed once
+    first, second = CUBE_INDEX.split(", 0 1 5 4")
+    text = vrml2(
+        f"Shape {{ geometry IndexedFaceSet {{ coord DEF C Coordinate {{ point [ {CUBE_POINTS} ] }} coordIndex [ {first} ] }} }}\n"
+        f"Shape {{ geometry IndexedFaceSet {{ coord USE C coordIndex [ 0 1 5 4{second} ] }} }}"
+    )
+    mesh = read(tmp_path, text)
+    assert len(mesh.vertices) == 8 and mesh.polygon_count == 6
+    assert measure(mesh) == (12, pytest.approx(6.0), pytest.approx(1.0))
 
 
 def test_proto_instances_are_expanded_with_their_fields(tmp_path):

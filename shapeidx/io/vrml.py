@@ -4,8 +4,9 @@ The reader runs in four steps, one module each:
 
 1. :mod:`.vrml_lexer`: bytes to tokens; number arrays converted in bulk with numpy.
 2. :mod:`.vrml_parser`: tokens to a tree of nodes (DEF/USE shared, PROTOs expanded).
-3. :mod:`.vrml_scene`: the tree counted (limits checked before any geometry is built)
-   and then traversed with a transform stack, collecting face sets.
+3. :mod:`.vrml_scene`: the face sets of each file split into polygons in one batch, the
+   tree counted (limits checked before any geometry is built) and then traversed with a
+   transform stack, collecting face sets.
 4. This module: files (gzip, Inline of other files, limits) and the resulting
    :class:`~shapeidx.io.base.PolygonMesh`.
 
@@ -116,6 +117,7 @@ class _VrmlLoad:
         if inlined and not data.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"#VRML"):
             return None
         scene = parse_vrml(data, path)
+        self.walker.prepare(scene.all_nodes, scene.version)
         for message in scene.warnings:
             self.warnings.add(path.name if inlined else None, message)
         return scene

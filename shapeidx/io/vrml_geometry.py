@@ -126,37 +126,90 @@ def polygon_triangle_count(coord_index: np.ndarray) -> int:
     return int(np.maximum(sizes - 2, 0).sum())
 
 
-def polygons_from_coord_index(coord_index: np.ndarray, point_count: int) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """Split a coordIndex on -1 into polygons (the final -1 is optional).
+#: The polygons of one coordIndex: ``(sizes, corners, triangles, notes)`` with sizes (k,)
+#: int64, corners (sizes.sum(),) int64, triangles = sizes.sum() - 2 k (what they give),
+#: notes what was dropped (for the warnings). A plain tuple: made by the thousand.
+FaceSet = tuple[np.ndarray, np.ndarray, int, tuple[str, ...]]
 
-    Indices outside ``[0, point_count)`` (other than the -1 separators) are dropped, and
-    polygons left with fewer than three corners are skipped.
+
+def face_sets_from_coord_indices(coord_indices: list[np.ndarray], point_counts: list[int]) -> list[FaceSet | None]:
+    """Split coordIndex arrays on -1 into polygons (the final -1 is optional), all at once.
+
+    A CAD export may hold thousands of small face sets (KiCad writes one per CAD face):
+    numpy's cost per call, not per number, would decide the time if each were split on
+    its own, so the arrays are concatenated and split together. Each array's result is
+    what splitting it alone gives.
+
+    Indices outside ``[0, point_counts[j])`` (other than the -1 separators) are dropped,
+    and polygons left with fewer than three corners are skipped. Integers too large for
+    int64 count as out of range rather than wrapping around.
+
+    Parameters
+    ----------
+    coord_indices : list of (n_j,) float64
+        coordIndex values as read.
+    point_counts : list of int
+        The number of points each array indexes.
 
     Returns
     -------
-    sizes : (k,) int64
-    corners : (sizes.sum(),) int64
-    notes : list of str
-        What was dropped, for the warnings.
+    list of FaceSet or None
+        ``(sizes, corners, triangles, notes)`` per array; None for an array holding
+        numbers that are not integers (fractions, NaN).
     """
-    index = np.asarray(coord_index, dtype=np.int64)
-    notes = []
-    out_of_range = (index < -1) | (index >= point_count)
-    if out_of_range.any():
-        notes.append(f"{int(out_of_range.sum())} out-of-range coordIndex value(s) dropped")
-        index = index[~out_of_range]
+    count = len(coord_indices)
+    if count == 0:
+        return []
+    lengths = np.fromiter(map(len, coord_indices), dtype=np.int64, count=count)
+    values = np.concatenate(coord_indices).astype(np.float64, copy=False)
+    segment = np.repeat(np.arange(count), lengths)  # which array each value is from
+    with np.errstate(invalid="ignore"):  # NaN, infinity and huge values cast to garbage
+        index = values.astype(np.int64)
+        exact = index == values
+        integral = np.ones(count, dtype=bool)
+        if not exact.all():
+            integral[segment[values != np.round(values)]] = False
+            index = np.where(exact, index, np.clip(values, -(2**62), 2**62).astype(np.int64))
+    out_of_range = (index < -1) | (index >= np.repeat(np.asarray(point_counts, dtype=np.int64), lengths))
+    dropped = np.bincount(segment[out_of_range], minlength=count)
+    index, segment = index[~out_of_range], segment[~out_of_range]
     separators = index == -1
-    polygon_of = np.cumsum(separators)[~separators]
-    corners = index[~separators]
-    sizes = np.bincount(polygon_of) if len(polygon_of) else np.zeros(0, dtype=np.int64)
+    # Polygon numbers: a new polygon after each -1 and at the start of each array.
+    polygon_of = (np.cumsum(separators) + segment)[~separators]
+    corners, corner_segment = index[~separators], segment[~separators]
+    sizes = np.bincount(polygon_of)  # empty polygons (-1 -1, or a trailing -1) count 0
+    polygon_segment = np.zeros(len(sizes), dtype=np.int64)
+    polygon_segment[polygon_of] = corner_segment
     keep = sizes >= 3
-    if not keep.all():
-        short = int(np.count_nonzero((sizes > 0) & ~keep))
-        if short:
-            notes.append(f"{short} polygon(s) with fewer than three corners skipped")
-        corners = corners[keep[polygon_of]]
-        sizes = sizes[keep]
-    return sizes.astype(np.int64), corners, notes
+    short = np.bincount(polygon_segment[(sizes > 0) & ~keep], minlength=count)
+    kept_corner = keep[polygon_of]
+    corners, corner_segment = corners[kept_corner], corner_segment[kept_corner]
+    sizes, polygon_segment = sizes[keep].astype(np.int64), polygon_segment[keep]
+    corner_counts = np.bincount(corner_segment, minlength=count)
+    polygon_counts = np.bincount(polygon_segment, minlength=count)
+    corner_ends = np.cumsum(corner_counts).tolist()
+    polygon_ends = np.cumsum(polygon_counts).tolist()
+    triangles = (corner_counts - 2 * polygon_counts).tolist()
+    # Each array's pieces, with tuples made by zip (in C): KiCad parts hold a thousand
+    corner_starts, polygon_starts = [0, *corner_ends[:-1]], [0, *polygon_ends[:-1]]
+    sizes_parts = [sizes[start:end] for start, end in zip(polygon_starts, polygon_ends)]
+    corner_parts = [corners[start:end] for start, end in zip(corner_starts, corner_ends)]
+    notes: list[tuple[str, ...]] = [()] * count
+    for j in np.flatnonzero(dropped | short).tolist():
+        notes[j] = _drop_notes(int(dropped[j]), int(short[j]))
+    results: list[FaceSet | None] = list(zip(sizes_parts, corner_parts, triangles, notes))
+    for j in np.flatnonzero(~integral).tolist():
+        results[j] = None
+    return results
+
+
+def _drop_notes(dropped: int, short: int) -> tuple[str, ...]:
+    notes = []
+    if dropped:
+        notes.append(f"{dropped} out-of-range coordIndex value(s) dropped")
+    if short:
+        notes.append(f"{short} polygon(s) with fewer than three corners skipped")
+    return tuple(notes)
 
 
 def reverse_winding(sizes: np.ndarray, corners: np.ndarray) -> np.ndarray:
@@ -171,20 +224,6 @@ def reverse_winding(sizes: np.ndarray, corners: np.ndarray) -> np.ndarray:
     local = np.arange(len(corners)) - starts
     sizes_each = np.repeat(sizes, sizes)
     return corners[starts + (sizes_each - local) % sizes_each]
-
-
-def as_coord_index(values: np.ndarray) -> np.ndarray | None:
-    """A coordIndex array (read as float64) as int64, or None when it holds non-integers.
-
-    Integers too large for int64 become out-of-range indices rather than wrapping around.
-    """
-    with np.errstate(invalid="ignore"):
-        ints = values.astype(np.int64)
-    if np.array_equal(ints, values):
-        return ints
-    if not np.array_equal(values, np.round(values)):
-        return None  # fractions, NaN or infinity
-    return np.clip(values, -(2**62), 2**62).astype(np.int64)
 
 
 # -- primitives ----------------------------------------------------------------------------

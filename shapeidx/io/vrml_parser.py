@@ -27,7 +27,21 @@ from typing import Any
 import numpy as np
 
 from ..errors import LoadError
-from .vrml_lexer import END, NAME, NUMBER, PUNCT, STRING, Lexer, Token, decode_string, describe
+from .vrml_lexer import (
+    ARRAY,
+    BROKEN,
+    END,
+    NAME,
+    NAME_START,
+    NUMBER,
+    PUNCT,
+    STRING,
+    Lexer,
+    decode_string,
+    describe,
+    kind_of,
+    number_value,
+)
 
 #: Deepest nesting of nodes and brackets accepted: far more than exporters write, and few
 #: enough that hostile files cannot exhaust Python's stack.
@@ -38,32 +52,70 @@ MAX_PROTO_NODES = 200_000
 _INTERFACE_WITH_VALUE = {"field", "exposedField", "initializeOnly", "inputOutput"}
 _INTERFACE_EVENT = {"eventIn", "eventOut", "inputOnly", "outputOnly"}
 _BRACES = (b"{", b"}", b"[", b"]")
+_STATEMENT_WORDS = frozenset((b"DEF", b"USE", b"PROTO", b"EXTERNPROTO", b"ROUTE"))
+_NODE_WORDS = frozenset((b"DEF", b"USE", b"NULL"))
+_VALUE_WORDS = _NODE_WORDS | {b"IS", b"TRUE", b"FALSE"}  # names that are not node types as values
+_KEYWORDS = _STATEMENT_WORDS | _NODE_WORDS  # names that are not node types as statements
+_DECLARATIONS = _INTERFACE_WITH_VALUE | _INTERFACE_EVENT
+_NAME_START_BYTES = frozenset(bytes([c]) for c in NAME_START)  # tested on token[:1]
+_NUMBER_START_BYTES = frozenset(bytes([c]) for c in b"0123456789+-.")  # '.' alone: punctuation
+# First bytes of a token after a field name that node() leaves to _member: '{' (the name
+# was a VRML 1.0 child node's type) and BROKEN's
+_SLOW_STARTS = frozenset((b"{", BROKEN[:1]))
 _HEADER = re.compile(rb"#(VRML|Inventor|X3D)\s*V?(\d+)?")
 
 
-@dataclass(eq=False)
 class Node:
     """One node as read: its type, its fields and (VRML 1.0) its child nodes.
 
     Field values are numpy float64 arrays (any numbers), lists of str (strings), bools,
     Nodes, lists of Nodes, ``None`` (``NULL``), tuples of words (VRML 1.0 enums and bit
     masks) or :class:`IsRef` inside PROTO templates.
+
+    A plain class with slots: a CAD part makes thousands of nodes, and each costs less to
+    make, and less for the garbage collector to look at, this way.
+
+    Attributes
+    ----------
+    type : str
+    token : int
+        Index of the type name in its file's token list (for the line number).
+    source : Lexer or None
+        The file it was read from.
+    fields : dict
+    children : sequence of Node
+        An empty tuple until a first child is added (VRML 2.0 nodes never have any).
+    has_is : bool
+        True when this node or a node below it holds an IS reference (PROTO templates).
+    external : bool
+        Set on EXTERNPROTO instances and node types nobody defined.
     """
 
-    type: str
-    offset: int  # byte offset of the type name in its file
-    source: Lexer | None = None  # the file it was read from (for line numbers)
-    fields: dict[str, Any] = field(default_factory=dict)
-    children: list["Node"] = field(default_factory=list)
-    #: True when this node or a node below it holds an IS reference (PROTO templates).
-    has_is: bool = False
-    #: Set on EXTERNPROTO instances and node types nobody defined.
-    external: bool = False
+    __slots__ = ("children", "external", "fields", "has_is", "source", "token", "type")
+
+    def __init__(self, type: str, token: int, source: Lexer | None = None, external: bool = False):
+        self.type = type
+        self.token = token
+        self.source = source
+        self.fields: dict[str, Any] = {}
+        self.children: list[Node] | tuple[()] = ()
+        self.has_is = False
+        self.external = external
+
+    def __repr__(self) -> str:
+        return f"Node({self.type!r}, line {self.line}, fields {sorted(self.fields)}, {len(self.children)} children)"
+
+    def add_child(self, child: Node) -> None:
+        if self.children:
+            self.children.append(child)
+        else:
+            self.children = [child]
+        self.has_is |= child.has_is
 
     @property
     def line(self) -> int | None:
         """Line of the node's type name in its file (counted on demand: messages only)."""
-        return self.source.line_of(self.offset) if self.source is not None else None
+        return self.source.line_at(self.token) if self.source is not None else None
 
 
 @dataclass(frozen=True)
@@ -88,6 +140,9 @@ class Scene:
     version: int
     nodes: list[Node]
     warnings: list[str]
+    #: Every node read or made by PROTO expansion, in order, for passes that want them
+    #: all at once rather than by traversal.
+    all_nodes: list[Node] = field(default_factory=list)
 
 
 def read_header(data: bytes, path) -> tuple[int, list[str]]:
@@ -132,7 +187,7 @@ def parse_vrml(data: bytes, path) -> Scene:
     version, warnings = read_header(data, path)
     parser = _Parser(Lexer(data, path), warnings, version)
     nodes = parser.statements(until_close=None)
-    return Scene(path, version, nodes, warnings)
+    return Scene(path, version, nodes, warnings, parser.created)
 
 
 class _Scope:
@@ -145,269 +200,407 @@ class _Scope:
 
 
 class _Parser:
+    """Walks the lexer's token list; ``self.i`` is the index of the next token.
+
+    Every loop over a node body or a list starts by calling :meth:`Lexer.refill` when the
+    list runs short (only after a rebuild, see :mod:`.vrml_lexer`); what one turn of a loop
+    reads before the next loop starts stays within ``LOOKAHEAD`` tokens.
+
+    The checks follow a parser that scans one token at a time with one token of
+    look-ahead: where that one would have scanned the broken rest of the file (and
+    stopped with its lexical error), this one raises that error too, even when the token
+    it was looking at would have allowed something else.
+    """
+
     def __init__(self, lexer: Lexer, warnings: list[str], version: int):
         self.lx = lexer
+        self.tokens = lexer.tokens  # the lexer changes this list in place only
+        self.i = 0
         self.version = version
         self.warnings = warnings
         self.scope = _Scope({})
         self.depth = 0
         self.proto_nodes_created = 0
         self._warned: set[str] = set()
+        self._names: dict[bytes, str] = {}  # decoded names: a file repeats a few hundred
+        # Names read as a field name (neither a statement nor a declaration keyword)
+        self._field_names: dict[bytes, str] = {}
+        self.created: list[Node] = []  # every node made, for Scene.all_nodes
 
     def warn_once(self, message: str) -> None:
         if message not in self._warned:
             self._warned.add(message)
             self.warnings.append(message)
 
+    def _decode(self, token: bytes) -> str:
+        name = self._names.get(token)
+        if name is None:
+            name = self._names[token] = token.decode("utf-8", errors="replace")
+        return name
+
+    def _error(self, reason: str, index: int | None = None, at: int | None = None) -> LoadError:
+        """LoadError about token ``index`` (default: the next), on the line of ``at``."""
+        return self.lx.error(reason, self.i if index is None else index, at)
+
     # -- statements ---------------------------------------------------------------------
 
-    def statements(self, until_close: Token | None) -> list[Node]:
-        """Nodes up to the end of file, or up to the ``}`` closing ``until_close``."""
+    def statements(self, until_close: int | None) -> list[Node]:
+        """Nodes up to the end of file, or up to the ``}`` matching the ``{`` at token
+        index ``until_close``."""
         nodes = []
+        tokens, lx = self.tokens, self.lx
         while True:
+            if self.i >= lx.refill_at:
+                lx.refill()
+            token = tokens[self.i]
             if until_close is None:
-                if self.lx.peek().kind == END:
+                if not token:
                     return nodes
-            elif self.lx.at_close(b"}", until_close.start, "'{' of a PROTO body"):
+            elif token == b"}":
+                self.i += 1
                 return nodes
-            node = self.statement()
+            elif not token:
+                raise self._error("'{' of a PROTO body is never closed (file ends first)", at=until_close)
+            if token[:1] in _NAME_START_BYTES and token not in _KEYWORDS and tokens[self.i + 1] == b"{":
+                node = self.node(self.i)  # a plain node, as statement() would read it
+            else:
+                node = self.statement()
             if node is not None:
                 nodes.append(node)
 
     def statement(self) -> Node | None:
         """One node, PROTO, EXTERNPROTO or ROUTE; returns the node or None."""
-        token = self.lx.peek()
-        if token.kind == NAME:
-            if token.text == b"PROTO":
+        token = self.tokens[self.i]
+        if kind_of(token) == NAME:
+            if token == b"PROTO":
                 self.proto()
                 return None
-            if token.text == b"EXTERNPROTO":
+            if token == b"EXTERNPROTO":
                 self.externproto()
                 return None
-            if token.text == b"ROUTE":
+            if token == b"ROUTE":
                 self.route()
                 return None
             return self.node_statement()
-        raise self.lx.error(f"expected a node, found {describe(token)}")
+        raise self._error(f"expected a node, found {describe(token)}")
 
     def route(self) -> None:
         """``ROUTE a.field TO b.field``: events do not change geometry; read and drop."""
-        start = self.lx.next()
-        for expected in (NAME, b".", NAME, b"TO", NAME, b".", NAME):
-            token = self.lx.next()
-            if (token.kind if expected == NAME else token.text) != expected:
-                raise self.lx.error(f"malformed ROUTE: unexpected {describe(token)}", start.start)
+        start = self.i
+        for offset, expected in enumerate((NAME, b".", NAME, b"TO", NAME, b".", NAME), 1):
+            token = self.tokens[start + offset]
+            if (kind_of(token) if expected == NAME else token) != expected:
+                raise self._error(f"malformed ROUTE: unexpected {describe(token)}", start + offset, at=start)
+        self.i = start + 8
 
     # -- nodes ----------------------------------------------------------------------------
 
     def node_statement(self) -> Node | None:
         """``DEF name node``, ``USE name``, ``NULL`` or a plain node."""
-        token = self.lx.next()
-        if token.text == b"USE":
-            name = self._name_after("USE")
-            node = self.scope.defs.get(name)
-            if node is None:
-                self.warnings.append(f"line {self.lx.line_of(token.start)}: USE of undefined name {name!r} ignored")
-            return node
-        if token.text == b"DEF":
+        start = self.i
+        token = self.tokens[start]
+        if token == b"USE":
+            return self.use()
+        if token == b"DEF":
             name = self._name_after("DEF")
-            type_token = self.lx.next()
-            if type_token.kind != NAME:
-                raise self.lx.error(
-                    f"expected a node type after DEF {name}, found {describe(type_token)}", type_token.start
-                )
-            node = self.node(type_token)
+            type_index = self.i
+            if kind_of(self.tokens[type_index]) != NAME:
+                type_token = self.tokens[type_index]
+                raise self._error(f"expected a node type after DEF {name}, found {describe(type_token)}")
+            node = self.node(type_index)
             if node is not None:
                 self.scope.defs[name] = node
             return node
-        if token.text == b"NULL":
+        if token == b"NULL":
+            self.i += 1
             return None
-        return self.node(token)
+        return self.node(start)
+
+    def use(self) -> Node | None:
+        """``USE name`` (the next tokens): the node DEF bound to the name, or None."""
+        start = self.i
+        name = self._name_after("USE")
+        node = self.scope.defs.get(name)
+        if node is None:
+            self.warnings.append(f"line {self.lx.line_at(start)}: USE of undefined name {name!r} ignored")
+        return node
 
     def _name_after(self, what: str) -> str:
-        """The name that must follow the keyword ``what`` (DEF, USE, IS, PROTO...)."""
-        token = self.lx.next()
-        if token.kind != NAME:
-            raise self.lx.error(f"expected a name after {what}, found {describe(token)}", token.start)
-        return token.text.decode("utf-8", errors="replace")
+        """The name that must follow the keyword ``what`` (DEF, USE, IS, PROTO...), which
+        is the next token; leaves ``self.i`` after the name."""
+        index = self.i + 1
+        token = self.tokens[index]
+        if token[:1] not in _NAME_START_BYTES:
+            raise self._error(f"expected a name after {what}, found {describe(token)}", index)
+        self.i = index + 1
+        return self._names.get(token) or self._decode(token)
 
-    def node(self, type_token: Token) -> Node:
-        """A node whose type name was just read: its ``{ body }``, PROTOs expanded."""
-        type_name = type_token.text.decode("utf-8", errors="replace")
-        brace = self.lx.next()
-        if brace.kind != PUNCT or brace.text != b"{":
-            raise self.lx.error(f"expected '{{' after node type {type_name!r}, found {describe(brace)}", brace.start)
-        node = Node(type_name, type_token.start, self.lx)
-        self._enter(brace)
-        self.body(node, brace)
+    def node(self, type_index: int) -> Node:
+        """The node whose type name is token ``type_index``: its ``{ body }`` of fields
+        and (VRML 1.0) child nodes, PROTOs expanded.
+
+        The hot loop of the reader: a CAD part has a few fields per node and thousands of
+        nodes. A field name seen before (``self._field_names``) followed by the commonest
+        values (a number array, a node, ``USE``) is read here with a few tests; anything
+        else goes to :meth:`_member`, which reads one member of a body the general way.
+        """
+        tokens, lx = self.tokens, self.lx
+        type_token = tokens[type_index]
+        type_name = self._names.get(type_token) or self._decode(type_token)
+        brace = type_index + 1
+        if tokens[brace] != b"{":
+            found = describe(tokens[brace])
+            raise self._error(f"expected '{{' after node type {type_name!r}, found {found}", brace)
+        node = Node(type_name, type_index, lx)
+        self.created.append(node)
+        self.depth += 1
+        if self.depth > MAX_NESTING:
+            raise self._error(f"nodes or lists nested deeper than {MAX_NESTING} levels", brace)
+        fields, field_names = node.fields, self._field_names
+        i = brace + 1
+        while True:
+            if i >= lx.refill_at:
+                lx.refill()
+            token = tokens[i]
+            following = tokens[i + 1]
+            name = field_names.get(token)
+            start = following[:1]
+            if name is None or start in _SLOW_STARTS:  # '}', a new name, a child node, broken
+                if token == b"}":
+                    break
+                self.i = i
+                self._member(node, brace)
+            elif start == b"[" and len(following) > 1:  # a number array
+                fields[name] = lx.array_numbers(i + 1)
+                i += 2
+                continue
+            elif start in _NAME_START_BYTES and following not in _VALUE_WORDS and tokens[i + 2] == b"{":
+                child = fields[name] = self.node(i + 1)
+                node.has_is |= child.has_is
+            elif following == b"USE":
+                self.i = i + 1
+                fields[name] = self.use()
+            elif start in _NUMBER_START_BYTES and following != b".":  # numbers without [ ]
+                after = tokens[i + 2]
+                if after[:1] in _NUMBER_START_BYTES and after != b".":
+                    self.i = i + 1
+                    fields[name] = self.numbers()
+                else:  # one number (creaseAngle 0.5): what numbers() gives, without its loop
+                    fields[name] = np.array([number_value(following)], dtype=np.float64)
+                    i += 2
+                    continue
+            else:
+                self.i = i + 1
+                value = fields[name] = self.field_value(name, node)
+                if value.__class__ is not np.ndarray and _holds_is(value):
+                    node.has_is = True
+            i = self.i
+        self.i = i + 1
         self.depth -= 1
         if type_name in self.scope.protos:
             return self.instantiate(node, self.scope.protos[type_name])
         return node
 
-    def _enter(self, token: Token) -> None:
+    def _member(self, node: Node, brace: int) -> None:
+        """One field, child node or statement of the body opened by token ``brace``."""
+        i = self.i
+        token = self.tokens[i]
+        if not token or token[0] not in NAME_START:
+            if not token:
+                raise self._error(f"'{{' of {node.type} is never closed (file ends first)", i, at=brace)
+            raise self._error(f"expected a field name or '}}' in {node.type}, found {describe(token)}", i)
+        if token in _STATEMENT_WORDS:
+            self._add_child(node, self.statement())
+            return
+        if self._starts_node(i):  # VRML 1.0 child node
+            self._add_child(node, self.node(i))
+            return
+        name = self._decode(token)
+        self.i = i + 1
+        if name in _DECLARATIONS:
+            self.declaration(node, name)  # Script and PROTO-like field declarations
+            return
+        self._field_names[token] = name  # a plain field name: node() reads the next one
+        value = node.fields[name] = self.field_value(name, node)
+        if value.__class__ is not np.ndarray and _holds_is(value):
+            node.has_is = True
+
+    def _enter(self, index: int) -> None:
         self.depth += 1
         if self.depth > MAX_NESTING:
-            raise self.lx.error(f"nodes or lists nested deeper than {MAX_NESTING} levels", token.start)
-
-    def body(self, node: Node, brace: Token) -> None:
-        """Fields and (VRML 1.0) child nodes up to the closing ``}``."""
-        lx = self.lx
-        while not lx.at_close(b"}", brace.start, f"'{{' of {node.type}"):
-            token = lx.peek()
-            if token.kind != NAME:
-                raise lx.error(f"expected a field name or '}}' in {node.type}, found {describe(token)}")
-            word = token.text
-            if word in (b"DEF", b"USE", b"PROTO", b"EXTERNPROTO", b"ROUTE"):
-                self._add_child(node, self.statement())
-                continue
-            if self._starts_node(token):  # VRML 1.0 child node
-                self._add_child(node, self.node(lx.next()))
-                continue
-            lx.next()
-            name = word.decode("utf-8", errors="replace")
-            if name in _INTERFACE_WITH_VALUE or name in _INTERFACE_EVENT:
-                self.declaration(node, name)  # Script and PROTO-like field declarations
-                continue
-            value = self.field_value(name, node)
-            node.fields[name] = value
-            node.has_is |= _holds_is(value)
+            raise self._error(f"nodes or lists nested deeper than {MAX_NESTING} levels", index)
 
     @staticmethod
     def _add_child(node: Node, child: Node | None) -> None:
         if child is not None:
-            node.children.append(child)
-            node.has_is |= child.has_is
+            node.add_child(child)
 
     def declaration(self, node: Node, keyword: str) -> None:
         """``field TYPE name value`` / ``eventIn TYPE name`` inside a Script node."""
-        type_token, name_token = self.lx.next(), self.lx.next()
-        if type_token.kind != NAME or name_token.kind != NAME:
-            raise self.lx.error(f"malformed '{keyword}' declaration in {node.type}", type_token.start)
-        name = name_token.text.decode("utf-8", errors="replace")
-        after = self.lx.peek()
-        if after.kind == NAME and after.text == b"IS":
-            self.lx.next()
+        type_index = self.i
+        type_token, name_token, after = self.tokens[type_index : type_index + 3]
+        if type_token is BROKEN or name_token is BROKEN:
+            raise self.lx.broken_error()
+        if kind_of(type_token) != NAME or kind_of(name_token) != NAME:
+            raise self._error(f"malformed '{keyword}' declaration in {node.type}", type_index)
+        if after is BROKEN:  # scanned as the look-ahead for IS
+            raise self.lx.broken_error()
+        name = self._decode(name_token)
+        self.i = type_index + 2
+        if after == b"IS":
             node.fields[name] = IsRef(self._name_after("IS"))
             node.has_is = True
         elif keyword in _INTERFACE_WITH_VALUE:
-            node.fields[name] = self.typed_value(type_token, name)
+            node.fields[name] = self.typed_value(type_index, name)
 
     # -- values ---------------------------------------------------------------------------
 
     def field_value(self, name: str, node: Node):
         """The value of field ``name``: decided by its first token."""
-        lx = self.lx
-        token = lx.peek()
-        if token.kind == NAME and token.text == b"IS":
-            lx.next()
-            return IsRef(self._name_after("IS"))
-        if token.kind == NUMBER:
-            return self.numbers()
-        if token.kind == STRING:
-            return [decode_string(lx.next())]
-        if token.kind == PUNCT:
-            if token.text == b"[":
-                return self.bracketed_list()
-            if token.text == b"(":
-                return self.bit_mask()
-        if token.kind == NAME:
-            if token.text == b"TRUE" or token.text == b"FALSE":
-                return lx.next().text == b"TRUE"
-            if token.text in (b"DEF", b"USE", b"NULL"):
+        i = self.i
+        token = self.tokens[i]
+        kind = kind_of(token)
+        if kind == ARRAY:  # '[' and numbers: the common case
+            self.i = i + 1
+            return self.lx.array_numbers(i)
+        if kind == NAME:
+            if token == b"IS":
+                return IsRef(self._name_after("IS"))
+            if token == b"TRUE" or token == b"FALSE":
+                self.i = i + 1
+                return token == b"TRUE"
+            if token in _NODE_WORDS:
                 return self.node_statement()
-            if self._starts_node(token):
-                return self.node(lx.next())
-        if self.version == 1 and token.kind in (NAME, PUNCT) and token.text not in _BRACES:
+            if self._starts_node(i):
+                return self.node(i)
+        elif kind == NUMBER:
+            return self.numbers()
+        elif kind == STRING:
+            self.i = i + 1
+            return [decode_string(token)]
+        elif token == b"[":
+            return self.bracketed_list()
+        elif token == b"(":
+            return self.bit_mask()
+        if self.version == 1 and kind in (NAME, PUNCT) and token not in _BRACES:
             # an enum (``vertexOrdering CLOCKWISE``) or a string without quotes
-            return tuple(lx.raw_word().decode("utf-8", errors="replace").split("|"))
-        if token.kind == NAME:
-            lx.next()
-            return (token.text.decode("utf-8", errors="replace"),)
-        raise lx.error(f"expected a value for field '{name}' of {node.type}, found {describe(token)}")
-
-    def _starts_node(self, token: Token) -> bool:
-        """Is the name ``token`` (the next token) a node type, followed by ``{``?"""
-        after = self.lx.peek(1)
-        return after.kind == PUNCT and after.text == b"{"
+            word, self.i = self.lx.raw_word(i)
+            return tuple(word.decode("utf-8", errors="replace").split("|"))
+        if kind == NAME:
+            self.i = i + 1
+            return (self._decode(token),)
+        raise self._error(f"expected a value for field '{name}' of {node.type}, found {describe(token)}", i)
 
     def numbers(self) -> np.ndarray:
         """Numbers written without brackets (``translation 1 2 3``), token by token: few."""
+        tokens, lx = self.tokens, self.lx
         values = []
-        while self.lx.peek().kind == NUMBER:
-            text = self.lx.next().text
-            values.append(float(int(text, 16)) if b"x" in text or b"X" in text else float(text))
-        return np.array(values, dtype=np.float64)
+        while True:
+            if self.i >= lx.refill_at:
+                lx.refill()
+            token = tokens[self.i]
+            if token[:1] not in _NUMBER_START_BYTES or token == b".":  # not a number
+                return np.array(values, dtype=np.float64)
+            values.append(number_value(token))
+            self.i += 1
 
     def bracketed_list(self):
-        """``[ ... ]``: numbers in bulk, else strings, nodes or words one by one."""
-        lx = self.lx
-        opening = lx.next()
-        first = lx.peek()
-        if first.kind == NUMBER:
-            return lx.numbers_in_brackets(opening.start)
+        """``[ ... ]`` of strings, nodes or words, one by one (a ``[`` followed by a number
+        is an array token, read in bulk)."""
+        tokens, lx = self.tokens, self.lx
+        opening = self.i
+        if tokens[opening + 1] is BROKEN:  # scanned to see whether numbers follow
+            raise lx.broken_error()
         self._enter(opening)
+        self.i = opening + 1
         items: list = []
-        while not lx.at_close(b"]", opening.start, "'['"):
-            token = lx.peek()
-            if token.kind == STRING:
-                items.append(decode_string(lx.next()))
-            elif token.kind == NUMBER:
+        while True:
+            if self.i >= lx.refill_at:
+                lx.refill()
+            token = tokens[self.i]
+            if token == b"]":
+                self.i += 1
+                break
+            kind = kind_of(token)
+            if kind == END:
+                raise self._error("'[' is never closed (file ends first)", at=opening)
+            if kind == STRING:
+                items.append(decode_string(token))
+                self.i += 1
+            elif kind == NUMBER:
                 items.extend(self.numbers().tolist())
-            elif token.kind == NAME and token.text in (b"ROUTE", b"PROTO", b"EXTERNPROTO"):
+            elif kind == NAME and token in (b"ROUTE", b"PROTO", b"EXTERNPROTO"):
                 self.statement()
-            elif token.kind == NAME:
-                items.append(self._list_item(token))
+            elif kind == NAME:
+                items.append(self._list_item())
             else:
-                raise lx.error(f"unexpected {describe(token)} in a '[ ]' list")
+                raise self._error(f"unexpected {describe(token)} in a '[ ]' list")
         self.depth -= 1
         return [item for item in items if item is not None]
 
-    def _list_item(self, token: Token):
+    def _list_item(self):
         """A node in an MFNode list, or a word (VRML 1.0 ``fields [ SFFloat size ]``)."""
-        if token.text in (b"DEF", b"USE", b"NULL"):
+        i = self.i
+        token = self.tokens[i]
+        if token in _NODE_WORDS:
             return self.node_statement()
-        if self._starts_node(token):
-            return self.node(self.lx.next())
-        return self.lx.next().text.decode("utf-8", errors="replace")
+        if self._starts_node(i):
+            return self.node(i)
+        self.i = i + 1
+        return token.decode("utf-8", errors="replace")
+
+    def _starts_node(self, i: int) -> bool:
+        """Is the name at token ``i`` a node type, followed by ``{``? Looking at the next
+        token scans it: when it is the broken rest of the file, its error is raised."""
+        following = self.tokens[i + 1]
+        if following is BROKEN:
+            raise self.lx.broken_error()
+        return following == b"{"
 
     def bit_mask(self) -> tuple[str, ...]:
         """VRML 1.0 ``(SIDES | TOP)``: the words between the parentheses."""
-        opening = self.lx.next()
+        tokens, lx = self.tokens, self.lx
+        opening = self.i
+        self.i += 1
         words = []
         while True:
-            token = self.lx.next()
-            if token.kind == PUNCT and token.text == b")":
+            if self.i >= lx.refill_at:
+                lx.refill()
+            i = self.i
+            token = tokens[i]
+            self.i = i + 1
+            if token == b")":
                 return tuple(words)
-            if token.kind == NAME:
-                words.extend(w for w in token.text.decode("utf-8", errors="replace").replace(")", "|").split("|") if w)
-                if token.text.endswith(b")"):
+            kind = kind_of(token)
+            if kind == NAME:
+                words.extend(w for w in token.decode("utf-8", errors="replace").replace(")", "|").split("|") if w)
+                if token.endswith(b")"):
                     return tuple(words)
-            elif not (token.kind == PUNCT and token.text == b"|"):
-                raise self.lx.error(f"unexpected {describe(token)} in a '( | )' bit mask", opening.start)
+            elif token != b"|":
+                raise self._error(f"unexpected {describe(token)} in a '( | )' bit mask", i, at=opening)
 
-    def typed_value(self, type_token: Token, name: str):
-        """A value whose type is declared (PROTO interface, Script field)."""
-        type_name = type_token.text
-        token = self.lx.peek()
+    def typed_value(self, type_index: int, name: str):
+        """A value whose type is declared (PROTO interface, Script field); the type name
+        is token ``type_index``."""
+        type_name = self.tokens[type_index]
+        token = self.tokens[self.i]
         if type_name == b"SFNode":
-            if token.kind == NAME:
-                return self.node_statement() if token.text in (b"DEF", b"USE", b"NULL") else self.node(self.lx.next())
-            raise self.lx.error(f"expected a node or NULL for SFNode field '{name}', found {describe(token)}")
-        if type_name == b"MFNode" and token.kind == NAME:
-            node = self.node_statement() if token.text in (b"DEF", b"USE", b"NULL") else self.node(self.lx.next())
+            if kind_of(token) == NAME:
+                return self.node_statement() if token in _NODE_WORDS else self.node(self.i)
+            raise self._error(f"expected a node or NULL for SFNode field '{name}', found {describe(token)}")
+        if type_name == b"MFNode" and kind_of(token) == NAME:
+            node = self.node_statement() if token in _NODE_WORDS else self.node(self.i)
             return [node] if node is not None else []
-        return self.field_value(name, Node("declaration", type_token.start, self.lx))
+        return self.field_value(name, Node("declaration", type_index, self.lx))
 
     # -- PROTO ----------------------------------------------------------------------------
 
     def proto(self) -> None:
         """``PROTO Name [ interface ] { body }``: remembered as a template."""
-        self.lx.next()  # PROTO
         name = self._name_after("PROTO")
-        opening = self.lx.expect(b"[", f"after PROTO {name}")
+        opening = self._expect(b"[", f"after PROTO {name}")
         defaults = self.interface(opening, with_values=True)
-        brace = self.lx.expect(b"{", f"to open the body of PROTO {name}")
+        brace = self._expect(b"{", f"to open the body of PROTO {name}")
         outer = self.scope
         self.scope = _Scope(dict(outer.protos))  # the body has its own DEF names
         self._enter(brace)
@@ -418,35 +611,59 @@ class _Parser:
             self.depth -= 1
         outer.protos[name] = ProtoDef(name, defaults, body)
 
+    def _expect(self, text: bytes, where: str) -> int:
+        """Consume the punctuation ``text`` (the next token); returns its index."""
+        index = self.i
+        token = self.tokens[index]
+        if token != text:
+            if text == b"[" and kind_of(token) == ARRAY:
+                # '[' followed by numbers: an interface holds declarations, not numbers
+                first, offset = self.lx.first_in_array(index)
+                expected = "expected field, exposedField, eventIn or eventOut"
+                raise self.lx.error_at_offset(f"{expected}, found {describe(first)}", offset)
+            raise self._error(f"expected '{text.decode()}' {where}, found {describe(token)}", index)
+        self.i = index + 1
+        return index
+
     def externproto(self) -> None:
         """``EXTERNPROTO Name [ interface ] "url"``: not loaded; its instances are skipped."""
-        keyword = self.lx.next()
+        keyword = self.i
         name = self._name_after("EXTERNPROTO")
-        opening = self.lx.expect(b"[", f"after EXTERNPROTO {name}")
+        opening = self._expect(b"[", f"after EXTERNPROTO {name}")
         self.interface(opening, with_values=False)
-        url = self.field_value("url", Node("EXTERNPROTO", keyword.start, self.lx))
+        url = self.field_value("url", Node("EXTERNPROTO", keyword, self.lx))
         if not isinstance(url, list) or not all(isinstance(u, str) for u in url):
-            raise self.lx.error(f"expected the url string(s) of EXTERNPROTO {name}", keyword.start)
+            raise self._error(f"expected the url string(s) of EXTERNPROTO {name}", keyword)
         self.scope.protos[name] = None
         self.warn_once(f"EXTERNPROTO {name} is defined in another file and is not loaded: its instances are skipped")
 
-    def interface(self, opening: Token, with_values: bool) -> dict[str, Any]:
-        """A PROTO/EXTERNPROTO interface; returns the default value of each field."""
+    def interface(self, opening: int, with_values: bool) -> dict[str, Any]:
+        """A PROTO/EXTERNPROTO interface after the ``[`` at token ``opening``; returns the
+        default value of each field."""
+        tokens, lx = self.tokens, self.lx
         defaults: dict[str, Any] = {}
-        while not self.lx.at_close(b"]", opening.start, "'[' of a PROTO interface"):
-            token = self.lx.next()
-            keyword = token.text.decode("utf-8", errors="replace")
-            if token.kind != NAME or keyword not in _INTERFACE_WITH_VALUE | _INTERFACE_EVENT:
-                raise self.lx.error(
-                    f"expected field, exposedField, eventIn or eventOut, found {describe(token)}", token.start
-                )
-            type_token, name_token = self.lx.next(), self.lx.next()
-            if type_token.kind != NAME or name_token.kind != NAME:
-                raise self.lx.error(f"malformed '{keyword}' declaration", token.start)
+        while True:
+            if self.i >= lx.refill_at:
+                lx.refill()
+            start = self.i
+            token = tokens[start]
+            if token == b"]":
+                self.i = start + 1
+                return defaults
+            if not token:
+                raise self._error("'[' of a PROTO interface is never closed (file ends first)", at=opening)
+            keyword = token.decode("utf-8", errors="replace")
+            if kind_of(token) != NAME or keyword not in _INTERFACE_WITH_VALUE | _INTERFACE_EVENT:
+                raise self._error(f"expected field, exposedField, eventIn or eventOut, found {describe(token)}")
+            type_token, name_token = tokens[start + 1 : start + 3]
+            if type_token is BROKEN or name_token is BROKEN:
+                raise lx.broken_error()
+            if kind_of(type_token) != NAME or kind_of(name_token) != NAME:
+                raise self._error(f"malformed '{keyword}' declaration", start)
+            self.i = start + 3
             if with_values and keyword in _INTERFACE_WITH_VALUE:
-                name = name_token.text.decode("utf-8", errors="replace")
-                defaults[name] = self.typed_value(type_token, name)
-        return defaults
+                name = self._decode(name_token)
+                defaults[name] = self.typed_value(start + 1, name)
 
     def instantiate(self, instance: Node, proto: ProtoDef | None) -> Node:
         """The node a PROTO instance stands for: its body's first node, IS replaced."""
@@ -455,7 +672,7 @@ class _Parser:
             return instance
         first = next((n for n in proto.body if n is not None), None)
         if first is None:
-            return Node(f"{proto.name} (empty PROTO)", instance.offset, instance.source)
+            return Node(f"{proto.name} (empty PROTO)", instance.token, instance.source)
         values = dict(proto.defaults)
         values.update(instance.fields)
         return self._copy(first, values, {})
@@ -468,10 +685,10 @@ class _Parser:
             return copied
         self.proto_nodes_created += 1
         if self.proto_nodes_created > MAX_PROTO_NODES:
-            raise self.lx.error(
-                f"PROTO expansion creates more than {MAX_PROTO_NODES:,} nodes (refused as a possible bomb)"
-            )
-        copy = Node(template.type, template.offset, template.source, external=template.external)
+            # on the line of the token after the instance, as a one-token reader reports it
+            raise self._error(f"PROTO expansion creates more than {MAX_PROTO_NODES:,} nodes (refused as a possible bomb)")
+        copy = Node(template.type, template.token, template.source, external=template.external)
+        self.created.append(copy)
         memo[id(template)] = copy
         for name, value in template.fields.items():
             copy.fields[name] = self._substitute(value, values, memo)

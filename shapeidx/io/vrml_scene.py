@@ -65,6 +65,16 @@ V1_NO_GEOMETRY = {
     "TextureCoordinate2", "Info", "PerspectiveCamera", "OrthographicCamera", "DirectionalLight",
     "PointLight", "SpotLight", "FontStyle", "AsciiText", "IndexedLineSet", "PointSet",
 }  # fmt: skip
+V1_UNSUPPORTED = {"FaceSet", "IndexedTriangleStripSet", "QuadMesh", "TriangleStripSet"}
+_PRIMITIVES = {"Box", "Cube", "Sphere", "Cylinder", "Cone"}  # what primitive() may know
+
+# Every node type the traversal knows (no "unknown node type" warning)
+_V2_KNOWN = V2_GROUPS | V2_GEOMETRY | V2_NO_GEOMETRY | {"Shape", "Switch", "LOD", "Inline"}
+_V1_KNOWN = V1_SEPARATORS | V1_GROUPS | V1_TRANSFORMS | V1_GEOMETRY | V1_NO_GEOMETRY
+_V1_KNOWN |= {"Coordinate3", "ShapeHints", "WWWInline"}
+_V2_PARENTS = V2_GROUPS | {"Shape", "Switch", "LOD", "Inline"}  # the types children() may descend
+# Known types that give no triangles of their own (and need no warning)
+_KNOWN_OTHER = {1: _V1_KNOWN - V1_GEOMETRY, 2: _V2_KNOWN - V2_GEOMETRY}
 
 
 class Warnings:
@@ -104,7 +114,8 @@ class MeshBuilder:
         self.path = path
         self.vertex_blocks: list[np.ndarray] = []
         self.size_blocks: list[np.ndarray] = []
-        self.corner_blocks: list[np.ndarray] = []
+        self.corner_blocks: list[np.ndarray] = []  # indices into their own points...
+        self.corner_offsets: list[int] = []  # ... whose first vertex is here
         self.vertex_count = 0
         # (id of the points array, matrix bytes) -> (first vertex, the array: kept alive so
         # that its id is not reused by another array)
@@ -131,17 +142,17 @@ class MeshBuilder:
         if flip:
             corners = geo.reverse_winding(sizes, corners)
         self.size_blocks.append(sizes)
-        self.corner_blocks.append(corners + placed[0])
+        self.corner_blocks.append(corners)
+        self.corner_offsets.append(placed[0])
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """vertices (n, 3) float64, face_sizes (k,) int64, face_indices int64."""
         if not self.size_blocks:
             return np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-        return (
-            np.concatenate(self.vertex_blocks),
-            np.concatenate(self.size_blocks).astype(np.int64),
-            np.concatenate(self.corner_blocks).astype(np.int64),
-        )
+        corners = np.concatenate(self.corner_blocks).astype(np.int64)
+        # one addition for all face sets: KiCad parts hold a thousand small ones
+        corners += np.repeat(np.array(self.corner_offsets, dtype=np.int64), [len(c) for c in self.corner_blocks])
+        return np.concatenate(self.vertex_blocks), np.concatenate(self.size_blocks).astype(np.int64), corners
 
 
 @dataclass
@@ -176,7 +187,8 @@ class SceneWalker:
         self.describe = describe
         self._counts: dict[int, tuple[int, int]] = {}
         self._points_cache: dict[int, np.ndarray] = {}
-        self._polygon_cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self._polygon_cache: dict[tuple[int, int], geo.FaceSet] = {}
+        self._face_sets2: dict[int, tuple[np.ndarray, geo.FaceSet]] = {}  # VRML 2.0, by node
 
     # -- field access ------------------------------------------------------------------
 
@@ -239,10 +251,13 @@ class SceneWalker:
         """
         kind = node.type
         if version == 2:
+            if kind not in _V2_PARENTS:
+                return [], 2
+            if kind == "Shape":
+                geometry = node.fields.get("geometry")
+                return ([geometry] if geometry.__class__ is Node else self.nodes(node, "geometry")[:1]), 2
             if kind in V2_GROUPS:
                 return self.nodes(node, "children"), 2
-            if kind == "Shape":
-                return self.nodes(node, "geometry")[:1], 2
             if kind == "Switch":
                 choices = self.nodes(node, "choice") or self.nodes(node, "children")
                 which = int(self.number(node, "whichChoice", -1))
@@ -275,13 +290,19 @@ class SceneWalker:
             return known
         if depth > MAX_SCENE_DEPTH:
             raise self.fail(node, f"nodes nested deeper than {MAX_SCENE_DEPTH} levels (through Inline)")
-        triangles = self.own_triangles(node, version)
+        kind = node.type
+        # known types without geometry are most nodes: skip the call for them
+        triangles = 0 if kind in _KNOWN_OTHER[version] else self.own_triangles(node, version)
         visits = 1
-        children, child_version = self.children(node, version, depth=depth)
+        if version == 2 and kind not in _V2_PARENTS:
+            self._counts[key] = (triangles, visits)  # a leaf, as children() would say
+            return triangles, visits
+        children, child_version = self.children(node, version, None, depth)
         for child in children:
             child_triangles, child_visits = self.count(child, child_version, depth + 1)
             triangles += child_triangles
-            visits += child_visits if self._descends(child, child_triangles, child_version) else 1
+            descends = child_triangles > 0 or self._descends(child, child_triangles, child_version)
+            visits += child_visits if descends else 1
         self._counts[key] = (triangles, visits)
         return triangles, visits
 
@@ -297,15 +318,23 @@ class SceneWalker:
         """Triangles of a geometry node itself (upper bound for face sets); warns about
         node types that are skipped."""
         kind = node.type
+        if kind in _KNOWN_OTHER[version]:
+            return 0  # neither geometry nor skipped: nothing to count or report
         if kind == "IndexedFaceSet":
-            if version == 2:  # its coordinates are known: split it now (cached for the walk)
-                sizes, _ = self.polygons(node, len(self.coordinates2(node)))
-                return int((sizes - 2).sum())
+            if version == 2:  # its coordinates are known: split it now (kept for the walk)
+                ready = self._face_sets2.get(id(node))  # see prepare()
+                if ready is None:
+                    points = self.coordinates2(node)
+                    ready = self._face_sets2[id(node)] = (points, self.face_set(node, len(points)))
+                elif ready[1][3]:  # notes not reported yet
+                    ready = self._face_sets2[id(node)] = (ready[0], self._report(node, ready[1]))
+                return ready[1][2]
             index = node.fields.get("coordIndex")  # VRML 1.0: coordinates come from the state
             return geo.polygon_triangle_count(index) if isinstance(index, np.ndarray) else 0
-        primitive = self.primitive(node, version)
-        if primitive is not None:
-            return geo.primitive_triangle_count(primitive)
+        if kind in _PRIMITIVES:
+            primitive = self.primitive(node, version)
+            if primitive is not None:
+                return geo.primitive_triangle_count(primitive)
         self._note_skipped(node, version)
         return 0
 
@@ -313,13 +342,7 @@ class SceneWalker:
         kind = node.type
         if node.external:
             return  # the EXTERNPROTO was reported once already
-        if version == 2:
-            known = V2_GROUPS | V2_GEOMETRY | V2_NO_GEOMETRY | {"Shape", "Switch", "LOD", "Inline"}
-            unsupported = V2_UNSUPPORTED_GEOMETRY
-        else:
-            known = V1_SEPARATORS | V1_GROUPS | V1_TRANSFORMS | V1_GEOMETRY | V1_NO_GEOMETRY
-            known |= {"Coordinate3", "ShapeHints", "WWWInline"}
-            unsupported = {"FaceSet", "IndexedTriangleStripSet", "QuadMesh", "TriangleStripSet"}
+        known, unsupported = (_V2_KNOWN, V2_UNSUPPORTED_GEOMETRY) if version == 2 else (_V1_KNOWN, V1_UNSUPPORTED)
         if kind in unsupported:
             self.warnings.add(self.describe(node), f"{kind} is not supported: skipped")
         elif kind not in known and not kind.endswith(("Sensor", "Interpolator")):
@@ -402,9 +425,9 @@ class SceneWalker:
         )
 
     def _face_set2(self, node: Node, placement: geo.Placement, builder: MeshBuilder) -> None:
-        points = self.coordinates2(node)
-        sizes, corners = self.polygons(node, len(points))
-        flip = (not self.flag(node, "ccw", True)) != placement.mirrored
+        points, (sizes, corners, _, _) = self._face_sets2[id(node)]  # counted before any walk
+        ccw = node.fields.get("ccw", True)
+        flip = (not (ccw if ccw is True else self.flag(node, "ccw", True))) != placement.mirrored
         builder.add(points, placement, sizes, corners, flip)
 
     def _walk1(self, node: Node, state: _State1, builder: MeshBuilder) -> None:
@@ -459,7 +482,7 @@ class SceneWalker:
         if state.points is None:
             self.warnings.add(self.describe(node), "IndexedFaceSet before any Coordinate3 skipped")
             return
-        sizes, corners = self.polygons(node, len(state.points))
+        sizes, corners = self.face_set(node, len(state.points))[:2]
         flip = state.clockwise != state.placement.mirrored
         builder.add(state.points, state.placement, sizes, corners, flip)
 
@@ -483,30 +506,82 @@ class SceneWalker:
         cached = self._points_cache.get(id(node))
         if cached is not None:
             return cached
-        value = node.fields.get(name)
-        if value is None or (isinstance(value, list) and not value):
-            value = np.zeros(0)
-        if not isinstance(value, np.ndarray) or len(value) % 3:
+        points = _as_points(node.fields.get(name))
+        if points is None:
+            value = node.fields.get(name)
             found = f"{len(value)} numbers" if isinstance(value, np.ndarray) else "something else"
             raise self.fail(node, f"{node.type}.{name} needs x y z triples, found {found}")
-        points = value.reshape(-1, 3)
         self._points_cache[id(node)] = points
         return points
 
-    def polygons(self, node: Node, point_count: int) -> tuple[np.ndarray, np.ndarray]:
-        """An IndexedFaceSet's polygons over ``point_count`` points (cached per node)."""
+    def face_set(self, node: Node, point_count: int) -> geo.FaceSet:
+        """An IndexedFaceSet's polygons over ``point_count`` points (cached per node);
+        what was dropped is reported the first time."""
         key = (id(node), point_count)
-        cached = self._polygon_cache.get(key)
-        if cached is not None:
-            return cached
-        value = node.fields.get("coordIndex")
-        if value is None or (isinstance(value, list) and not value):
-            value = np.zeros(0)
-        index = geo.as_coord_index(value) if isinstance(value, np.ndarray) else None
-        if index is None:
-            raise self.fail(node, "IndexedFaceSet.coordIndex must be integers")
-        sizes, corners, notes = geo.polygons_from_coord_index(index, point_count)
+        face_set = self._polygon_cache.get(key)
+        if face_set is None:
+            index = _as_coord_index(node.fields.get("coordIndex"))
+            face_set = geo.face_sets_from_coord_indices([index], [point_count])[0] if index is not None else None
+            if face_set is None:
+                raise self.fail(node, "IndexedFaceSet.coordIndex must be integers")
+            self._polygon_cache[key] = face_set
+        if face_set[3]:  # notes not reported yet
+            face_set = self._polygon_cache[key] = self._report(node, face_set)
+        return face_set
+
+    def _report(self, node: Node, face_set: geo.FaceSet) -> geo.FaceSet:
+        """Warn about what splitting ``node``'s polygons dropped; the face set without the
+        notes, to keep in their place."""
+        sizes, corners, triangles, notes = face_set
         for note in notes:
             self.warnings.add(self.describe(node), f"IndexedFaceSet: {note}", kind=note.split(" ", 1)[1])
-        self._polygon_cache[key] = (sizes, corners)
-        return sizes, corners
+        return sizes, corners, triangles, ()
+
+    def prepare(self, nodes: list[Node], version: int) -> None:
+        """Split the polygons of every VRML 2.0 IndexedFaceSet among ``nodes`` (all the
+        nodes of a file) in one go, for the counting pass to find.
+
+        Only what cannot fail is prepared: face sets without a coord node, or whose points
+        or coordIndex are not usable, are left to the counting pass (:meth:`coordinates2`,
+        :meth:`face_set`), which reports them when (and if) the traversal reaches them.
+        Dropped indices are reported there too, the first time a face set is counted.
+        """
+        if version != 2:
+            return  # VRML 1.0 face sets use the Coordinate3 in effect: known only when walked
+        face_sets, all_points, indices = [], [], []
+        for node in [node for node in nodes if node.type == "IndexedFaceSet"]:
+            fields = node.fields
+            coord, index = fields.get("coord"), fields.get("coordIndex")
+            if coord.__class__ is not Node or index.__class__ is not np.ndarray:
+                continue  # left to the counting pass: no coord (a warning), a list, IS, ...
+            points = self._points_cache.get(id(coord))  # one array per Coordinate node: the
+            if points is None:  # builder shares the vertices of face sets that share it
+                points = coord.fields.get("point")
+                if points.__class__ is not np.ndarray or len(points) % 3:
+                    continue
+                points = self._points_cache[id(coord)] = points.reshape(-1, 3)
+            face_sets.append(node)
+            all_points.append(points)
+            indices.append(index)
+        results = geo.face_sets_from_coord_indices(indices, [len(points) for points in all_points])
+        self._face_sets2.update(
+            (id(node), (points, face_set))
+            for node, points, face_set in zip(face_sets, all_points, results)
+            if face_set is not None
+        )
+
+
+def _as_points(value) -> np.ndarray | None:
+    """A point field's value as (n, 3); None when it is not x y z triples."""
+    if value is None or (isinstance(value, list) and not value):
+        return _NO_POINTS
+    if not isinstance(value, np.ndarray) or len(value) % 3:
+        return None
+    return value.reshape(-1, 3)
+
+
+def _as_coord_index(value) -> np.ndarray | None:
+    """A coordIndex field's value as numbers; None when it is something else."""
+    if value is None or (isinstance(value, list) and not value):
+        return np.zeros(0)
+    return value if isinstance(value, np.ndarray) else None
