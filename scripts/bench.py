@@ -15,6 +15,10 @@ For each part file, medians over ``--repeat`` runs after one warm-up run:
 
 Ratios are taken within one run on one machine: end-to-end (load + solid + sig) over bare.
 
+Then the VRML reader alone (``scripts/bench_vrml.py``, best of ``--repeat`` reads): MB/s and
+triangles/s on the largest KUKA robot files of vrml-wild and on the kicad6 parts with about
+1,000 and with the most Shapes (one Shape per CAD face). ``--no-vrml`` leaves it out.
+
     python scripts/bench.py                       # mesh-wild STL parts and kicad6, one per class
     python scripts/bench.py --files a.stl b.wrl   # chosen parts
 """
@@ -40,6 +44,8 @@ from shapeidx.memory import keep_freed_memory
 from shapeidx.pipeline import signature_of_solid
 from shapeidx.sampling import sample_surface
 from shapeidx.solid import make_solid
+
+import bench_vrml  # noqa: E402  (this folder is on sys.path when run as a script)
 
 DATA = Path(os.environ.get("SHAPEIDX_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
@@ -171,6 +177,7 @@ def main(argv=None) -> int:
     parser.add_argument("--limit", type=int, help="at most this many parts")
     parser.add_argument("--json", type=Path, help="write all figures here")
     parser.add_argument("--markdown", type=Path, help="write the summary and the table here (docs/performance.md)")
+    parser.add_argument("--no-vrml", action="store_true", help="skip the VRML reading figures")
     args = parser.parse_args(argv)
 
     keep_freed_memory()  # as the shapeidx command and build workers do
@@ -198,15 +205,23 @@ def main(argv=None) -> int:
     print("# times in ms (trimesh in s); summary:")
     for key, value in summary.items():
         print(f"#   {key}: {value:.3f}" if isinstance(value, float) else f"#   {key}: {value}")
+    vrml_rows = []
+    if not args.no_vrml:
+        print("# VRML reading (best of --repeat):")
+        vrml_rows = bench_vrml.reading_rows(DATA, args.repeat)
+        for row in vrml_rows:
+            print(bench_vrml.format_row(row))
     if args.json:
-        args.json.write_text(json.dumps({"command": command, "date": str(datetime.date.today()), "machine": machine(), "rows": rows, "summary": summary}, indent=1))
+        figures = {"command": command, "date": str(datetime.date.today()), "machine": machine()}
+        figures.update(rows=rows, summary=summary, vrml_reading=vrml_rows)
+        args.json.write_text(json.dumps(figures, indent=1))
     if args.markdown:
-        args.markdown.write_text(markdown(command, rows, summary))
+        args.markdown.write_text(markdown(command, rows, summary, vrml_rows))
     return 0
 
 
-def markdown(command: str, rows: list[dict], summary: dict) -> str:
-    """The figures as a document: how measured, the summary by collection, every part."""
+def markdown(command: str, rows: list[dict], summary: dict, vrml_rows: list[dict]) -> str:
+    """The figures as a document: how measured, the summary by collection, VRML reading, every part."""
     def block(title, selected):
         s = summarise(selected)
         return [
@@ -218,11 +233,13 @@ def markdown(command: str, rows: list[dict], summary: dict) -> str:
     kicad = [r for r in rows if r["file"].startswith("kicad6/")]
     others = [r for r in rows if not r["file"].startswith("kicad6/")]
     lines = [
-        "# Signature speed",
+        "# Performance",
         "",
         f"Produced by `{command}` on {datetime.date.today()}; {machine()}.",
         "",
         __doc__.split("\n\n", 1)[1].split("    python scripts/bench.py")[0].rstrip(),
+        "",
+        "## Signature time",
         "",
         "| parts | count | end-to-end (median) | bare query (median) | signature / bare | end-to-end / bare | within 1.5x | threaded end-to-end / bare | within 1.5x |",
         "|---|---|---|---|---|---|---|---|---|",
@@ -232,6 +249,18 @@ def markdown(command: str, rows: list[dict], summary: dict) -> str:
         "",
         f"The straightforward trimesh implementation took {summary['median_trimesh_over_end_to_end']:.1f} times shapeidx's end-to-end time"
         f" (median over the {sum('trimesh' in r for r in rows)} parts it ran on).",
+        "",
+    ]
+    if vrml_rows:
+        lines += ["## VRML reading", "", "| file | kind | MB | seconds | MB/s | triangles/s |", "|---|---|---|---|---|---|"]
+        lines += [
+            f"| {r['file']} | {r['label']} | {r['megabytes']:.2f} | {r['seconds']:.3f} | {r['megabytes_per_second']:.1f}"
+            f" | {r['triangles_per_second'] / 1e6:.2f} M |"
+            for r in vrml_rows
+        ]
+        lines.append("")
+    lines += [
+        "## Every part",
         "",
         "| part | triangles | load ms | solid ms | signature ms | threaded ms | bare ms | end-to-end / bare | trimesh s |",
         "|---|---|---|---|---|---|---|---|---|",

@@ -65,12 +65,31 @@ def best_time(path: Path, repeat: int) -> tuple[float, int]:
     return min(times), int(np.sum(mesh.face_sizes - 2))
 
 
-def report(label: str, path: Path, repeat: int) -> None:
-    seconds, triangles = best_time(path, repeat)
-    megabytes = path.stat().st_size / 1e6
-    print(
-        f"{label:<16} {path.name[:44]:<44} {megabytes:7.2f} MB {seconds:8.3f} s "
-        f"{megabytes / seconds:8.1f} MB/s {triangles / seconds / 1e6:7.2f} M triangles/s"
+def reading_rows(data: Path, repeat: int) -> list[dict]:
+    """Reading speed on the largest KUKA files and the KiCad parts with the most Shapes."""
+    chosen = [("large (KUKA)", path) for path in largest_files(data / "vrml-wild" / "freecad-kuka", 4)]
+    chosen += [(f"{shapes:,} Shapes", path) for path, shapes in kicad_parts(data / "kicad6")]
+    rows = []
+    for label, path in chosen:
+        seconds, triangles = best_time(path, repeat)
+        megabytes = path.stat().st_size / 1e6
+        rows.append(
+            {
+                "label": label,
+                "file": path.name,
+                "megabytes": megabytes,
+                "seconds": seconds,
+                "megabytes_per_second": megabytes / seconds,
+                "triangles_per_second": triangles / seconds,
+            }
+        )
+    return rows
+
+
+def format_row(row: dict) -> str:
+    return (
+        f"{row['label']:<16} {row['file'][:44]:<44} {row['megabytes']:7.2f} MB {row['seconds']:8.3f} s "
+        f"{row['megabytes_per_second']:8.1f} MB/s {row['triangles_per_second'] / 1e6:7.2f} M triangles/s"
     )
 
 
@@ -111,10 +130,8 @@ def main() -> None:
     print(f"python {platform.python_version()}, numpy {np.__version__}")
     print("load average: {:.2f} {:.2f} {:.2f} (1, 5, 15 min)".format(*os.getloadavg()))
     print()
-    for path in largest_files(args.data / "vrml-wild" / "freecad-kuka", 4):
-        report("large (KUKA)", path, args.repeat)
-    for path, shapes in kicad_parts(args.data / "kicad6"):
-        report(f"{shapes:,} Shapes", path, args.repeat)
+    for row in reading_rows(args.data, args.repeat):
+        print(format_row(row))
     print()
     times = load_times(args.data / "kicad6" / HTQFP, max(args.repeat, 5))
     print(
