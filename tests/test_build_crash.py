@@ -45,8 +45,15 @@ def test_kill_9_at_random_moments(data_dir, tmp_path):
 def build_process(tree, store, *extra, **popen):
     return subprocess.Popen(
         shapeidx_command("build", tree, "--store", store, "--points", FAST_POINTS, *extra),
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **popen,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint, **popen,
     )
+
+
+def _default_sigint():
+    # A build run from a terminal gets Ctrl-C; a test run from a background job (as CI may
+    # be) would pass on the ignored SIGINT that shells give such jobs, and Python would
+    # then never raise KeyboardInterrupt.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def worker_pids(build_pid: int) -> list[int]:
