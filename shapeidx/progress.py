@@ -63,7 +63,7 @@ class BuildReporter:
         if self.quiet:
             return
         self._say(
-            f"shapeidx build: {plan.found} files: {len(plan.tasks)} to index, {plan.unchanged} unchanged,"
+            f"shapeidx build: {plan.found} files: {len(plan.tasks)} new or changed, {plan.unchanged} unchanged,"
             f" {len(plan.removed)} to remove"
         )
         if self.terminal and self.total:

@@ -57,7 +57,7 @@ class TestIncremental:
         main_file = os.stat(store)
         again = build(tree, store)
         assert summary_counts(again.stdout) == {"indexed": 0, "unchanged": 30, "removed": 0, "failed": 0}
-        assert "0 to index, 30 unchanged" in again.stderr
+        assert "0 new or changed, 30 unchanged" in again.stderr
         assert os.stat(store).st_ino == main_file.st_ino, "a build with nothing to do rewrote the store"
 
         touched, changed, deleted = files[0], files[11], files[22]
