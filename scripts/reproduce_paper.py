@@ -20,7 +20,7 @@ import numpy as np
 
 from shapeidx.build import BuildOptions, run_build
 from shapeidx.classify import IN, TANGENT, classify_pairs, pair_indices, unit_normals
-from shapeidx.distance import compare
+from shapeidx.distance import PAPER_METRICS, compare
 from shapeidx.memory import keep_freed_memory
 from shapeidx.pipeline import signature_of_solid, solid_of_file
 from shapeidx.progress import BuildReporter
@@ -58,7 +58,6 @@ MODELS = {
 }
 EXPORTERS = {"ACIS (Sat2Vrml)": ".hh.sat.wrl", "I-DEAS": ".wrl"}
 SEEDS = range(5)
-PAPER_METRICS = ("all", "avg3", "avg4", "weighted")
 
 
 def fractions_table(lines: list[str]) -> dict:

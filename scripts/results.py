@@ -43,6 +43,7 @@ COLLECTIONS = {
     "kicad-2017/wings3d": DATA / "vrml-wild" / "kicad-2017" / "wings3d",
     "kicad-wrz": DATA / "vrml-wild" / "kicad-wrz",
 }
+PAPER_D = "L1 / bins (the paper's D)"  # the row other histogram comparisons are measured against
 LABELS = {"all": "ALL (plain D2)", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted": "Weighted", "combined": "combined"}
 
 
@@ -156,8 +157,6 @@ def histogram_comparisons(lines, work):
         "",
     ]
 
-
-PAPER_D = "L1 / bins (the paper's D)"
 
 
 def comparison_scores(reader, data) -> dict:
