@@ -29,7 +29,6 @@ import argparse
 import datetime
 import json
 import os
-import platform
 import statistics
 import sys
 import time
@@ -37,35 +36,17 @@ from pathlib import Path
 
 import numpy as np
 
-from shapeidx.classify import IN, MIXED, OUT, OcclusionScene, normalise, pair_indices
+from shapeidx.signing.classify import IN, MIXED, OUT, OcclusionScene, normalise, pair_indices
 from shapeidx.errors import LoadError
 from shapeidx.io import load
-from shapeidx.memory import keep_freed_memory
-from shapeidx.pipeline import signature_of_solid
-from shapeidx.sampling import sample_surface
-from shapeidx.solid import make_solid
+from shapeidx.system import keep_freed_memory
+from shapeidx.signing.pipeline import signature_of_solid
+from shapeidx.signing.sampling import sample_surface
+from shapeidx.signing.solid import make_solid
 
 import bench_vrml  # noqa: E402  (this folder is on sys.path when run as a script)
+from _common import DATA, machine  # noqa: E402
 
-DATA = Path(os.environ.get("SHAPEIDX_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
-
-
-def machine() -> str:
-    cpu = platform.processor() or "unknown cpu"
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import embreex
-    import trimesh
-
-    return (
-        f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, Python {platform.python_version()}, "
-        f"numpy {np.__version__}, embreex {getattr(embreex, '__version__', '?')}, trimesh {trimesh.__version__}"
-    )
 
 
 def median_time(fn, repeat: int):

@@ -28,7 +28,6 @@ import os
 os.environ.update({k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")})
 
 import argparse  # noqa: E402
-import platform  # noqa: E402
 import shlex  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -39,29 +38,17 @@ import h5py  # noqa: E402
 import numpy as np  # noqa: E402
 
 from shapeidx.distance import METRIC_HISTOGRAMS  # noqa: E402
-from shapeidx.query import SignatureTable, top_hits  # noqa: E402
-from shapeidx.signature import HISTOGRAMS  # noqa: E402
-from shapeidx.store import (  # noqa: E402
-    COUNT_DTYPE,
-    ENTRY_COLUMNS,
-    STATUS_OK,
-    StoreWriter,
-    offsets_of,
-    open_store,
-    write_atomically,
-    write_columns,
-)
+from shapeidx.ranking import SignatureTable, top_hits  # noqa: E402
+from shapeidx.signing.parameters import HISTOGRAMS  # noqa: E402
+from _common import machine  # noqa: E402
+from shapeidx.ragged import offsets_of  # noqa: E402
+from shapeidx.store import STATUS_OK, StoreWriter, open_store  # noqa: E402
+from shapeidx.store.files import write_atomically  # noqa: E402
+from shapeidx.store.layout import COUNT_DTYPE, ENTRY_COLUMNS, write_columns  # noqa: E402
 
 #: Synthetic entries generated per step (bounds the generator's memory).
 CHUNK = 50_000
 TARGETS = {100_000: 0.2, 1_000_000: 2.0}
-
-
-def machine() -> str:
-    cpu = next((ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name")), "?")
-    memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
-    return (f"{cpu}, {os.cpu_count()} cores, {memory:.0f} GiB; {platform.platform()}; Python"
-            f" {platform.python_version()}, numpy {np.__version__}")
 
 
 def real_signatures(source: Path) -> dict:
@@ -148,7 +135,7 @@ def measure(store: Path, metric: str, repeats: int) -> dict:
     times = []
     for _ in range(repeats):
         started = time.perf_counter()
-        hits = top_hits(table.rank(query, metric), table.paths, 10)
+        hits = top_hits(table.distances(query, metric), table.paths, 10)
         times.append(time.perf_counter() - started)
     assert hits[0]["distance"] == 0.0
     bins = sum(int(sum(g[2].size for g in table.banks[h].groups)) for h in table.banks)

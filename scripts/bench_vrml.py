@@ -38,7 +38,7 @@ import numpy as np
 from shapeidx.io import LoadLimits, load
 from shapeidx.io.vrml import load_vrml
 
-DEFAULT_DATA = Path(os.environ.get("SHAPEIDX_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+from _common import DATA as DEFAULT_DATA
 HTQFP = Path("Package_QFP") / "HTQFP-64-1EP_10x10mm_P0.5mm_EP8x8mm.wrl"
 
 

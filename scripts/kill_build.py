@@ -35,8 +35,9 @@ import threading
 import time
 from pathlib import Path
 
-PLAN = re.compile(r"(\d+) files: (\d+) to index, (\d+) unchanged")
 COMMITTED = re.compile(r"committed batch \d+ \((\d+) records\)")
+#: A --verbose line for one indexed file, e.g. "indexed a/b.wrl (0.1s)" (after any prefix).
+INDEXED = re.compile(r"\bindexed \S.* \([\d.]+s\)$")
 
 
 def shapeidx(*args) -> list[str]:
@@ -116,7 +117,7 @@ def run_and_kill(command: list, store: Path, moment: Moment, log: Path) -> dict:
         workers = children_of(proc.pid) or workers
         now = time.monotonic()
         if due_at is None and moment.kind == "after":
-            if sum(line.startswith("indexed ") for line in list(lines)) >= moment.count:
+            if sum(bool(INDEXED.search(line)) for line in list(lines)) >= moment.count:
                 due_at = now + moment.delay
         if (due_at is not None and now >= due_at) or (moment.kind == "merge" and merge_in_progress(store, proc.pid)):
             proc.send_signal(signal.SIGKILL)
@@ -191,27 +192,55 @@ def kill_campaign(tree: Path, store: Path, kills: int, seed: int, build_args=(),
     for round_ in range(kills):
         moment = moments(rng, round_, len(tree_files) - entries)
         result = run_and_kill(command, store, moment, log_dir / f"build-{round_}.log")
-        plan = PLAN.search(result["log"])
-        if plan:
-            check(int(plan.group(2)) == len(tree_files) - entries,
-                  f"round {round_}: planned {plan.group(2)} files, {len(tree_files) - entries} were left")
-        committed = sum(int(n) for n in COMMITTED.findall(result["log"]))
+        committed = committed_records(result["log"])
         mid_merge += result["killed"] and result["mid_merge"]
         check(gone_within(result["workers"], 5.0), f"round {round_}: workers outlived the build")
         entries = len(check_store(store, tree_files, entries + committed))
+        planned = plan_of(tree, store, build_args)["planned"]
+        check(planned == len(tree_files) - entries,
+              f"round {round_}: the next build plans {planned} files, {len(tree_files) - entries} are left")
         say(f"round {round_}: {'killed' if result['killed'] else 'ended'} {moment}; {entries} entries")
     final = subprocess.run(command, capture_output=True, text=True)
     check(final.returncode == 0, f"the final build failed: {final.stderr[-500:]}")
     paths = check_store(store, tree_files, len(tree_files))
     check(set(paths) == tree_files, "the final store misses files")
-    again = subprocess.run(shapeidx("build", tree, "--store", store, *build_args), capture_output=True, text=True)
-    check(again.returncode == 0 and " 0 indexed" in again.stdout, f"a build after the last did work: {again.stdout}")
+    again = build_record(tree, store, build_args)
+    check(again["planned"] == 0 and again["indexed"] == 0, f"a build after the last did work: {again}")
     return {"rounds": kills, "mid_merge": mid_merge, "entries": len(paths), "final": final.stdout.strip()}
+
+
+def committed_records(log: str) -> int:
+    """Records the build's --verbose log says it committed; a commit line that does not parse
+    fails the check (a changed message must not make the lower bound silently 0)."""
+    lines = [line for line in log.splitlines() if "committed batch" in line]
+    counts = [COMMITTED.search(line) for line in lines]
+    check(all(counts), f"unparsable commit line in the build's log: {lines[counts.index(None)]!r}" if None in counts else "")
+    return sum(int(m.group(1)) for m in counts)
+
+
+def build_record(tree: Path, store: Path, build_args=(), *extra) -> dict:
+    """The JSON record of ``shapeidx build --json`` (read strictly: a record that does not parse
+    or lacks a count fails the check, it never passes it)."""
+    out = subprocess.run(shapeidx("build", tree, "--store", store, "--json", *build_args, *extra),
+                         capture_output=True, text=True)
+    check(out.returncode == 0, f"build --json failed: {out.stderr.strip()[-500:]}")
+    try:
+        record = json.loads(out.stdout)
+    except json.JSONDecodeError:
+        raise AssertionError(f"build --json printed no JSON record: {out.stdout[-300:]!r}") from None
+    for key in ("found", "planned", "indexed", "unchanged", "removed", "failed"):
+        check(isinstance(record.get(key), int), f"build --json record lacks {key!r}: {record}")
+    return record
+
+
+def plan_of(tree: Path, store: Path, build_args=()) -> dict:
+    """What the next build would do, from its machine-readable dry-run record."""
+    return build_record(tree, store, build_args, "--dry-run")
 
 
 def tree_file_paths(tree: Path) -> list[str]:
     """What shapeidx build should index under ``tree``."""
-    from shapeidx.build import walk_parts
+    from shapeidx.index.walk import walk_parts
 
     return [f.path for f in walk_parts(tree.resolve()).files]
 

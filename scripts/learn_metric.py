@@ -7,7 +7,7 @@ cross-validated figures to shapeidx/combined_metric.json.
 The store is built (or updated) first, as ``shapeidx build`` would. The weights are learned
 on every model of the collection; the figures recorded beside them are class-wise
 cross-validated (each query ranked with weights that never saw its class; see
-shapeidx/learn.py), so they say what to expect on a collection of new classes.
+shapeidx/evaluation/learn.py), so they say what to expect on a collection of new classes.
 """
 
 from __future__ import annotations
@@ -18,15 +18,14 @@ import json
 import sys
 from pathlib import Path
 
-from shapeidx.build import BuildOptions, run_build
-from shapeidx.evaluate import labelled_features
-from shapeidx.learn import cross_validate, fit_weights, weights_by_name
-from shapeidx.memory import keep_freed_memory
-from shapeidx.pipeline import SIGNATURE_VERSION
-from shapeidx.progress import BuildReporter
+from _common import REPO, quiet_build
+from shapeidx.evaluation.evaluate import labelled_features
+from shapeidx.evaluation.learn import cross_validate, fit_weights, weights_by_name
+from shapeidx.system import keep_freed_memory
+from shapeidx.signing.parameters import SIGNATURE_VERSION
 from shapeidx.store import open_store
 
-OUTPUT = Path(__file__).resolve().parents[1] / "shapeidx" / "combined_metric.json"
+OUTPUT = REPO / "shapeidx" / "distance" / "combined_metric.json"
 
 
 def main(argv=None) -> int:
@@ -39,7 +38,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     keep_freed_memory()
-    run_build(args.collection, args.store, BuildOptions(), BuildReporter(quiet=True))
+    quiet_build(args.collection, args.store)
     with open_store(args.store) as reader:
         data = labelled_features(reader)
         points = reader.params.points

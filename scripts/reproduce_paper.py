@@ -11,24 +11,22 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import os
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from shapeidx.build import BuildOptions, run_build
-from shapeidx.classify import IN, TANGENT, classify_pairs, pair_indices, unit_normals
+from _common import DATA, REPO, quiet_build
+from shapeidx.signing.classify import IN, TANGENT, classify_pairs, pair_indices
+from shapeidx.signing.mesh import unit_normals
 from shapeidx.distance import PAPER_METRICS, compare
-from shapeidx.memory import keep_freed_memory
-from shapeidx.pipeline import signature_of_solid, solid_of_file
-from shapeidx.progress import BuildReporter
-from shapeidx.query import query_store
-from shapeidx.sampling import sample_surface
+from shapeidx.system import keep_freed_memory
+from shapeidx.signing.pipeline import signature_of_solid, solid_of_file
+from shapeidx.ranking import query_store
+from shapeidx.signing.sampling import sample_surface
 
-REPO = Path(__file__).resolve().parents[1]
-NDR = Path(os.environ.get("SHAPEIDX_DATA", REPO.parent / "shared" / "data")) / "ndr"
+NDR = DATA / "ndr"
 
 # The paper's Table 1 (% IN, % OUT, % MIXED) and Table 2 (ALL, AvgOf3, AvgOf4, Weighted).
 PAPER_TABLE_1 = {
@@ -184,7 +182,7 @@ def queries(lines: list[str], store: Path) -> dict:
     ]
     query_file = NDR / "CMU/spectrometer/linkage_arm_42.hh.sat.wrl"
     for metric in ("weighted", "combined"):
-        hits = query_store(store, file=query_file, top=6, metric=metric)
+        hits = query_store(store, part=query_file, top=6, metric=metric)
         lines += [f"`shapeidx query {query_file.relative_to(NDR.parent)} --metric {metric} --top 6`:", "", "| rank | distance | part |", "|---|---|---|"]
         lines += [f"| {h['rank']} | {h['distance']:.5f} | {h['path']} |" for h in hits]
         lines.append("")
@@ -203,7 +201,7 @@ def queries(lines: list[str], store: Path) -> dict:
         twin = stem + EXPORTERS["ACIS (Sat2Vrml)"]
         ranks, nearest = {}, None
         for metric in ("weighted", "combined"):
-            hits = query_store(store, file=NDR / (stem + ".wrl"), top=16, metric=metric)
+            hits = query_store(store, part=NDR / (stem + ".wrl"), top=16, metric=metric)
             ranks[metric] = next(h["rank"] for h in hits if h["path"] == twin)
             if metric == "weighted":
                 nearest = next(h["path"] for h in hits if h["path"] not in (twin, stem + ".wrl"))
@@ -228,8 +226,8 @@ def summary(gaps: dict, agreement: dict, twins: dict) -> list[str]:
         f"  Boeing parts and within {max(worst('Team'), worst('Team2')):.1f} on the two TEAM parts, where ours have more IN",
         "  and less MIXED. The two exporters (ACIS through Sat2Vrml, SDRC I-DEAS) of each part",
         f"  agree with each other within {between:.1f} points in every class: the heterogeneity claim holds.",
-        f"* **Distances (Table 2)**: every distance finds Boeing - Simple Boeing the nearest pair, as",
-        f"  the paper does, and plain D2 orders the six pairs as the paper does (Spearman",
+        "* **Distances (Table 2)**: every distance finds Boeing - Simple Boeing the nearest pair, as",
+        "  the paper does, and plain D2 orders the six pairs as the paper does (Spearman",
         f"  {acis['rho']['all']:+.2f} on the ACIS files). The classified distances do not follow the paper's",
         "  order: the paper's Table 2 puts Team - Team2 *farthest* by AvgOf3, AvgOf4 and Weighted,",
         "  against its own text and Figure 4 (\"resemblances are strong ... [between] the two TEAM",
@@ -252,7 +250,7 @@ def main(argv=None) -> int:
     keep_freed_memory()
     with tempfile.TemporaryDirectory() as tmp:
         store = args.store or Path(tmp) / "ndr.h5"
-        run_build(NDR, store, BuildOptions(), BuildReporter(quiet=True))
+        quiet_build(NDR, store)
         signatures = {
             exporter: {name: signature_of_solid(solid_of_file(NDR / (stem + suffix))) for name, stem in MODELS.items()}
             for exporter, suffix in EXPORTERS.items()

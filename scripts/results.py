@@ -4,8 +4,8 @@
     python scripts/results.py --work /tmp/shapeidx-results
 
 Stores are built in ``--work`` (reused when run again). Every figure in the document comes
-from this run: the main table through ``shapeidx.evaluate`` (what ``shapeidx evaluate``
-prints), the cross-validation through ``shapeidx.learn``, the ablations from the stored
+from this run: the main table through ``shapeidx.evaluation.evaluate`` (what ``shapeidx evaluate``
+prints), the cross-validation through ``shapeidx.evaluation.learn``, the ablations from the stored
 signatures and, for the other shape functions, from the parts themselves.
 """
 
@@ -21,21 +21,18 @@ from pathlib import Path
 import numpy as np
 
 from shapeidx import __version__
-from shapeidx.build import BuildOptions, run_build
+from _common import DATA, REPO, quiet_build
 from shapeidx.distance import FEATURES, METRICS, MIN_AGREEMENT
-from shapeidx.evaluate import distance_matrices, evaluate, labelled_features
-from shapeidx.learn import cross_validate
-from shapeidx.memory import keep_freed_memory
-from shapeidx.mesh import triangle_areas
-from shapeidx.pipeline import solid_of_file
-from shapeidx.progress import BuildReporter
-from shapeidx.retrieval import SCORES, retrieval_scores
-from shapeidx.sampling import sample_surface
-from shapeidx.signature import HISTOGRAMS
+from shapeidx.evaluation.evaluate import distance_matrices, evaluate, labelled_features
+from shapeidx.evaluation.learn import cross_validate
+from shapeidx.system import keep_freed_memory
+from shapeidx.signing.mesh import triangle_areas
+from shapeidx.signing.pipeline import solid_of_file
+from shapeidx.evaluation.retrieval import SCORES, retrieval_scores
+from shapeidx.signing.sampling import sample_surface
+from shapeidx.signing.parameters import HISTOGRAMS
 from shapeidx.store import open_store
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = Path(os.environ.get("SHAPEIDX_DATA", REPO.parent / "shared" / "data"))
 COLLECTIONS = {
     "kicad6": DATA / "kicad6",
     "kicad-mcad": DATA / "vrml-wild" / "kicad-mcad",
@@ -48,9 +45,7 @@ LABELS = {"all": "ALL (plain D2)", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted
 
 
 def store_of(work: Path, name: str, directory: Path, points: int = 1024) -> Path:
-    store = work / f"{name.replace('/', '-')}-{points}.h5"
-    run_build(directory, store, BuildOptions(points=points), BuildReporter(quiet=True))
-    return store
+    return quiet_build(directory, work / f"{name.replace('/', '-')}-{points}.h5", points=points)
 
 
 def row(label: str, scores: dict, extra: str = "") -> str:
@@ -90,7 +85,7 @@ def cross_validation(lines, data):
     lines += [
         "## The combined metric, cross-validated on kicad6",
         "",
-        "Its weights are learned (shapeidx/learn.py); figures measured on the models they were",
+        "Its weights are learned (shapeidx/evaluation/learn.py); figures measured on the models they were",
         "learned from would flatter it. Here the 52 classes are dealt into 4 folds, and every",
         "query is ranked (against all 519 other models) with weights learned on the three other",
         "folds: weights that never saw its class. Five random deals; mean and standard deviation.",

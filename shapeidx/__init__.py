@@ -1,12 +1,37 @@
 """shapeidx: find CAD parts that look alike, by their IN/OUT/MIXED D2 shape distributions.
 
-The data flows one way::
+Ip, Lapadat, Sieger & Regli, "Using Shape Distributions to Compare Solid Models" (ACM Solid
+Modeling 2002). The data flows one way, a package per stage::
 
-    file --io.load--> PolygonMesh --mesh.make_solid--> Solid
-         --sampling.sample_surface--> points --classify.classify_pairs--> distances, classes
-         --signature.Signature.from_pairs--> Signature --store--> HDF5
+    io/          file -> PolygonMesh               (a reader per format, load())
+    signing/     -> Solid -> points -> classified pairs -> Signature
+    distance/    Signature x Signature -> distances (the paper's four, combined)
+    store/       Signatures of a tree -> HDF5 store (crash-safe, journalled)
+    index/       a directory tree -> the store (``shapeidx build``)
+    ranking.py   a part -> the store's nearest entries
+    evaluation/  a labelled collection -> retrieval figures
 
-and a query runs the same road, then ranks the store with :mod:`shapeidx.distance`.
+The public API (:mod:`shapeidx.api`)::
+
+    import shapeidx
+    part = shapeidx.load("bracket.stl")              # a clean, oriented triangle mesh
+    sig = shapeidx.signature(part)                   # or a path, file object, arrays, trimesh
+    shapeidx.compare("a.wrl", "b.wrl")["weighted"]   # the paper's distances, and combined
+    shapeidx.query("parts.h5", "bracket.stl", top=5)  # the store's nearest entries
+
+Names load on first use, so ``import shapeidx`` costs almost nothing.
 """
 
+from ._lazy import attach
+
 __version__ = "0.1.0"
+
+_NAMES = {
+    **dict.fromkeys(["load", "signature", "compare", "open_store", "query"], ".api"),
+    **dict.fromkeys(["ShapeidxError", "LoadError", "StoreError"], ".errors"),
+    "Signature": ".signing.histogram",
+    "Solid": ".signing.solid",
+    "METRICS": ".distance.combined",
+}
+__all__ = sorted(_NAMES)
+__getattr__, __dir__ = attach(__name__, _NAMES)

@@ -10,15 +10,16 @@ import click
 
 from . import __version__
 from .errors import ShapeidxError
-from .memory import keep_freed_memory
-from .build import MERGE_AFTER, BuildOptions, DEFAULT_COMMIT_INTERVAL, run_build
+from .system import available_cores, keep_freed_memory
+from .index.build import BuildOptions, run_build
+from .index.commit import DEFAULT_COMMIT_INTERVAL, MERGE_AFTER
 from .distance import METRICS
-from .pipeline import DEFAULT_POINTS, signature_of_solid, solid_of_file
-from .progress import BuildReporter, duration
-from .query import query_store
-from .sampling import DEFAULT_SEED
+from .api import load, signature as signature_of
+from .signing.parameters import DEFAULT_POINTS, DEFAULT_SEED
+from .index.progress import BuildReporter, duration
+from .ranking import query_store
 from .store import DEFAULT_STORE, STORE_ENV, describe_store, open_store, resolve_store_path
-from .workers import DEFAULT_TIMEOUT
+from .index.workers import DEFAULT_TIMEOUT
 
 
 class _Group(click.Group):
@@ -49,10 +50,6 @@ def main():
     keep_freed_memory()
 
 
-#: One-off signatures (signature, compare, query) share their ray queries among all cores.
-THREADS = os.cpu_count() or 1
-
-
 def _emit_json(data) -> None:
     click.echo(json.dumps(data, indent=2))
 
@@ -69,7 +66,7 @@ json_option = click.option("--json", "as_json", is_flag=True, help="Machine-read
 @json_option
 def inspect(file, as_json):
     """What the loader sees in FILE: size, shells, watertightness, warnings."""
-    facts = solid_of_file(file).describe()
+    facts = load(file).describe()
     if as_json:
         _emit_json(facts)
         return
@@ -97,8 +94,8 @@ def inspect(file, as_json):
 @json_option
 def signature(file, points, seed, as_json):
     """The IN/OUT/MIXED D2 signature of FILE."""
-    solid = solid_of_file(file)
-    sig = signature_of_solid(solid, points, seed, threads=THREADS)
+    solid = load(file)
+    sig = signature_of(solid, points, seed)
     if as_json:
         _emit_json({**sig.to_dict(), "mesh": solid.describe()})
         return
@@ -121,8 +118,7 @@ def compare(a, b, points, seed, as_json):
     """The paper's four distances between parts A and B (0 = same shape)."""
     from .distance import compare as distances_between
 
-    sig_a = signature_of_solid(solid_of_file(a), points, seed, threads=THREADS)
-    sig_b = signature_of_solid(solid_of_file(b), points, seed, threads=THREADS)
+    sig_a, sig_b = signature_of(a, points, seed), signature_of(b, points, seed)
     distances = distances_between(sig_a, sig_b)
     if as_json:
         _emit_json({"a": a, "b": b, **distances, "fractions": {"a": sig_a.fractions, "b": sig_b.fractions}})
@@ -170,20 +166,28 @@ def _size(n: int) -> str:
 @click.option("--strict", is_flag=True, help=f"Exit with status {EXIT_FAILED_FILES} if the store holds failed files.")
 @click.option("--quiet", "-q", is_flag=True, help="Print nothing but warnings and errors.")
 @click.option("--verbose", "-v", is_flag=True, help="A line per indexed file and per commit.")
+@click.option("--dry-run", is_flag=True, help="Only say what a build would do: walk and plan, change nothing.")
+@json_option
 @click.option("--merge-after", type=click.IntRange(1), default=MERGE_AFTER, hidden=True)
 @click.pass_context
 def build(ctx, directory, store, points, seed, workers, full, rehash, retry_failed, timeout, commit_interval,
-          wait, strict, quiet, verbose, merge_after):
+          wait, strict, quiet, verbose, dry_run, as_json, merge_after):
     """Index every part file under DIRECTORY into the store (incremental)."""
     options = BuildOptions(points=points, seed=seed, workers=workers or 0, full=full, rehash=rehash,
                            retry_failed=retry_failed, timeout=timeout, wait=wait,
-                           commit_interval=commit_interval, merge_after=merge_after)
+                           commit_interval=commit_interval, merge_after=merge_after, dry_run=dry_run)
     reporter = BuildReporter(quiet=quiet, verbose=verbose)
+    store_path = resolve_store_path(store)
     try:
-        summary = run_build(directory, resolve_store_path(store), options, reporter)
+        summary = run_build(directory, store_path, options, reporter)
     finally:
         reporter.close()
-    if not quiet:
+    if as_json:
+        _emit_json(summary.to_dict(store_path, dry_run))
+    elif dry_run:
+        click.echo(f"shapeidx build: would index {summary.planned} new or changed, {summary.unchanged} unchanged,"
+                   f" remove {summary.removed} (dry run: nothing changed)")
+    elif not quiet:
         click.echo(
             f"shapeidx build: {summary.line()} in {duration(summary.seconds)};"
             f" store: {summary.store_ok} ok, {summary.store_failed} failed, {_size(summary.store_bytes)}"
@@ -203,7 +207,8 @@ def query(file, store, top, metric, entry, as_json):
     """The store's parts nearest to FILE (or to --id PATH), nearest first."""
     if (file is None) == (entry is None):
         raise click.UsageError("give either FILE or --id PATH")
-    hits = query_store(resolve_store_path(store), file=file, entry=entry, top=top, metric=metric, threads=THREADS)
+    # a one-off query shares its ray queries among all cores
+    hits = query_store(resolve_store_path(store), part=file, entry=entry, top=top, metric=metric, threads=available_cores())
     if as_json:
         _emit_json(hits)
         return
@@ -252,7 +257,7 @@ METRIC_LABELS = {"all": "ALL (plain D2)", "avg3": "AvgOf3", "avg4": "AvgOf4", "w
 @json_option
 def evaluate(directory, store, metrics, per_class, cross_validate, points, workers, quiet, as_json):
     """Retrieval quality on DIRECTORY, whose sub-folders are the classes: NN, FT, ST, E, DCG."""
-    from .evaluate import evaluate as evaluate_store
+    from .evaluation.evaluate import evaluate as evaluate_store
 
     store_path = resolve_store_path(store)
     reporter = BuildReporter(quiet=quiet)

@@ -3,17 +3,13 @@
 from __future__ import annotations
 
 import importlib.util
-import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import analytic
 import numpy as np
-from click.testing import CliRunner
 
-from shapeidx.cli import main
+from clitools import cli
 from shapeidx.io import load
 
 REPO = Path(__file__).resolve().parents[1]
@@ -39,26 +35,6 @@ def copy_tree(source: Path, target: Path, folders=None) -> Path:
 
 def small_kicad(data_dir: Path, tmp_path: Path, folders=SMALL_KICAD) -> Path:
     return copy_tree(data_dir / "kicad6", tmp_path / "parts", folders)
-
-
-def cli(*args, env=None):
-    """Run shapeidx in-process (click's CliRunner); returns the result (stdout, stderr, exit_code)."""
-    return CliRunner().invoke(main, [str(a) for a in args], env=env)
-
-
-def cli_json(*args):
-    result = cli(*args, "--json")
-    assert result.exit_code == 0, result.output + result.stderr
-    return json.loads(result.stdout)
-
-
-def shapeidx_command(*args) -> list[str]:
-    """A real ``shapeidx`` process (same interpreter as the tests)."""
-    return [sys.executable, "-m", "shapeidx.cli", *map(str, args)]
-
-
-def run_shapeidx(*args, timeout=300) -> subprocess.CompletedProcess:
-    return subprocess.run(shapeidx_command(*args), capture_output=True, text=True, timeout=timeout)
 
 
 def build(tree, store, *extra):

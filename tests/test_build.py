@@ -9,17 +9,18 @@ import shutil
 import subprocess
 
 import numpy as np
+from clitools import cli, shapeidx_command
 from storetools import (
     FAST_POINTS,
     build,
-    cli,
     copy_tree,
-    shapeidx_command,
     small_kicad,
     summary_counts,
 )
 
-from shapeidx.build import BuildOptions, make_plan, walk_parts
+from shapeidx.index.build import BuildOptions
+from shapeidx.index.plan import make_plan
+from shapeidx.index.walk import walk_parts
 from shapeidx.store import STATUS_FAILED, STATUS_OK, open_store
 
 BROKEN = "mesh-wild/openscad-testdata/testdata/stl/unparseable.stl"

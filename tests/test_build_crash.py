@@ -11,20 +11,20 @@ import sys
 import time
 
 import pytest
+from clitools import run_shapeidx, shapeidx_command
 from storetools import (
     FAST_POINTS,
     copy_tree,
     cpu_seconds,
     load_script,
-    run_shapeidx,
-    shapeidx_command,
     slow_assembly,
     small_kicad,
     summary_counts,
 )
 
-from shapeidx.query import query_store
-from shapeidx.store import STATUS_FAILED, StoreError, open_store
+from shapeidx.ranking import query_store
+from shapeidx.errors import StoreError
+from shapeidx.store import STATUS_FAILED, open_store
 
 KILL_FOLDERS = ("Capacitor_Tantalum_SMD", "Diode_SMD", "LED_SMD", "Relay_THT", "Inductor_SMD", "Resistor_THT")
 
@@ -138,7 +138,7 @@ def test_queries_keep_working_while_a_build_runs(data_dir, tmp_path):
                 assert "no store at" in str(exc)  # only before the build created it
                 time.sleep(0.02)
                 continue
-            hits = query_store(store, file=next(probe.iterdir()), top=3)
+            hits = query_store(store, part=next(probe.iterdir()), top=3)
             assert min(3, sizes[-1]) <= len(hits) <= 3  # it may have grown meanwhile
             answered += 1
     finally:
@@ -146,7 +146,7 @@ def test_queries_keep_working_while_a_build_runs(data_dir, tmp_path):
     assert proc.returncode == 0, err
     assert sizes == sorted(sizes), "a reader saw entries disappear"
     assert answered >= 5 and len(set(sizes)) >= 3, (answered, sizes)
-    final = query_store(store, file=next(probe.iterdir()), top=1)
+    final = query_store(store, part=next(probe.iterdir()), top=1)
     assert final[0]["distance"] == 0.0 and final[0]["path"].startswith("Diode_SMD/")
     stats = json.loads(run_shapeidx("stats", "--store", store, "--json").stdout)
     assert stats["entries"] == 40 and stats["journal_batches"] == 0

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import analytic as A
-from shapeidx.pipeline import signature_of_file, solid_of_file
-from shapeidx.sampling import sample_surface
+from shapeidx.signing.pipeline import signature_of_file, solid_of_file
+from shapeidx.signing.sampling import sample_surface
 
 CATALOGUE = A.catalogue()
 NON_CONVEX = ["tube", "torus", "plate_with_holes", "l_bracket", "hollow_box", "two_blocks", "pin_in_block", "drilled_block"]
@@ -118,7 +118,7 @@ def test_segments_on_coplanar_faces_over_a_gap_are_mixed(tmp_path):
     exact = CATALOGUE["two_blocks"]
     path = write(tmp_path, "two_blocks", *A.mesh_arrays(exact))
     solid = solid_of_file(path)
-    from shapeidx.classify import IN, classify_pairs, pair_indices
+    from shapeidx.signing.classify import IN, classify_pairs, pair_indices
 
     points, face_index = sample_surface(solid.vertices, solid.faces, 1024)
     _, classes = classify_pairs(solid.vertices, solid.faces, points, face_index, solid.watertight)

@@ -6,13 +6,12 @@ import json
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-import shapeidx.learn as learn
-from shapeidx.cli import main
+import shapeidx.evaluation.learn as learn
+from clitools import cli
 from shapeidx.distance import FEATURES, METRICS, combined_weights, compare
-from shapeidx.evaluate import evaluate
-from shapeidx.retrieval import retrieval_scores
+from shapeidx.evaluation.evaluate import evaluate
+from shapeidx.evaluation.retrieval import retrieval_scores
 from shapeidx.store import open_store
 
 CLASSES = ["Crystal", "Fuse", "Relay_THT", "LED_THT"]
@@ -26,7 +25,7 @@ def collection(tmp_path_factory, data_dir):
         (root / name).symlink_to(data_dir / "kicad6" / name, target_is_directory=True)
     (root / "stray.stl").symlink_to(data_dir / "mesh-wild/trimesh-models/unit_cube.STL")
     store = tmp_path_factory.mktemp("store") / "labelled.h5"
-    result = CliRunner().invoke(main, ["build", str(root), "--store", str(store), "--points", "256", "-q"])
+    result = cli("build", str(root), "--store", str(store), "--points", "256", "-q")
     assert result.exit_code == 0, result.stderr
     return root, store
 
@@ -49,7 +48,7 @@ def test_scores_equal_an_independent_computation(collection):
 
 def test_cli_json_per_class_and_cross_validation(collection):
     root, store = collection
-    result = CliRunner().invoke(main, ["evaluate", str(root), "--store", str(store), "--json", "--per-class", "--cross-validate", "-q"])
+    result = cli("evaluate", str(root), "--store", str(store), "--json", "--per-class", "--cross-validate", "-q")
     assert result.exit_code == 0, result.stderr
     data = json.loads(result.stdout)
     assert set(data["metrics"]) == set(METRICS) | {"combined (cross-validated)"}
@@ -61,7 +60,7 @@ def test_cli_json_per_class_and_cross_validation(collection):
 
 def test_cli_table(collection):
     root, store = collection
-    result = CliRunner().invoke(main, ["evaluate", str(root), "--store", str(store), "--metric", "weighted", "-q"])
+    result = cli("evaluate", str(root), "--store", str(store), "--metric", "weighted", "-q")
     assert result.exit_code == 0 and "Weighted" in result.stdout and "40 models in 4 classes" in result.stdout
 
 
@@ -108,6 +107,6 @@ def test_a_folder_without_classes_is_refused_in_one_line(tmp_path, data_dir):
     (tmp_path / "flat" / "cube.stl").symlink_to(data_dir / "mesh-wild/trimesh-models/unit_cube.STL")
     for folder in (tmp_path / "flat", tmp_path / "empty"):
         folder.mkdir(exist_ok=True)
-        result = CliRunner().invoke(main, ["evaluate", str(folder), "--store", str(tmp_path / f"{folder.name}.h5"), "-q"])
+        result = cli("evaluate", str(folder), "--store", str(tmp_path / f"{folder.name}.h5"), "-q")
         assert result.exit_code == 1, result.stderr
         assert "sub-folders" in result.stderr and len(result.stderr.strip().splitlines()) == 1

@@ -13,7 +13,7 @@ import pytest
 
 import analytic as A
 from shapeidx.distance import compare
-from shapeidx.pipeline import signature_of_file, signature_of_solid, solid_of_file
+from shapeidx.signing.pipeline import signature_of_file, signature_of_solid, solid_of_file
 
 SHAPES = ["tube", "torus", "plate_with_holes", "l_bracket", "hollow_box", "pin_in_block", "drilled_block"]
 

@@ -1,4 +1,4 @@
-"""Triangulation, merging and shell orientation (shapeidx.mesh)."""
+"""Triangulation, merging and shell orientation (shapeidx.signing.mesh)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from shapeidx.io import load
-from shapeidx.mesh import (
+from shapeidx.signing.mesh import (
     merge_vertices,
     orient_shells,
     remove_bad_faces,
@@ -221,7 +221,7 @@ class TestCleaning:
         shells = orient_shells(f)
         assert shells.count == 1 and shells.closed.all()
         from shapeidx.io.base import PolygonMesh
-        from shapeidx.solid import make_solid
+        from shapeidx.signing.solid import make_solid
 
         solid = make_solid(PolygonMesh.from_triangles(v, f[:, ::-1], "test"))  # wound inward on purpose
         assert solid.watertight and solid.volume == pytest.approx(6.0)

@@ -6,10 +6,11 @@ import json
 
 import numpy as np
 import pytest
-from storetools import FAST_POINTS, build, cli, cli_json, copy_tree, small_kicad
+from clitools import cli, cli_json
+from storetools import FAST_POINTS, build, copy_tree, small_kicad
 
-from shapeidx.distance import METRICS, HistogramBank, compare, histogram_distance, rank_distances
-from shapeidx.query import SignatureTable, top_hits
+from shapeidx.distance import METRICS, HistogramBank, compare, histogram_distance, distances_to_many
+from shapeidx.ranking import SignatureTable, top_hits
 from shapeidx.store import open_store
 
 
@@ -54,22 +55,22 @@ class TestRankingEqualsCompare:
             signatures = [reader.signature(int(i)) for i in table.rows]
         assert len(table) == 30
         for i, query in enumerate(signatures):
-            ranked = rank_distances(query, table.banks, table.fractions, table.means, METRICS)
+            ranked = distances_to_many(query, table.banks, table.fractions, table.means, METRICS)
             for j, other in enumerate(signatures):
                 expected = compare(query, other)
                 assert {m: ranked[m][j] for m in METRICS} == expected, (i, j)
-            assert table.rank(query, "avg4")[i] == 0.0
+            assert table.distances(query, "avg4")[i] == 0.0
 
     def test_unknown_metric_or_missing_histograms(self, kicad_store):
         _, store = kicad_store
         with open_store(store) as reader:
             table = SignatureTable.load(reader, ("in", "out", "mixed"))
             sig = reader.signature(0)
-        assert len(table.rank(sig, "weighted")) == 30
+        assert len(table.distances(sig, "weighted")) == 30
         with pytest.raises(ValueError, match="not loaded: all"):
-            table.rank(sig, "avg4")
+            table.distances(sig, "avg4")
         with pytest.raises(ValueError, match="unknown metric"):
-            table.rank(sig, "euclid")
+            table.distances(sig, "euclid")
 
 
 class TestTopHits:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from shapeidx.retrieval import rank_lists, retrieval_scores
+from shapeidx.evaluation.retrieval import rank_lists, retrieval_scores
 
 
 def collection():

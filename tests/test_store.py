@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from shapeidx.errors import StoreError
-from shapeidx.pipeline import SIGNATURE_VERSION, signature_of_solid, solid_of_file
-from shapeidx.signature import HISTOGRAMS
+from shapeidx.signing.parameters import HISTOGRAMS, SIGNATURE_VERSION
+from shapeidx.signing.pipeline import signature_of_solid, solid_of_file
 from shapeidx.store import (
     STATUS_FAILED,
     STATUS_OK,
@@ -22,11 +22,10 @@ from shapeidx.store import (
     Entry,
     StoreParams,
     StoreWriter,
-    batch_files,
     describe_store,
-    journal_dir,
     open_store,
 )
+from shapeidx.store.files import batch_files, journal_dir
 
 PARAMS = StoreParams(points=64, seed=7, bin_divisor=50, signature_version=SIGNATURE_VERSION)
 PARTS = (
@@ -65,7 +64,7 @@ def merged_store(tmp_path, entries) -> Path:
 
 def snapshot(reader) -> dict:
     """Every column and every histogram of a reader, for comparisons."""
-    from shapeidx.store import ENTRY_COLUMNS
+    from shapeidx.store.layout import ENTRY_COLUMNS
 
     out = {name: reader.column(name) for name in ENTRY_COLUMNS}
     for name in HISTOGRAMS:
@@ -198,7 +197,7 @@ class TestJournal:
     def test_a_merge_between_opening_the_main_file_and_listing_the_journal(self, tmp_path, real_entries,
                                                                             monkeypatch):
         """The reader must not end up with the old main file and no batches (entries lost)."""
-        import shapeidx.store as store_module
+        import shapeidx.store.reader as store_module
 
         entries, _ = real_entries
         listing = store_module.batch_files
@@ -264,8 +263,8 @@ class TestLock:
         holder = subprocess.Popen(
             [sys.executable, "-c",
              "import sys, time; from pathlib import Path; from shapeidx.store import *;"
-             "from shapeidx.pipeline import SIGNATURE_VERSION;"
-             f"w = StoreWriter(Path(sys.argv[1]), StoreParams(64, 7, 50, SIGNATURE_VERSION), Path('/parts'));"
+             "from shapeidx.signing.parameters import SIGNATURE_VERSION;"
+             "w = StoreWriter(Path(sys.argv[1]), StoreParams(64, 7, 50, SIGNATURE_VERSION), Path('/parts'));"
              "print('locked', flush=True); time.sleep(60)", str(tmp_path / "s.h5")],
             stdout=subprocess.PIPE, text=True,
         )

@@ -27,7 +27,7 @@ import pytest
 from shapeidx.errors import LoadError
 from shapeidx.io import LoadLimits
 from shapeidx.io.vrml import load_vrml
-from shapeidx.mesh import polygon_starts, triangle_areas, triangulate_polygons
+from shapeidx.signing.mesh import polygon_starts, triangle_areas, triangulate_polygons
 
 SYSTEM_PYTHON = "/usr/bin/python3"
 

@@ -15,7 +15,7 @@ import pytest
 
 from shapeidx.errors import LoadError
 from shapeidx.io import load
-from shapeidx.io.vrml_geometry import RINGS, SEGMENTS
+from shapeidx.io.vrml.geometry import RINGS, SEGMENTS
 from test_vrml_support import (
     CUBE_INDEX,
     CUBE_INDEX_CLOCKWISE,

@@ -18,7 +18,7 @@ import gzip
 import pytest
 
 from shapeidx.distance import compare
-from shapeidx.pipeline import signature_of_file, signature_of_solid, solid_of_file
+from shapeidx.signing.pipeline import signature_of_file, signature_of_solid, solid_of_file
 from test_vrml_support import FIXTURES
 
 POINTS = 2048

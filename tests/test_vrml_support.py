@@ -1,7 +1,7 @@
 """Helpers shared by the VRML tests (no tests here).
 
 Measures follow what ``shapeidx inspect --json`` reports: the file's polygons as read,
-triangulated by :func:`shapeidx.mesh.triangulate_polygons`, before any cleaning.
+triangulated by :func:`shapeidx.signing.mesh.triangulate_polygons`, before any cleaning.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import numpy as np
 
 from shapeidx.io import LoadLimits
 from shapeidx.io.vrml import load_vrml
-from shapeidx.mesh import signed_volumes, triangle_areas, triangulate_polygons
+from shapeidx.signing.mesh import signed_volumes, triangle_areas, triangulate_polygons
 
 FIXTURES = Path(__file__).parent / "data" / "vrml"
 

@@ -1,7 +1,14 @@
-"""Readers: one module per format family, one entry point, :func:`load`.
+"""Readers: a registry of file formats, one module per format family, one entry point.
 
-Every reader returns a :class:`PolygonMesh` (vertices and polygons, as the file says)
-or raises :class:`~shapeidx.errors.LoadError` with a one-line reason.
+Every reader module declares its :class:`Format` (name, suffixes, sniff test, and
+``read(path, data, limits)``); :func:`load` picks the reader by the file's name, or by its
+content when the name says nothing, and returns a :class:`PolygonMesh` (vertices and
+polygons, as the file says) or raises :class:`~shapeidx.errors.LoadError` with a one-line
+reason. gzip compression is detected from the content, for every format.
+
+    stl.py obj.py off.py ply.py   the mesh formats
+    vrml/                         VRML 1.0 and 2.0 (a package of its own: lexer, parser, ...)
+    base.py                       PolygonMesh, Format, LoadLimits, reading (gzipped) bytes
 """
 
 from __future__ import annotations
@@ -13,35 +20,61 @@ import numpy as np
 
 from ..errors import LoadError
 from . import obj, off, ply, stl, vrml
-from .base import LoadLimits, PolygonMesh, read_bytes
+from .base import GZIP_MAGIC, Format, LoadLimits, PolygonMesh, gunzip_bounded, read_bytes
 
-#: File name endings each reader handles (compared in lower case).
-SUFFIX_FORMATS = {
-    ".stl": "stl",
-    ".obj": "obj",
-    ".off": "off",
-    ".ply": "ply",
-    ".wrl": "vrml",
-    ".wrz": "vrml",
-    ".vrml": "vrml",
-}
+__all__ = [
+    "FORMATS",
+    "Format",
+    "LoadLimits",
+    "PolygonMesh",
+    "format_of",
+    "load",
+    "load_bytes",
+    "read_bytes",
+    "register",
+    "suffixes",
+]
 
-__all__ = ["LoadLimits", "PolygonMesh", "SUFFIX_FORMATS", "format_of", "load", "read_bytes"]
+#: Every format by name, in the order errors list them.
+FORMATS: dict[str, Format] = {}
+_BY_SUFFIX: dict[str, Format] = {}
+
+
+def register(fmt: Format) -> None:
+    """Make a format known to :func:`load`, :func:`format_of` and the build's walk."""
+    FORMATS[fmt.name] = fmt
+    for suffix in fmt.suffixes:
+        _BY_SUFFIX[suffix] = fmt
+
+
+for _module in (stl, obj, off, ply, vrml):
+    register(_module.FORMAT)
+
+
+def suffixes() -> list[str]:
+    """File name endings of every known format (each may also end in ``.gz``)."""
+    return sorted(_BY_SUFFIX)
 
 
 def format_of(path: str | os.PathLike) -> str | None:
-    """The reader for ``path`` judged by its name (case-insensitive, ``.gz`` allowed), or None."""
+    """The format of ``path`` judged by its name (case-insensitive, ``.gz`` allowed), or None."""
     name = Path(path).name.lower()
     if name.endswith(".gz"):
         name = name[:-3]
-    return SUFFIX_FORMATS.get(Path(name).suffix)
+    fmt = _BY_SUFFIX.get(Path(name).suffix)
+    return fmt.name if fmt else None
 
 
-def load(path: str | os.PathLike, limits: LoadLimits | None = None) -> PolygonMesh:
+def load(path: str | os.PathLike, limits: LoadLimits | None = None, file_type: str | None = None) -> PolygonMesh:
     """Read a part file into a :class:`PolygonMesh`.
 
-    The reader is chosen by the file name; a name without a known ending is sniffed from
-    its first bytes. gzip compression is detected from the content for every format.
+    Parameters
+    ----------
+    path : path-like
+    limits : LoadLimits, optional
+    file_type : str, optional
+        A format name of :data:`FORMATS`; by default the file's name decides, and a name
+        without a known ending is sniffed from its first bytes.
 
     Raises
     ------
@@ -51,17 +84,30 @@ def load(path: str | os.PathLike, limits: LoadLimits | None = None) -> PolygonMe
     limits = limits or LoadLimits()
     path = Path(path)
     _check_is_a_nonempty_file(path)
-    fmt = format_of(path)
+    data, _ = read_bytes(path, limits)
+    return _read(data, path, file_type or format_of(path), limits)
+
+
+def load_bytes(
+    data: bytes, path: str | os.PathLike, file_type: str | None = None, limits: LoadLimits | None = None
+) -> PolygonMesh:
+    """Read a part from its content (gzip allowed); ``path`` names it in errors.
+
+    ``file_type`` as for :func:`load`; without it the content is sniffed.
+    """
+    limits = limits or LoadLimits()
+    path = Path(path)
+    if data[:2] == GZIP_MAGIC:
+        data = gunzip_bounded(data, path, limits.max_uncompressed_bytes)
+    return _read(data, path, file_type, limits)
+
+
+def _read(data: bytes, path: Path, file_type: str | None, limits: LoadLimits) -> PolygonMesh:
+    if file_type is not None and file_type not in FORMATS:
+        raise LoadError(path, f"unknown file type {file_type!r} (known: {', '.join(FORMATS)})")
     try:
-        if fmt == "vrml":
-            mesh = vrml.load_vrml(path, limits)
-        else:
-            data, _ = read_bytes(path, limits)
-            fmt = fmt or _sniff(path, data)
-            if fmt == "vrml":
-                mesh = vrml.load_vrml(path, limits)
-            else:
-                mesh = _READERS[fmt](path, data)
+        fmt = FORMATS[file_type] if file_type else _sniff(path, data)
+        mesh = fmt.read(path, data, limits)
     except LoadError:
         raise
     except MemoryError:
@@ -101,17 +147,11 @@ def check_polygon_mesh(path, mesh: PolygonMesh, limits: LoadLimits) -> None:
         raise LoadError(path, "has NaN or infinite vertex coordinates")
 
 
-def _sniff(path: Path, data: bytes) -> str:
+def _sniff(path: Path, data: bytes) -> Format:
     head = data[:512].lstrip()
-    if head.startswith(b"#VRML") or head.startswith(b"#Inventor"):
-        return "vrml"
-    if head[:3].lower() == b"ply":
-        return "ply"
-    if head[:3] == b"OFF" or head[:4] in (b"COFF", b"NOFF"):
-        return "off"
-    if head[:5].lower() == b"solid" or len(data) >= 84:
-        return "stl"
-    raise LoadError(path, "unknown file type (expected STL, OBJ, OFF, PLY or VRML)")
-
-
-_READERS = {"stl": stl.read_stl, "obj": obj.read_obj, "off": off.read_off, "ply": ply.read_ply}
+    ordered = sorted((f for f in FORMATS.values() if f.sniff), key=lambda f: f.weak)
+    for fmt in ordered:
+        if fmt.sniff(head, len(data)):
+            return fmt
+    labels = [f.label for f in FORMATS.values()]
+    raise LoadError(path, f"unknown file type (expected {', '.join(labels[:-1])} or {labels[-1]})")

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import gzip
+import io
 import os
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,6 +39,38 @@ class LoadLimits:
     max_uncompressed_bytes: int = 1 << 30
     max_inline_depth: int = 8
     root: Path | None = None
+
+
+@dataclass(frozen=True)
+class Format:
+    """A file format a reader module handles; every reader module declares one as ``FORMAT``.
+
+    Attributes
+    ----------
+    name : str
+        What ``file_type`` arguments and ``--type`` options call it (``"stl"``).
+    label : str
+        Its name for people (``"STL"``).
+    suffixes : tuple of str
+        File name endings, lower case, without ``.gz`` (compression is detected anyway).
+    read : callable
+        ``read(path, data, limits) -> PolygonMesh``: ``data`` is the file's content, already
+        decompressed; ``path`` names the file in errors (and locates VRML Inline files).
+        Raises :class:`~shapeidx.errors.LoadError`.
+    sniff : callable or None
+        ``sniff(head, size) -> bool``: whether content starting with ``head`` (the first 512
+        bytes, leading white space removed) of ``size`` bytes is in this format.
+    weak : bool
+        The sniff test is a last resort (binary STL has no magic number): tried after
+        every other format's.
+    """
+
+    name: str
+    label: str
+    suffixes: tuple
+    read: Callable
+    sniff: Callable | None = None
+    weak: bool = False
 
 
 @dataclass
@@ -111,14 +145,18 @@ def read_bytes(path: str | os.PathLike, limits: LoadLimits | None = None) -> tup
         raise LoadError(path, "permission denied") from None
     except OSError as exc:
         raise LoadError(path, f"cannot read: {exc.strerror or exc}") from None
-    return _gunzip_bounded(path, limits.max_uncompressed_bytes), True
+    return gunzip_bounded(path, path, limits.max_uncompressed_bytes), True
 
 
-def _gunzip_bounded(path: Path, max_bytes: int) -> bytes:
+def gunzip_bounded(source, path: Path, max_bytes: int) -> bytes:
+    """Decompress gzip data from ``source`` (a path, or the compressed bytes), refusing to
+    expand beyond ``max_bytes``; ``path`` names the file in errors."""
+    if isinstance(source, (bytes, bytearray, memoryview)):
+        source = io.BytesIO(source)
     chunks = []
     total = 0
     try:
-        with gzip.open(path, "rb") as f:
+        with gzip.open(source, "rb") as f:
             while True:
                 chunk = f.read(1 << 20)
                 if not chunk:

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import LoadError
-from .base import PolygonMesh
+from .base import Format, LoadLimits, PolygonMesh
 from .text import decode_text
 
 
-def read_obj(path, data: bytes) -> PolygonMesh:
+def read_obj(path, data: bytes, limits: LoadLimits | None = None) -> PolygonMesh:
     """Read OBJ bytes. Face corners ``v``, ``v/t``, ``v//n`` and ``v/t/n`` are accepted;
     negative indices count back from the latest vertex, as the format says."""
     vertices: list[tuple[list[str], int]] = []  # coordinates as text, line number
@@ -54,3 +54,6 @@ def _all_numbers(fields: list[str]) -> bool:
     except ValueError:
         return False
     return True
+
+
+FORMAT = Format("obj", "OBJ", (".obj",), read_obj)

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import LoadError
-from .base import PolygonMesh
+from .base import Format, LoadLimits, PolygonMesh
 from .text import decode_text
 
 
-def read_off(path, data: bytes) -> PolygonMesh:
+def read_off(path, data: bytes, limits: LoadLimits | None = None) -> PolygonMesh:
     """Read OFF bytes. Colours and normals after the coordinates are ignored."""
     lines = []
     for number, raw in enumerate(decode_text(data).splitlines(), start=1):
@@ -54,3 +54,6 @@ def read_off(path, data: bytes) -> PolygonMesh:
         corners.extend(refs)
     warnings = [f"{skipped} face(s) with fewer than three corners or out-of-range indices skipped"] if skipped else []
     return PolygonMesh(points.reshape(-1, 3), np.array(sizes, dtype=np.int64), np.array(corners, dtype=np.int64), "off", warnings)
+
+
+FORMAT = Format("off", "OFF", (".off",), read_off, sniff=lambda head, size: head[:3] == b"OFF" or head[:4] in (b"COFF", b"NOFF"))

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import LoadError
-from .base import PolygonMesh
+from .base import Format, LoadLimits, PolygonMesh
 
 _TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -31,7 +31,7 @@ class _Element:
     properties: list[_Property]
 
 
-def read_ply(path, data: bytes) -> PolygonMesh:
+def read_ply(path, data: bytes, limits: LoadLimits | None = None) -> PolygonMesh:
     """Read PLY bytes: the ``vertex`` element's x, y, z and the ``face`` element's index list."""
     end = data.find(b"end_header")
     if not data[:3].lower() == b"ply" or end < 0:
@@ -213,3 +213,6 @@ def _need(path, data: bytes, offset: int, size: int, element: _Element) -> int:
     if offset + size > len(data):
         raise LoadError(path, f"PLY file ends inside its {element.name!r} data (truncated)")
     return offset + size
+
+
+FORMAT = Format("ply", "PLY", (".ply",), read_ply, sniff=lambda head, size: head[:3].lower() == b"ply")

@@ -7,13 +7,13 @@ import re
 import numpy as np
 
 from ..errors import LoadError
-from .base import PolygonMesh
+from .base import Format, LoadLimits, PolygonMesh
 
 _BINARY_RECORD = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
 _ASCII_VERTEX = re.compile(rb"vertex\s+(\S+)\s+(\S+)\s+(\S+)")
 
 
-def read_stl(path, data: bytes) -> PolygonMesh:
+def read_stl(path, data: bytes, limits: LoadLimits | None = None) -> PolygonMesh:
     """Read STL bytes; binary is recognised by its exact length, whatever the header says."""
     if len(data) >= 84:
         count = int(np.frombuffer(data, dtype="<u4", count=1, offset=80)[0])
@@ -46,3 +46,6 @@ def _from_corners(path, corners: np.ndarray, fmt: str) -> PolygonMesh:
         raise LoadError(path, "STL file contains no triangles")
     vertices = corners.reshape(-1, 3)
     return PolygonMesh.from_triangles(vertices, np.arange(len(vertices)).reshape(-1, 3), fmt)
+
+
+FORMAT = Format("stl", "STL", (".stl",), read_stl, sniff=lambda head, size: head[:5].lower() == b"solid" or size >= 84, weak=True)

@@ -1,10 +1,10 @@
 """Ranking a store against a part: ``shapeidx query`` and the Python API behind it.
 
     table = SignatureTable.load(reader)          # the ok entries, once
-    distances = table.rank(signature, "weighted")  # one vectorised pass
+    distances = table.distances(signature, "weighted")  # one vectorised pass
     hits = top_hits(distances, table.paths, 5)
 
-Distances come from :func:`shapeidx.distance.rank_distances`, so they equal what
+Distances come from :func:`shapeidx.distance.distances_to_many`, so they equal what
 :func:`shapeidx.distance.compare` gives for each pair, bit for bit.
 """
 
@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .distance import METRIC_HISTOGRAMS, METRICS, HistogramBank, rank_distances
+from .distance import METRIC_HISTOGRAMS, METRICS, HistogramBank, distances_to_many
 from .errors import StoreError
-from .pipeline import signature_of_solid, solid_of_file
-from .signature import HISTOGRAMS, Signature
+from .signing.histogram import Signature
+from .signing.parameters import HISTOGRAMS, SIGNATURE_VERSION
 from .store import STATUS_OK, StoreReader, open_store
 
 
@@ -58,14 +58,14 @@ class SignatureTable:
     def __len__(self) -> int:
         return len(self.paths)
 
-    def rank(self, signature: Signature, metric: str = "weighted") -> np.ndarray:
+    def distances(self, signature: Signature, metric: str = "weighted") -> np.ndarray:
         """Distance of every entry to ``signature`` by ``metric`` (one of :data:`METRICS`)."""
         if metric not in METRICS:
             raise ValueError(f"unknown metric {metric!r}; expected one of {', '.join(METRICS)}")
         missing = set(METRIC_HISTOGRAMS[metric]) - set(self.banks)
         if missing:
             raise ValueError(f"metric {metric} needs histograms not loaded: {', '.join(sorted(missing))}")
-        return rank_distances(signature, self.banks, self.fractions, self.means, (metric,))[metric]
+        return distances_to_many(signature, self.banks, self.fractions, self.means, (metric,))[metric]
 
     def index_of(self, path: str) -> int | None:
         i = int(np.searchsorted(self.paths, path))
@@ -101,49 +101,71 @@ def entry_path_of(file: str | os.PathLike, reader: StoreReader) -> str | None:
 
 
 def query_store(
-    store: str | os.PathLike,
-    file: str | os.PathLike | None = None,
+    store,
+    part=None,
     entry: str | None = None,
     top: int = 10,
     metric: str = "weighted",
     threads: int = 1,
+    file_type: str | None = None,
 ) -> list[dict]:
-    """Rank a store against a part file, or against one of its own entries.
+    """Rank a store against a part, or against one of its own entries.
 
     Parameters
     ----------
-    store : path of the store
-    file : a part file; its signature is computed with the store's parameters
-    entry : a relative path already in the store (``--id``), instead of ``file``
+    store : path of the store, or an open :class:`StoreReader`
+    part : a part in any form :func:`shapeidx.load` takes, or a :class:`Signature`; its
+        signature is computed with the store's parameters
+    entry : a relative path already in the store (``--id``), instead of ``part``
     top : how many hits
     metric : one of :data:`METRICS`
-    threads : threads for the query file's ray queries
+    threads : threads for the query part's ray queries
+    file_type : the part's format, when its name or content does not tell it
 
     Raises
     ------
     StoreError
         No store, unknown or failed entry, or a store of another signature version.
     LoadError
-        The query file cannot be read.
+        The query part cannot be read.
     """
+    if metric not in METRICS:
+        raise ValueError(f"unknown metric {metric!r}; expected one of {', '.join(METRICS)}")
+    if isinstance(store, StoreReader):
+        return _query_reader(store, part, entry, top, metric, threads, file_type)
     with open_store(store) as reader:
-        _check_usable(reader)
-        table = SignatureTable.load(reader, METRIC_HISTOGRAMS[metric])
-        if entry is not None:
-            first = _entry_index(reader, table, entry)
-            signature = reader.signature(int(table.rows[first]))
-        else:
-            params = reader.params
-            solid = solid_of_file(file)
-            signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor, threads)
-            own = entry_path_of(file, reader)
-            first = table.index_of(own) if own is not None else None
-        return top_hits(table.rank(signature, metric), table.paths, top, first)
+        return _query_reader(reader, part, entry, top, metric, threads, file_type)
+
+
+def _query_reader(reader: StoreReader, part, entry, top, metric, threads, file_type) -> list[dict]:
+    _check_usable(reader)
+    table = SignatureTable.load(reader, METRIC_HISTOGRAMS[metric])
+    if entry is not None:
+        first = _entry_index(reader, table, entry)
+        signature = reader.signature(int(table.rows[first]))
+    else:
+        signature = signature_with_params(part, reader.params, threads, file_type)
+        own = entry_path_of(part, reader) if isinstance(part, (str, os.PathLike)) else None
+        first = table.index_of(own) if own is not None else None
+    return top_hits(table.distances(signature, metric), table.paths, top, first)
+
+
+def signature_with_params(part, params, threads: int = 1, file_type: str | None = None) -> Signature:
+    """The signature of ``part`` with a store's parameters (a Signature must already have them)."""
+    if isinstance(part, Signature):
+        if (part.points, part.seed) != (params.points, params.seed):
+            raise StoreError(
+                f"the signature was made with {part.points} points and seed {part.seed}; "
+                f"the store's are {params.points} and {params.seed}"
+            )
+        return part
+    from .api import load
+    from .signing.pipeline import signature_of_solid
+
+    return signature_of_solid(load(part, file_type), params.points, params.seed, params.bin_divisor, threads)
 
 
 def _check_usable(reader: StoreReader) -> None:
-    from .pipeline import SIGNATURE_VERSION
-
     if reader.params.signature_version != SIGNATURE_VERSION:
         raise StoreError(
             f"store {reader.path} holds signatures of version {reader.params.signature_version}, this shapeidx"

@@ -1,6 +1,6 @@
 """Mesh operations on the way from polygons as read to a clean surface.
 
-:func:`shapeidx.solid.make_solid` applies them in this order:
+:func:`shapeidx.signing.solid.make_solid` applies them in this order:
 
 1. :func:`triangulate_polygons`: triangles as they are, quadrilaterals split by the
    rule of Ip et al. (2002, section 3.2.1), larger polygons triangulated in their plane
@@ -19,6 +19,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from ..ragged import offsets_of
+
 
 # ----------------------------------------------------------------------------------
 # geometry helpers
@@ -28,6 +30,20 @@ def triangle_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Cross products (b - a) x (c - a): normal direction times twice the area, (k, 3)."""
     a = vertices[faces[:, 0]]
     return np.cross(vertices[faces[:, 1]] - a, vertices[faces[:, 2]] - a)
+
+
+def unit_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit normal of each triangle by its winding; zero for a degenerate triangle."""
+    n = triangle_cross(vertices, faces)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return n / np.where(length > 0, length, 1.0)
+
+
+def flip_faces(faces: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """A copy of ``faces`` with the triangles where ``mask`` is true wound the other way."""
+    out = faces.copy()
+    out[mask] = out[mask][:, ::-1]
+    return out
 
 
 def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -56,9 +72,7 @@ def signed_volumes(vertices: np.ndarray, faces: np.ndarray, origin=None) -> np.n
 
 def polygon_starts(face_sizes: np.ndarray) -> np.ndarray:
     """Offset of each polygon's first corner in the flat index array."""
-    starts = np.zeros(len(face_sizes), dtype=np.int64)
-    np.cumsum(face_sizes[:-1], out=starts[1:])
-    return starts
+    return offsets_of(face_sizes)[:-1]
 
 
 def split_quads(vertices: np.ndarray, quads: np.ndarray) -> np.ndarray:
@@ -329,8 +343,7 @@ def orient_shells(faces: np.ndarray) -> Shells:
     orientable_face = as_read != flipped
     flip = orientable_face & (as_read > flipped)  # canonical choice: the smaller label is kept
 
-    new_faces = faces.copy()
-    new_faces[flip] = new_faces[flip][:, ::-1]
+    new_faces = flip_faces(faces, flip)
 
     plain = coo_matrix((np.ones(len(f1), dtype=np.int8), (f1, f2)), shape=(k, k))
     count, shell = connected_components(plain, directed=False)

@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import LoadError
-from .vrml_lexer import (
+from ...errors import LoadError
+from .lexer import (
     ARRAY,
     BROKEN,
     END,
@@ -203,7 +203,7 @@ class _Parser:
     """Walks the lexer's token list; ``self.i`` is the index of the next token.
 
     Every loop over a node body or a list starts by calling :meth:`Lexer.refill` when the
-    list runs short (only after a rebuild, see :mod:`.vrml_lexer`); what one turn of a loop
+    list runs short (only after a rebuild, see :mod:`.lexer`); what one turn of a loop
     reads before the next loop starts stays within ``LOOKAHEAD`` tokens.
 
     The checks follow a parser that scans one token at a time with one token of

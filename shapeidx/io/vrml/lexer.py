@@ -42,7 +42,7 @@ from itertools import islice
 
 import numpy as np
 
-from ..errors import LoadError
+from ...errors import LoadError
 
 # Token kinds (see kind_of)
 NAME = "name"

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize
 
-from .distance import FEATURES
+from ..distance import FEATURES
 from .retrieval import SCORES, retrieval_scores
 
 #: L2 penalty on log-weights.

@@ -2,9 +2,9 @@
 
 The reader runs in four steps, one module each:
 
-1. :mod:`.vrml_lexer`: bytes to tokens; number arrays converted in bulk with numpy.
-2. :mod:`.vrml_parser`: tokens to a tree of nodes (DEF/USE shared, PROTOs expanded).
-3. :mod:`.vrml_scene`: the face sets of each file split into polygons in one batch, the
+1. :mod:`.lexer`: bytes to tokens; number arrays converted in bulk with numpy.
+2. :mod:`.parser`: tokens to a tree of nodes (DEF/USE shared, PROTOs expanded).
+3. :mod:`.scene`: the face sets of each file split into polygons in one batch, the
    tree counted (limits checked before any geometry is built) and then traversed with a
    transform stack, collecting face sets.
 4. This module: files (gzip, Inline of other files, limits) and the resulting
@@ -28,18 +28,18 @@ from urllib.parse import unquote
 
 import numpy as np
 
-from ..errors import LoadError
-from .base import LoadLimits, PolygonMesh, read_bytes
-from .vrml_geometry import Placement
-from .vrml_parser import Node, Scene, parse_vrml
-from .vrml_scene import MAX_NODE_VISITS, MeshBuilder, SceneWalker, Warnings
+from ...errors import LoadError
+from ..base import Format, LoadLimits, PolygonMesh, read_bytes
+from .geometry import Placement
+from .parser import Node, Scene, parse_vrml
+from .scene import MAX_NODE_VISITS, MeshBuilder, SceneWalker, Warnings
 
-__all__ = ["load_vrml"]
+__all__ = ["FORMAT", "load_vrml"]
 
 _URL_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.\-]+:")
 
 
-def load_vrml(path, limits: LoadLimits | None = None) -> PolygonMesh:
+def load_vrml(path, limits: LoadLimits | None = None, data: bytes | None = None) -> PolygonMesh:
     """Read a VRML 1.0 or 2.0 file (plain or gzip) into a :class:`PolygonMesh`.
 
     Parameters
@@ -48,6 +48,9 @@ def load_vrml(path, limits: LoadLimits | None = None) -> PolygonMesh:
     limits : LoadLimits, optional
         Triangle, gzip-expansion and Inline-depth limits, and the directory Inline may
         not leave.
+    data : bytes, optional
+        The file's content (already decompressed), when the caller has read it; Inline
+        references are still read from ``path``'s folder.
 
     Returns
     -------
@@ -62,15 +65,16 @@ def load_vrml(path, limits: LoadLimits | None = None) -> PolygonMesh:
         One line naming the file, the line when known, and the reason.
     """
     limits = limits or LoadLimits()
-    return _VrmlLoad(Path(path), limits).run()
+    return _VrmlLoad(Path(path), limits, data).run()
 
 
 class _VrmlLoad:
     """One call of :func:`load_vrml`: the files it reads and what it found."""
 
-    def __init__(self, path: Path, limits: LoadLimits):
+    def __init__(self, path: Path, limits: LoadLimits, data: bytes | None = None):
         self.path = path
         self.limits = limits
+        self.top_data = data
         root = limits.root if limits.root is not None else path.parent
         self.root = os.path.realpath(root)
         self.warnings = Warnings()
@@ -113,7 +117,7 @@ class _VrmlLoad:
         An inlined file must start with a ``#VRML`` header (Inline may name images or
         other formats); for one that does not, None is returned.
         """
-        data, _ = read_bytes(path, self.limits)
+        data = self.top_data if not inlined and self.top_data is not None else read_bytes(path, self.limits)[0]
         if inlined and not data.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"#VRML"):
             return None
         scene = parse_vrml(data, path)
@@ -195,3 +199,12 @@ class _VrmlLoad:
             if self.scenes[target] is None:
                 self.warnings.add(self.where(node), f"Inline {Path(target).name!r} is not a VRML file: skipped")
         return self.scenes[target]
+
+
+def _looks_like_vrml(head: bytes, size: int) -> bool:
+    return head.startswith(b"#VRML") or head.startswith(b"#Inventor")
+
+
+FORMAT = Format(
+    "vrml", "VRML", (".wrl", ".wrz", ".vrml"), lambda path, data, limits: load_vrml(path, limits, data), sniff=_looks_like_vrml
+)

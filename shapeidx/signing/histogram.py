@@ -6,12 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .classify import CLASS_NAMES
-
-#: Bin width = mean distance of the set / BIN_DIVISOR (the paper's 1/50).
-BIN_DIVISOR = 50
-#: Histogram names, in the order used everywhere (store, distances, JSON).
-HISTOGRAMS = ("all",) + CLASS_NAMES
+from .parameters import BIN_DIVISOR, CLASS_NAMES
 
 
 @dataclass(frozen=True)
@@ -112,13 +107,3 @@ class Signature:
                 for name, h in self.histograms.items()
             },
         }
-
-    @classmethod
-    def from_dict(cls, data: dict) -> "Signature":
-        """Inverse of :meth:`to_dict` (counts are recovered from ``p`` and ``pairs``)."""
-        histograms = {}
-        for name in HISTOGRAMS:
-            h = data["histograms"][name]
-            counts = np.rint(np.asarray(h["p"], dtype=np.float64) * h["pairs"]).astype(np.int64)
-            histograms[name] = Histogram(counts, float(h["mean"]), float(h["bin_width"]))
-        return cls(points=int(data["points"]), seed=int(data["seed"]), histograms=histograms)

@@ -5,9 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .mesh import triangle_areas
-
-#: Default seed: the same file gives the same points, on every run and machine.
-DEFAULT_SEED = 20020101
+from .parameters import DEFAULT_SEED
 
 
 def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int, seed: int = DEFAULT_SEED):

@@ -1,7 +1,7 @@
 """The solid a part file describes: :func:`make_solid`.
 
 From the polygons as read: triangulate, merge duplicate points, drop degenerate and duplicate
-triangles, make each shell's winding consistent (all in :mod:`shapeidx.mesh`), then decide
+triangles, make each shell's winding consistent (all in :mod:`shapeidx.signing.mesh`), then decide
 the solid. A part file often holds several shells. The solid they describe is decided by geometry
 alone, never by the file's winding:
 
@@ -23,10 +23,11 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from .errors import LoadError
-from .io.base import PolygonMesh
+from ..errors import LoadError
+from ..io.base import PolygonMesh
 from .mesh import (
     Shells,
+    flip_faces,
     merge_vertices,
     orient_shells,
     remove_bad_faces,
@@ -72,12 +73,6 @@ def shell_bounds(vertices: np.ndarray, faces: np.ndarray, shell: np.ndarray, cou
     np.minimum.at(lo, shell, corners.min(axis=1))
     np.maximum.at(hi, shell, corners.max(axis=1))
     return lo, hi
-
-
-def _flip(faces: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    out = faces.copy()
-    out[mask] = out[mask][:, ::-1]
-    return out
 
 
 def nesting_depth(vertices, faces, shell, closed_ids, lo, hi) -> np.ndarray:
@@ -190,7 +185,7 @@ def resolve_shells(vertices: np.ndarray, faces: np.ndarray, shells: Shells, warn
     vertices, faces
         The cleaned mesh, with winding already consistent inside each shell.
     shells
-        From :func:`shapeidx.mesh.orient_shells`.
+        From :func:`shapeidx.signing.mesh.orient_shells`.
     warnings
         Appended to, when the exact union is impossible and an approximation is used.
     """
@@ -200,7 +195,7 @@ def resolve_shells(vertices: np.ndarray, faces: np.ndarray, shells: Shells, warn
     # well conditioned, and a fair guess of "outward" for an open one
     centre = (lo + hi) / 2
     volume = np.bincount(shell, weights=signed_volumes(vertices, faces, centre[shell]), minlength=count)
-    faces = _flip(faces, (volume < 0)[shell])
+    faces = flip_faces(faces, (volume < 0)[shell])
 
     closed_ids = np.flatnonzero(shells.closed)
     open_ids = np.flatnonzero(~shells.closed)
@@ -222,7 +217,7 @@ def resolve_shells(vertices: np.ndarray, faces: np.ndarray, shells: Shells, warn
     elif report["cavities"]:
         cavity = np.zeros(count, dtype=bool)
         cavity[closed_ids[depth % 2 == 1]] = True
-        closed_faces = _flip(faces, cavity[shell])[closed_faces_mask]
+        closed_faces = flip_faces(faces, cavity[shell])[closed_faces_mask]
 
     open_faces = faces[~closed_faces_mask]
     if len(open_faces):

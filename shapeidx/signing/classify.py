@@ -23,7 +23,7 @@ How it is decided, without a Python loop over pairs:
    that crosses the hole's wall: MIXED, as it should be.
 
 All of this needs normals that point away from the material, which
-:func:`shapeidx.solid.make_solid` gives every closed solid. For a surface that is not
+:func:`shapeidx.signing.solid.make_solid` gives every closed solid. For a surface that is not
 watertight, each sample's normal is turned by generalized winding numbers instead (toward
 the side with the lower winding number), then the same logic applies. Testing the winding
 number at the midpoint of every uncrossed segment as well was measured on the open meshes
@@ -41,8 +41,9 @@ from functools import lru_cache
 import numpy as np
 from scipy.spatial.distance import pdist
 
-IN, OUT, MIXED = 0, 1, 2
-CLASS_NAMES = ("in", "out", "mixed")
+from .mesh import unit_normals
+from .occlusion import OcclusionScene
+from .parameters import CLASS_NAMES, IN, MIXED, OUT  # noqa: F401 (re-exported: the class codes)
 
 #: Shift of query segments off the surface, relative to the bounding-box diagonal.
 OFFSET = 1e-5
@@ -74,67 +75,6 @@ def pair_indices(count: int) -> tuple[np.ndarray, np.ndarray]:
     return i, j
 
 
-class OcclusionScene:
-    """An Embree scene of triangles that answers "is this segment blocked?" for many segments."""
-
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
-        from embreex import mesh_construction, rtcore_scene
-
-        self._scene = rtcore_scene.EmbreeScene(_embree_device())
-        self._mesh = mesh_construction.TriangleMesh(
-            self._scene,
-            np.ascontiguousarray(vertices, dtype=np.float32),
-            np.ascontiguousarray(faces, dtype=np.int32),
-        )
-
-    def blocked(self, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
-        """True where the segment from ``starts[k]`` to ``ends[k]`` meets a triangle."""
-        if len(starts) == 0:
-            return np.zeros(0, dtype=bool)
-        starts = np.ascontiguousarray(starts, dtype=np.float32)
-        directions = np.subtract(ends, starts, dtype=np.float32)
-        reach = np.ones(len(starts), dtype=np.float32)  # direction is the whole segment
-        return self._scene.run(starts, directions, dists=reach, query="OCCLUDED") != -1
-
-    def blocked_between(self, points: np.ndarray, start_rows: np.ndarray, end_rows: np.ndarray, threads: int = 1):
-        """:meth:`blocked` for segments ``points[start_rows[k]] -> points[end_rows[k]]``.
-
-        With ``threads > 1`` the segments are split into that many chunks, gathered and
-        queried concurrently (embreex releases the GIL; Embree queries are thread-safe).
-        """
-        def query(rows):  # np.take gathers rows about twice as fast as fancy indexing
-            return self.blocked(np.take(points, start_rows[rows], axis=0), np.take(points, end_rows[rows], axis=0))
-
-        if threads <= 1 or len(start_rows) < 10_000:
-            return query(slice(None))
-        self.blocked(points[:1], points[1:2])  # commit the scene once, before the threads race to
-        chunks = [slice(c[0], c[-1] + 1) for c in np.array_split(np.arange(len(start_rows)), threads) if len(c)]
-        return np.concatenate(list(_thread_pool(threads).map(query, chunks)))
-
-
-@lru_cache(maxsize=1)
-def _embree_device():
-    """One Embree device per process: starting a device costs milliseconds, a scene does not."""
-    from embreex import rtcore
-
-    return rtcore.EmbreeDevice()
-
-
-@lru_cache(maxsize=2)
-def _thread_pool(threads: int):
-    from concurrent.futures import ThreadPoolExecutor
-
-    return ThreadPoolExecutor(max_workers=threads, thread_name_prefix="shapeidx-embree")
-
-
-def unit_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Unit normal of each triangle by its winding; zero for a degenerate triangle."""
-    a = vertices[faces[:, 0]]
-    n = np.cross(vertices[faces[:, 1]] - a, vertices[faces[:, 2]] - a)
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return n / np.where(length > 0, length, 1.0)
-
-
 def normalise(vertices: np.ndarray, points: np.ndarray):
     """Centre on the bounding box and scale to a unit diagonal; returns (vertices, points, scale)."""
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
@@ -160,7 +100,7 @@ def classify_pairs(
     vertices, faces
         The solid's surface, wound so that normals point away from the material.
     points : (m, 3) float
-        Surface samples, from :func:`shapeidx.sampling.sample_surface`.
+        Surface samples, from :func:`shapeidx.signing.sampling.sample_surface`.
     face_index : (m,) int
         The triangle of each sample.
     watertight : bool

@@ -29,9 +29,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import LoadError
-from . import vrml_geometry as geo
-from .vrml_parser import Node
+from ...errors import LoadError
+from . import geometry as geo
+from .parser import Node
 
 #: Most node instances one file may expand to through DEF/USE and Inline. Each costs
 #: Python time to traverse; real exports stay far below (a 3,000-face KiCad part ~10^4).

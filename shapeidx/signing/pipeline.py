@@ -1,4 +1,4 @@
-"""The road from a part file to its signature, in one place.
+"""The road from a part file to its signature, in three functions.
 
     file --io.load--> PolygonMesh --solid.make_solid--> Solid
          --sampling.sample_surface--> points
@@ -10,16 +10,12 @@ from __future__ import annotations
 
 import os
 
+from ..io import LoadLimits, load
 from .classify import classify_pairs
-from .io import LoadLimits, load
-from .sampling import DEFAULT_SEED, sample_surface
-from .signature import BIN_DIVISOR, Signature
+from .histogram import Signature
+from .parameters import BIN_DIVISOR, DEFAULT_POINTS, DEFAULT_SEED
+from .sampling import sample_surface
 from .solid import Solid, make_solid
-
-DEFAULT_POINTS = 1024
-#: Raised whenever the same file and parameters could give a different signature (changes to
-#: loading, cleaning, sampling or classification). A store records it and refuses a mismatch.
-SIGNATURE_VERSION = 1
 
 
 def solid_of_file(path: str | os.PathLike, limits: LoadLimits | None = None) -> Solid:

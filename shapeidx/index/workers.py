@@ -25,8 +25,8 @@ from dataclasses import dataclass
 from multiprocessing.connection import wait
 from pathlib import Path
 
-from .errors import LoadError, ShapeidxError
-from .store import Entry, StoreParams
+from ..errors import LoadError, ShapeidxError
+from ..store import Entry, StoreParams
 
 #: Default per-file time limit, seconds: ample for a part of millions of triangles at 1024
 #: points, short enough that a pathological file cannot stall a nightly run for long.
@@ -86,8 +86,8 @@ def reason_of(error: LoadError, absolute: str) -> str:
 
 def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
     """Hash and, unless the content is known, sign one file. Never raises for a bad file."""
-    from .io import LoadLimits
-    from .pipeline import signature_of_solid, solid_of_file
+    from ..io import LoadLimits
+    from ..signing.pipeline import signature_of_solid, solid_of_file
 
     started = time.monotonic()
     try:
@@ -131,7 +131,7 @@ _PARENT_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 
 
 def _worker_main(conn, params: StoreParams, root: str, parent: int) -> None:
-    from .memory import keep_freed_memory
+    from ..system import keep_freed_memory
 
     _die_with_parent()
     keep_freed_memory()
@@ -140,6 +140,9 @@ def _worker_main(conn, params: StoreParams, root: str, parent: int) -> None:
     for signum in _PARENT_SIGNALS:
         signal.signal(signum, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, _PARENT_SIGNALS)  # blocked since the spawn
+    from ..signing import pipeline  # noqa: F401 (imported before the first file's clock starts)
+
+    conn.send(_READY)
     while True:
         try:
             task = conn.recv()
@@ -148,6 +151,12 @@ def _worker_main(conn, params: StoreParams, root: str, parent: int) -> None:
         if task is None:
             return
         conn.send(index_file(task, params, root))
+
+
+#: What a worker sends once it has imported what indexing needs.
+_READY = "ready"
+#: Seconds a new worker may take to start (imports on a loaded machine) before the build gives up.
+START_TIMEOUT = 120.0
 
 
 def death_reason(exitcode: int | None) -> str:
@@ -175,8 +184,24 @@ class _Worker:
         child.close()
         self.task: Task | None = None
         self.deadline = float("inf")
+        self.ready = False
+
+    def wait_ready(self) -> None:
+        """Wait until the worker has started: a file's time limit does not include the imports.
+
+        A worker that dies or never starts is left to the caller, which gives it the file
+        anyway and then sees it dead (judged by its exit code, as any death).
+        """
+        if self.ready:
+            return
+        if wait([self.conn, self.process.sentinel], START_TIMEOUT) and self.conn.poll():
+            try:
+                self.ready = self.conn.recv() == _READY
+            except (EOFError, OSError):
+                pass
 
     def give(self, task: Task, timeout: float | None) -> None:
+        self.wait_ready()
         self.task = task
         self.deadline = time.monotonic() + timeout if timeout else float("inf")
         self.conn.send(task)

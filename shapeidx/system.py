@@ -1,9 +1,10 @@
-"""Process-wide memory settings for the long-running entry points (CLI, build workers)."""
+"""Process-wide settings for the long-running entry points: memory reuse, the core count."""
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import os
 import sys
 
 # glibc's mallopt parameters
@@ -27,3 +28,11 @@ def keep_freed_memory(limit: int = 1 << 30) -> bool:
         return bool(libc.mallopt(_M_MMAP_THRESHOLD, limit)) and bool(libc.mallopt(_M_TRIM_THRESHOLD, 2 * limit))
     except (OSError, AttributeError):
         return False
+
+
+def available_cores() -> int:
+    """Cores this process may use (its CPU affinity, else the machine's count)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1

@@ -3,7 +3,7 @@
 A labelled collection is a folder whose immediate sub-folders are the classes. Its store is
 built (or brought up to date) like ``shapeidx build`` does, then every model is ranked against
 all the others with the same store reader and distance code as ``shapeidx query``
-(:func:`shapeidx.distance.rank_features`), and :mod:`shapeidx.retrieval` scores the rankings.
+(:func:`shapeidx.distance.features_to_many`), and :mod:`shapeidx.evaluation.retrieval` scores the rankings.
 """
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .distance import FEATURES, METRICS, metric_values, rank_features
-from .errors import ShapeidxError
+from ..distance import FEATURES, METRICS, metric_values, features_to_many
+from ..errors import ShapeidxError
 from .learn import cross_validate
-from .query import SignatureTable
+from ..ranking import SignatureTable
 from .retrieval import SCORES, retrieval_scores
-from .store import StoreReader
+from ..store import StoreReader
 
 
 @dataclass
@@ -44,7 +44,7 @@ def labelled_features(reader: StoreReader) -> LabelledFeatures:
     chosen = np.array([i for i, c in enumerate(classes) if c is not None], dtype=np.int64)
     features = np.zeros((len(FEATURES), len(chosen), len(chosen)))
     for k, i in enumerate(chosen):
-        values = rank_features(reader.signature(int(table.rows[i])), table.banks, table.fractions, table.means)
+        values = features_to_many(reader.signature(int(table.rows[i])), table.banks, table.fractions, table.means)
         for f, name in enumerate(FEATURES):
             features[f, k] = values[name][chosen]
     return LabelledFeatures(

@@ -1,0 +1,27 @@
+"""Distances between signatures.
+
+    paper.py     the paper's D and its four distances: ALL, AvgOf3, AvgOf4, Weighted (3.2.5)
+    combined.py  the learned combined distance, and every metric from per-pair features
+    bank.py      one query against many signatures at once (what ranking a store runs)
+"""
+
+from .bank import METRIC_HISTOGRAMS, HistogramBank, distances_to_many, features_to_many
+from .combined import FEATURES, METRICS, combined_weights, compare, features_between, metric_values
+from .paper import MIN_AGREEMENT, PAPER_METRICS, histogram_distance, paper_distances
+
+__all__ = [
+    "FEATURES",
+    "METRICS",
+    "METRIC_HISTOGRAMS",
+    "MIN_AGREEMENT",
+    "PAPER_METRICS",
+    "HistogramBank",
+    "combined_weights",
+    "compare",
+    "features_between",
+    "histogram_distance",
+    "metric_values",
+    "paper_distances",
+    "distances_to_many",
+    "features_to_many",
+]

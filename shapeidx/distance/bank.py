@@ -1,0 +1,165 @@
+"""One query against a whole store: the distances to every entry in one vectorised pass.
+
+:class:`HistogramBank` holds many histograms of differing bin counts; :func:`distances_to_many`
+gives, for every entry, the same value :func:`~shapeidx.distance.compare` gives for that pair,
+bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..ragged import offsets_of
+from ..signing.histogram import Signature
+from ..signing.parameters import HISTOGRAMS
+from .combined import class_scales, metric_values, signature_means
+from .paper import PAPER_METRICS
+
+
+#: Histograms each metric reads: ranking skips the others (Weighted never needs ALL).
+METRIC_HISTOGRAMS = {
+    "all": ("all",),
+    "avg3": HISTOGRAMS[1:],
+    "avg4": HISTOGRAMS,
+    "weighted": HISTOGRAMS[1:],
+    "combined": HISTOGRAMS,
+}
+#: Values per working block of :meth:`HistogramBank.distances`: small enough to stay in the
+#: CPU cache, so each stored probability is read from memory once per query.
+BLOCK_VALUES = 1 << 15
+
+
+class HistogramBank:
+    """Many probability histograms of differing bin counts, ready for one-to-many ``D``.
+
+    Rows are grouped by bin count, each group a dense ``(rows, bins)`` array of the stored
+    counts (uint32: half the memory of probabilities, and no pass to compute them at load)
+    with each row's total. A query costs a few numpy operations per *distinct* bin count
+    (hundreds at most), never a Python loop per row, and no row is padded to the widest
+    histogram of the bank (a single freak histogram of 10,000 bins would otherwise make every
+    row that wide).
+
+    :meth:`distances` gives, bit for bit, what :func:`histogram_distance` gives for each
+    pair: probabilities are ``count / total`` in float64 as :attr:`Histogram.p` computes
+    them, and it sums the same values in the same order (numpy sums each row of a
+    C-contiguous block exactly as it sums that row alone), so :func:`compare` and a store
+    ranking agree.
+    """
+
+    def __init__(self, size: int, groups: list):
+        self.size = size
+        #: ``(bins, rows, counts, totals)`` per distinct bin count: rows index the bank.
+        self.groups = groups
+
+    def __len__(self) -> int:
+        return self.size
+
+    @classmethod
+    def from_counts(cls, counts: np.ndarray, lengths: np.ndarray) -> "HistogramBank":
+        """Build from histograms laid end to end: row ``i`` is the next ``lengths[i]`` counts."""
+        lengths = np.asarray(lengths, dtype=np.int64)
+        offsets = offsets_of(lengths)
+        totals = np.zeros(len(lengths), dtype=np.int64)
+        filled = lengths > 0
+        if filled.any():  # empty rows between filled ones add nothing to a filled row's sum
+            totals[filled] = np.add.reduceat(counts, offsets[:-1][filled], dtype=np.int64)
+        order = np.argsort(lengths, kind="stable")
+        sorted_lengths = lengths[order]
+        starts = np.concatenate([[0], np.flatnonzero(np.diff(sorted_lengths)) + 1, [len(order)]])
+        # every window of consecutive counts, as a view: taking rows of it copies each
+        # histogram as one contiguous run (several times faster than an index per value)
+        windows = {}
+        groups = []
+        for lo, hi in zip(starts[:-1], starts[1:]):
+            if lo < hi:
+                rows = order[lo:hi]
+                bins = int(sorted_lengths[lo])
+                if bins == 0:
+                    block = np.zeros((len(rows), 0), dtype=counts.dtype)
+                else:
+                    window = windows.setdefault(bins, np.lib.stride_tricks.sliding_window_view(counts, bins))
+                    block = window[offsets[rows]]
+                groups.append((bins, rows, block, np.maximum(totals[rows], 1)))
+        return cls(len(lengths), groups)
+
+    def distances(self, query_p: np.ndarray) -> np.ndarray:
+        """``D(query, row)`` for every row (see :func:`histogram_distance`).
+
+        Parameters
+        ----------
+        query_p : (nq,) float
+            The query's probabilities.
+
+        Returns
+        -------
+        (len(self),) float64
+        """
+        query_p = np.asarray(query_p, dtype=np.float64)
+        out = np.zeros(self.size)
+        for bins, rows, counts, totals in self.groups:
+            width = max(bins, len(query_p))
+            if width:
+                out[rows] = _padded_l1(counts, totals, query_p, width) / width
+        return out
+
+
+def _padded_l1(counts: np.ndarray, totals: np.ndarray, query_p: np.ndarray, width: int) -> np.ndarray:
+    """Row sums of ``|counts / total - query|`` over ``width`` bins, both zero-padded, in
+    blocks small enough to stay in the CPU cache."""
+    bins = counts.shape[1]
+    query = np.zeros(width)
+    query[: len(query_p)] = query_p
+    step = max(1, BLOCK_VALUES // width)
+    work = np.empty((min(step, len(counts)), width))
+    work[:, bins:] = query[bins:]  # bins only the query has: |0 - q| = q, left as they are
+    sums = np.empty(len(counts))
+    for start in range(0, len(counts), step):
+        part = slice(start, start + step)
+        n = len(counts[part])
+        diff = work[:n, :bins]
+        np.divide(counts[part], totals[part, None], out=diff)  # the probabilities, as Histogram.p
+        np.subtract(diff, query[:bins], out=diff)
+        np.abs(diff, out=diff)
+        sums[start : start + n] = work[:n].sum(axis=1)
+    return sums
+
+
+def features_to_many(query: Signature, banks: dict, fractions: np.ndarray, means: np.ndarray | None = None, histograms=HISTOGRAMS) -> dict:
+    """The per-pair features (:data:`FEATURES`) from one signature to every row of a table.
+
+    Parameters
+    ----------
+    query : Signature
+    banks : dict
+        Histogram name -> :class:`HistogramBank`, all of the same rows; those in
+        ``histograms`` must be present (the ``D`` of the others are left at 0).
+    fractions : (N, 3) float64
+        Each row's IN, OUT and MIXED fractions, in that order.
+    means : (N, 4) float64, optional
+        Each row's histogram means in :data:`HISTOGRAMS` order; without them the scale
+        features are left out.
+    """
+    features = {f"d_{h}": banks[h].distances(query.histograms[h].p) if h in histograms else 0.0 for h in HISTOGRAMS}
+    query_fractions = query.fractions
+    for i, c in enumerate(HISTOGRAMS[1:]):
+        features[f"gap_{c}"] = np.abs(fractions[:, i] - query_fractions[c])
+    if means is not None:
+        scale_gap = np.abs(class_scales(means) - class_scales(signature_means(query)))
+        for i, c in enumerate(HISTOGRAMS[1:]):
+            features[f"scale_{c}"] = scale_gap[:, i]
+    return features
+
+
+def distances_to_many(query: Signature, banks: dict, fractions: np.ndarray, means: np.ndarray | None = None, metrics=PAPER_METRICS) -> dict:
+    """Distances from one signature to every row of a table, vectorised.
+
+    Parameters are those of :func:`features_to_many`; ``means`` is needed for ``combined``.
+
+    Returns
+    -------
+    dict
+        Metric name -> (N,) float64, each equal to :func:`compare` for that pair.
+    """
+    needed = {h for m in metrics for h in METRIC_HISTOGRAMS[m]}
+    features = features_to_many(query, banks, fractions, means, needed)
+    return metric_values(features, metrics)

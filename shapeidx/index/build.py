@@ -1,0 +1,199 @@
+"""``shapeidx build``: bring a store up to date with a directory tree of part files.
+
+    walk.py      walk the tree
+    plan.py         --plan against the store--> tasks
+    workers.py      --WorkerPool: one file per process--> outcomes
+    commit.py       --Committer: a journal batch every interval--> merge into the main file
+    progress.py  what the user sees meanwhile
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ShapeidxError
+from ..signing.parameters import BIN_DIVISOR, DEFAULT_POINTS, DEFAULT_SEED, SIGNATURE_VERSION
+from ..store import STATUS_FAILED, STATUS_OK, StoreParams, StoreWriter, check_params, check_root, open_store
+from ..system import available_cores
+from .commit import DEFAULT_COMMIT_INTERVAL, MERGE_AFTER, Committer
+from .plan import Plan, make_plan
+from .walk import walk_parts
+from .workers import DEFAULT_TIMEOUT, Outcome, Task, WorkerPool
+
+
+@dataclass(frozen=True)
+class BuildOptions:
+    """How to build; the CLI's options. ``points``/``seed`` None: the store's, else the defaults."""
+
+    points: int | None = None
+    seed: int | None = None
+    workers: int = 0  # 0: one per core
+    full: bool = False
+    rehash: bool = False
+    retry_failed: bool = False
+    timeout: float | None = DEFAULT_TIMEOUT
+    wait: bool = False
+    commit_interval: float = DEFAULT_COMMIT_INTERVAL
+    merge_after: int = MERGE_AFTER
+    #: Only plan: walk the tree and compare it with the store, change nothing.
+    dry_run: bool = False
+
+
+@dataclass
+class BuildSummary:
+    """Counts of one build, and of the store after it."""
+
+    found: int = 0
+    #: Files the plan found new or changed (each is then indexed, failed, or found the same).
+    planned: int = 0
+    indexed: int = 0
+    unchanged: int = 0
+    removed: int = 0
+    failed: int = 0
+    seconds: float = 0.0
+    store_ok: int = 0
+    store_failed: int = 0
+    store_bytes: int = 0
+    failures: list = field(default_factory=list)  # (path, reason) of this build
+
+    def line(self) -> str:
+        return f"{self.indexed} indexed, {self.unchanged} unchanged, {self.removed} removed, {self.failed} failed"
+
+    def to_dict(self, store: Path, dry_run: bool = False) -> dict:
+        """What ``shapeidx build --json`` prints."""
+        return {
+            "dry_run": dry_run,
+            "found": self.found,
+            "planned": self.planned,
+            "indexed": self.indexed,
+            "unchanged": self.unchanged,
+            "removed": self.removed,
+            "failed": self.failed,
+            "seconds": round(self.seconds, 3),
+            "store": {"path": str(store), "ok": self.store_ok, "failed": self.store_failed, "bytes": self.store_bytes},
+            "failures": [{"path": path, "reason": reason} for path, reason in self.failures],
+        }
+
+
+def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
+    """The build's parameters: those asked, else the existing store's, else the defaults."""
+    existing = None
+    if store.exists():
+        with open_store(store) as reader:
+            existing = reader.params
+    points = options.points or (existing.points if existing else DEFAULT_POINTS)
+    seed = options.seed if options.seed is not None else (existing.seed if existing else DEFAULT_SEED)
+    return StoreParams(points=points, seed=seed, bin_divisor=BIN_DIVISOR, signature_version=SIGNATURE_VERSION)
+
+
+def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
+    """Index ``root`` into ``store``; see the module docstring. Returns the summary.
+
+    Raises
+    ------
+    ShapeidxError
+        The build itself cannot run (no such directory, store locked or of other
+        parameters or another root). Bad part files never raise: they are recorded.
+    KeyboardInterrupt
+        On Ctrl-C or SIGTERM, after committing what was done.
+    """
+    started = time.monotonic()
+    root = Path(root).resolve()
+    if not root.is_dir():
+        raise ShapeidxError(f"{root}: no such directory")
+    store = Path(store)
+    params = resolve_params(store, options)
+    summary = BuildSummary()
+    if options.dry_run:
+        return _dry_run(root, store, params, options, reporter, summary)
+    with _sigterm_as_interrupt(), StoreWriter(store, params, root, options.wait, reporter.waiting) as writer:
+        walk = walk_parts(root)
+        for warning in walk.warnings:
+            reporter.warning(warning)
+        with open_store(store) as reader:
+            plan = make_plan(walk, reader, options)
+        summary.found, summary.unchanged, summary.planned = plan.found, plan.unchanged, len(plan.tasks)
+        reporter.planned(plan)
+        committer = Committer(writer, options.commit_interval, options.merge_after, reporter)
+        committer.remove(plan.removed)
+        summary.removed = len(plan.removed)
+        pool = WorkerPool(options.workers or available_cores(), params, str(root), options.timeout)
+        try:
+            for outcome in pool.run(plan.tasks):
+                if outcome is not None:
+                    _count(summary, outcome)
+                    committer.add(outcome)
+                    reporter.outcome(outcome)
+                committer.tick()
+        except KeyboardInterrupt:
+            committer.commit()
+            raise
+        finally:
+            pool.close()
+        committer.finish()
+    summary.seconds = time.monotonic() - started
+    _store_counts(store, summary)
+    return summary
+
+
+def _dry_run(root: Path, store: Path, params: StoreParams, options, reporter, summary: BuildSummary) -> BuildSummary:
+    """What a build would do, without the lock and without writing anything."""
+    walk = walk_parts(root)
+    for warning in walk.warnings:
+        reporter.warning(warning)
+    if store.exists():
+        with open_store(store) as reader:
+            check_params(reader, params)
+            check_root(reader, root)
+            plan = make_plan(walk, reader, options)
+        _store_counts(store, summary)
+    else:
+        plan = Plan([Task(f.path, f.absolute) for f in walk.files], 0, [], len(walk.files))
+    summary.found, summary.unchanged, summary.planned = plan.found, plan.unchanged, len(plan.tasks)
+    summary.removed = len(plan.removed)
+    reporter.planned(plan)
+    return summary
+
+
+def _count(summary: BuildSummary, outcome: Outcome) -> None:
+    if outcome.kind == "indexed":
+        summary.indexed += 1
+    elif outcome.kind == "failed":
+        summary.failed += 1
+        summary.failures.append((outcome.task.path, outcome.entry.reason))
+    elif outcome.kind == "same":
+        summary.unchanged += 1
+    elif outcome.kind == "missing" and outcome.task.in_store:
+        summary.removed += 1
+
+
+def _store_counts(store: Path, summary: BuildSummary) -> None:
+    with open_store(store) as reader:
+        status = reader.column("entries/status")
+        summary.store_ok = int(np.sum(status == STATUS_OK))
+        summary.store_failed = int(np.sum(status == STATUS_FAILED))
+        summary.store_bytes = reader.size_on_disk()
+
+
+class _sigterm_as_interrupt:
+    """SIGTERM (a cron timeout, a shutdown) stops a build like Ctrl-C: what is done is committed."""
+
+    def __enter__(self):
+        self.previous = None
+        if threading.current_thread() is threading.main_thread():
+            self.previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+        return self
+
+    def __exit__(self, *exc):
+        if self.previous is not None:
+            signal.signal(signal.SIGTERM, self.previous)
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt

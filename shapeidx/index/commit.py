@@ -1,0 +1,69 @@
+"""Committing a build's outcomes: a journal batch every interval, a merge now and then.
+
+Every outcome goes to the :class:`Committer`, which writes a journal batch at least every
+``commit_interval`` seconds, so a killed build that is run again redoes at most that much.
+"""
+
+from __future__ import annotations
+
+import time
+
+from ..store import Batch, StoreWriter
+from .workers import Outcome
+
+#: Seconds between commits of a running build (the work a kill can lose).
+DEFAULT_COMMIT_INTERVAL = 60.0
+#: Entries a batch holds at most (bounds the builder's memory, whatever the tree's size).
+BATCH_ENTRIES = 500
+#: Journal batches that trigger a merge into the main file before the build ends.
+MERGE_AFTER = 64
+
+
+class Committer:
+    """Collects outcomes into batches and commits them to the journal on time.
+
+    A batch is committed when it holds :data:`BATCH_ENTRIES` records or when
+    ``interval`` seconds passed since the last commit; the journal is merged into the main
+    file once it holds ``merge_after`` batches, and by :meth:`finish`.
+    """
+
+    def __init__(self, writer: StoreWriter, interval: float, merge_after: int, reporter):
+        self.writer = writer
+        self.interval = interval
+        self.merge_after = merge_after
+        self.reporter = reporter
+        self.batch = Batch()
+        self.last = time.monotonic()
+
+    def add(self, outcome: Outcome) -> None:
+        if outcome.kind in ("indexed", "failed"):
+            self.batch.entries.append(outcome.entry)
+        elif outcome.kind == "same":
+            self.batch.touched.append((outcome.task.path, outcome.size, outcome.mtime_ns))
+        elif outcome.kind == "missing" and outcome.task.in_store:
+            self.batch.removed.append(outcome.task.path)
+
+    def remove(self, paths: list) -> None:
+        self.batch.removed.extend(paths)
+
+    def tick(self) -> None:
+        """Commit if the batch is full or old; merge if the journal is long."""
+        due = time.monotonic() - self.last >= self.interval
+        if len(self.batch) >= BATCH_ENTRIES or (due and len(self.batch)):
+            self.commit()
+            if self.writer.pending_batches >= self.merge_after:
+                self.writer.merge()
+                self.reporter.merged()
+
+    def commit(self) -> None:
+        if len(self.batch):
+            seq = self.writer.commit(self.batch)
+            self.reporter.committed(seq, len(self.batch))
+            self.batch = Batch()
+        self.last = time.monotonic()
+
+    def finish(self) -> None:
+        self.commit()
+        if self.writer.pending_batches:
+            self.writer.merge()
+            self.reporter.merged()

@@ -1,0 +1,89 @@
+"""Finding the part files of a tree.
+
+Walking follows symbolic links but enters each real directory once (no loops, no file
+indexed twice through two links), skips hidden folders and files, and keeps the files
+:func:`shapeidx.io.format_of` knows (also gzipped).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..io import format_of
+
+
+@dataclass(frozen=True)
+class FoundFile:
+    path: str  # relative to the root, '/'-separated
+    absolute: str
+    size: int
+    mtime_ns: int
+
+
+@dataclass
+class Walk:
+    """What :func:`walk_parts` found: part files, and what it could not look at."""
+
+    files: list = field(default_factory=list)
+    #: Relative folders that could not be listed: their entries must not be taken as removed.
+    unlisted: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+
+
+def walk_parts(root: Path) -> Walk:
+    """Every part file under ``root`` (see the module docstring for the rules), sorted by path.
+
+    Real folders are walked before symbolically linked ones, so that a file reachable both
+    ways is indexed under its real path; each real folder is entered once.
+    """
+    found = Walk()
+    seen: set = set()
+    folders, linked = [Path(root)], []
+    while folders or linked:
+        folder = folders.pop() if folders else linked.pop(0)
+        try:
+            stat = folder.stat()
+            if (stat.st_dev, stat.st_ino) in seen:
+                continue  # a loop, or a second way to a folder already walked
+            seen.add((stat.st_dev, stat.st_ino))
+            children = sorted(os.scandir(folder), key=lambda e: e.name)
+        except OSError as exc:
+            rel = folder.relative_to(root).as_posix()
+            found.unlisted.append(rel)
+            found.warnings.append(f"cannot list {rel}: {exc.strerror or exc}")
+            continue
+        for child in children:
+            if child.name.startswith("."):
+                continue
+            if _is_folder(child):
+                (linked if child.is_symlink() else folders).append(Path(child.path))
+            elif format_of(child.name) is not None:
+                _add_file(found, root, Path(child.path))
+    found.files.sort(key=lambda f: f.path)
+    return found
+
+
+def _is_folder(entry: os.DirEntry) -> bool:
+    try:
+        return entry.is_dir()
+    except OSError:
+        return False
+
+
+def _add_file(found: Walk, root: Path, absolute: Path) -> None:
+    rel = absolute.relative_to(root).as_posix()
+    try:
+        rel.encode("utf-8")
+    except UnicodeEncodeError:
+        found.warnings.append(f"skipped {rel!r}: its name is not valid UTF-8")
+        return
+    try:
+        stat = absolute.stat()
+    except OSError as exc:
+        found.warnings.append(f"skipped {rel}: {exc.strerror or exc} (a broken link?)")
+        return
+    if not absolute.is_file():
+        return
+    found.files.append(FoundFile(rel, str(absolute), stat.st_size, stat.st_mtime_ns))

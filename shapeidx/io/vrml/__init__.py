@@ -1,0 +1,12 @@
+"""VRML 1.0 and 2.0 (VRML97), as CAD exporters really write it.
+
+    lexer.py     bytes -> tokens, number arrays converted in bulk
+    parser.py    tokens -> a tree of nodes (DEF/USE shared, PROTOs expanded)
+    scene.py     the tree counted (limits first), then walked with its transforms
+    geometry.py  face sets -> polygons, transforms, primitives
+    reader.py    files, gzip, Inline, limits -> a PolygonMesh
+"""
+
+from .reader import FORMAT, load_vrml
+
+__all__ = ["FORMAT", "load_vrml"]

@@ -1,0 +1,66 @@
+"""The ray-query backend: "is this segment blocked by the surface?" for many segments at once.
+
+The classification rule (:mod:`shapeidx.signing.classify`) needs one question answered,
+in bulk: does the open segment between two points cross any triangle? This module answers
+it with Embree (the ``embreex`` binding), one occlusion ray per segment. Another backend
+(a GPU ray tracer, say) would provide the same two methods.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+
+class OcclusionScene:
+    """An Embree scene of triangles that answers "is this segment blocked?" for many segments."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        from embreex import mesh_construction, rtcore_scene
+
+        self._scene = rtcore_scene.EmbreeScene(_embree_device())
+        self._mesh = mesh_construction.TriangleMesh(
+            self._scene,
+            np.ascontiguousarray(vertices, dtype=np.float32),
+            np.ascontiguousarray(faces, dtype=np.int32),
+        )
+
+    def blocked(self, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+        """True where the segment from ``starts[k]`` to ``ends[k]`` meets a triangle."""
+        if len(starts) == 0:
+            return np.zeros(0, dtype=bool)
+        starts = np.ascontiguousarray(starts, dtype=np.float32)
+        directions = np.subtract(ends, starts, dtype=np.float32)
+        reach = np.ones(len(starts), dtype=np.float32)  # direction is the whole segment
+        return self._scene.run(starts, directions, dists=reach, query="OCCLUDED") != -1
+
+    def blocked_between(self, points: np.ndarray, start_rows: np.ndarray, end_rows: np.ndarray, threads: int = 1):
+        """:meth:`blocked` for segments ``points[start_rows[k]] -> points[end_rows[k]]``.
+
+        With ``threads > 1`` the segments are split into that many chunks, gathered and
+        queried concurrently (embreex releases the GIL; Embree queries are thread-safe).
+        """
+        def query(rows):  # np.take gathers rows about twice as fast as fancy indexing
+            return self.blocked(np.take(points, start_rows[rows], axis=0), np.take(points, end_rows[rows], axis=0))
+
+        if threads <= 1 or len(start_rows) < 10_000:
+            return query(slice(None))
+        self.blocked(points[:1], points[1:2])  # commit the scene once, before the threads race to
+        chunks = [slice(c[0], c[-1] + 1) for c in np.array_split(np.arange(len(start_rows)), threads) if len(c)]
+        return np.concatenate(list(_thread_pool(threads).map(query, chunks)))
+
+
+@lru_cache(maxsize=1)
+def _embree_device():
+    """One Embree device per process: starting a device costs milliseconds, a scene does not."""
+    from embreex import rtcore
+
+    return rtcore.EmbreeDevice()
+
+
+@lru_cache(maxsize=2)
+def _thread_pool(threads: int):
+    from concurrent.futures import ThreadPoolExecutor
+
+    return ThreadPoolExecutor(max_workers=threads, thread_name_prefix="shapeidx-embree")

@@ -1,0 +1,191 @@
+"""What a store file holds: its schema, the per-entry columns, and how entries become columns.
+
+The README's "The store" section is the reader's guide to this layout; keep the two in step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+
+import h5py
+import numpy as np
+
+from ..errors import StoreError
+from ..ragged import offsets_of
+from ..signing.histogram import Histogram, Signature
+from ..signing.parameters import HISTOGRAMS
+
+#: Layout version of the files; a store with a newer one is refused.
+SCHEMA_VERSION = 1
+STATUS_OK, STATUS_FAILED = 0, 1
+#: Class fractions are stored as (N, 3) in this order.
+FRACTION_CLASSES = HISTOGRAMS[1:]
+#: Where the default store lives, relative to the working directory.
+DEFAULT_STORE = "shapeidx.h5"
+STORE_ENV = "SHAPEIDX_STORE"
+
+_STR = h5py.string_dtype("utf-8")
+_STATUS = h5py.enum_dtype({"ok": STATUS_OK, "failed": STATUS_FAILED}, basetype="u1")
+_HASH = "S64"
+#: Per-entry columns: HDF5 dataset name -> (dtype in memory, dtype in the file).
+ENTRY_COLUMNS = {
+    "entries/path": (object, _STR),
+    "entries/hash": (_HASH, _HASH),
+    "entries/size": (np.int64, np.int64),
+    "entries/mtime_ns": (np.int64, np.int64),
+    "entries/status": (np.uint8, _STATUS),
+    "entries/reason": (object, _STR),
+    "entries/triangles": (np.int64, np.int64),
+    "entries/area": (np.float64, np.float64),
+    "entries/watertight": (np.bool_, np.bool_),
+    "entries/fractions": (np.float64, np.float64),
+}
+for _name in HISTOGRAMS:
+    ENTRY_COLUMNS[f"histograms/{_name}/mean"] = (np.float64, np.float64)
+    ENTRY_COLUMNS[f"histograms/{_name}/bin_width"] = (np.float64, np.float64)
+#: Histogram counts are stored as uint32: at most 8192 points give 33,550,336 pairs.
+COUNT_DTYPE = np.uint32
+#: Catalog rows copied per step of a merge: bounds its memory whatever the store's size.
+MERGE_ROWS = 65_536
+
+
+@dataclass(frozen=True)
+class StoreParams:
+    """What makes two signatures comparable; a store never mixes two sets of these."""
+
+    points: int
+    seed: int
+    bin_divisor: int
+    signature_version: int
+    seed_policy: str = "fixed"
+
+    def as_attrs(self) -> dict:
+        return {
+            "points": self.points,
+            "seed": self.seed,
+            "bin_divisor": self.bin_divisor,
+            "signature_version": self.signature_version,
+            "seed_policy": self.seed_policy,
+        }
+
+    @classmethod
+    def from_attrs(cls, attrs) -> "StoreParams":
+        return cls(
+            points=int(attrs["points"]),
+            seed=int(attrs["seed"]),
+            bin_divisor=int(attrs["bin_divisor"]),
+            signature_version=int(attrs["signature_version"]),
+            seed_policy=as_text(attrs["seed_policy"]),
+        )
+
+    def differences(self, other: "StoreParams") -> list[str]:
+        """``name=mine (asked: theirs)`` for every parameter that differs."""
+        mine, theirs = self.as_attrs(), other.as_attrs()
+        return [f"{k}={mine[k]} (asked: {theirs[k]})" for k in mine if mine[k] != theirs[k]]
+
+
+def as_text(value) -> str:
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
+def utc_now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+@dataclass
+class Entry:
+    """One file of the indexed tree, as the store keeps it.
+
+    Failed entries have no histograms, ``triangles`` -1, NaN area and fractions, and the
+    one-line ``reason`` (empty for ok entries).
+    """
+
+    path: str
+    hash: str
+    size: int
+    mtime_ns: int
+    status: int = STATUS_OK
+    reason: str = ""
+    triangles: int = -1
+    area: float = float("nan")
+    watertight: bool = False
+    fractions: tuple = (float("nan"),) * 3
+    histograms: dict = field(default_factory=dict)
+
+    @classmethod
+    def indexed(cls, path, hash, size, mtime_ns, signature: Signature, facts: dict) -> "Entry":
+        """An ok entry: a signature and the mesh facts of :meth:`shapeidx.signing.solid.Solid.describe`."""
+        return cls(
+            path=path,
+            hash=hash,
+            size=size,
+            mtime_ns=mtime_ns,
+            triangles=int(facts["triangles"]),
+            area=float(facts["area"]),
+            watertight=bool(facts["watertight"]),
+            fractions=tuple(signature.fractions[c] for c in FRACTION_CLASSES),
+            histograms=dict(signature.histograms),
+        )
+
+    @classmethod
+    def failed(cls, path, hash, size, mtime_ns, reason: str) -> "Entry":
+        return cls(path=path, hash=hash, size=size, mtime_ns=mtime_ns, status=STATUS_FAILED, reason=reason)
+
+
+def entries_to_columns(entries: list[Entry]) -> tuple[dict, dict]:
+    """Columns (dataset name -> array) and counts (name -> (flat, lengths)), sorted by path."""
+    entries = sorted(entries, key=lambda e: e.path)
+    n = len(entries)
+    empty = Histogram(np.zeros(0, dtype=np.int64), 0.0, 0.0)
+    columns = {
+        "entries/path": object_array([e.path for e in entries]),
+        "entries/hash": np.array([e.hash.encode() for e in entries], dtype=_HASH),
+        "entries/size": np.array([e.size for e in entries], dtype=np.int64),
+        "entries/mtime_ns": np.array([e.mtime_ns for e in entries], dtype=np.int64),
+        "entries/status": np.array([e.status for e in entries], dtype=np.uint8),
+        "entries/reason": object_array([e.reason for e in entries]),
+        "entries/triangles": np.array([e.triangles for e in entries], dtype=np.int64),
+        "entries/area": np.array([e.area for e in entries], dtype=np.float64),
+        "entries/watertight": np.array([e.watertight for e in entries], dtype=np.bool_),
+        "entries/fractions": np.array([e.fractions for e in entries], dtype=np.float64).reshape(n, 3),
+    }
+    counts = {}
+    for name in HISTOGRAMS:
+        hists = [e.histograms.get(name, empty) for e in entries]
+        columns[f"histograms/{name}/mean"] = np.array([h.mean for h in hists], dtype=np.float64)
+        columns[f"histograms/{name}/bin_width"] = np.array([h.bin_width for h in hists], dtype=np.float64)
+        lengths = np.array([len(h.counts) for h in hists], dtype=np.int64)
+        flat = np.concatenate([h.counts for h in hists]) if n else np.zeros(0)
+        counts[name] = (_as_counts(flat), lengths)
+    return columns, counts
+
+
+def object_array(values) -> np.ndarray:
+    out = np.empty(len(values), dtype=object)
+    out[:] = values
+    return out
+
+
+def _as_counts(values: np.ndarray) -> np.ndarray:
+    values = np.asarray(values)
+    if len(values) and values.max() > np.iinfo(COUNT_DTYPE).max:
+        raise StoreError("a histogram bin holds more pairs than the store's uint32 counts allow")
+    return values.astype(COUNT_DTYPE)
+
+
+def write_columns(f: h5py.File, columns: dict) -> None:
+    """Write every per-entry column (dataset name -> array) with its file dtype."""
+    for name, (_, file_dtype) in ENTRY_COLUMNS.items():
+        data = columns[name]
+        f.create_dataset(name, data=data, dtype=file_dtype)
+
+
+def write_counts(f: h5py.File, name: str, counts: np.ndarray, lengths: np.ndarray) -> None:
+    """Write one histogram's counts as CSR: ``counts`` and ``offsets``."""
+    f.create_dataset(f"histograms/{name}/offsets", data=offsets_of(lengths))
+    f.create_dataset(f"histograms/{name}/counts", data=_as_counts(counts), dtype=COUNT_DTYPE)
+
+
+def write_paths(f: h5py.File, name: str, paths) -> None:
+    f.create_dataset(name, data=object_array(list(paths)), dtype=_STR)

@@ -1,0 +1,310 @@
+"""Reading a store: the main file and the journal batches it does not hold yet, as one view.
+
+A reader opens the main file, then the batches newer than its ``journal_seq``, and applies
+them in order (drop ``removed``, replace or add the batch's entries, update the times of
+``touched``). If a batch disappears in between (a merge finished), it starts over. Readers
+take no lock and keep working during a build.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from ..errors import StoreError
+from ..ragged import offsets_of, take_ragged
+from ..signing.histogram import Histogram, Signature
+from ..signing.parameters import HISTOGRAMS
+from .files import batch_files
+from .layout import COUNT_DTYPE, DEFAULT_STORE, ENTRY_COLUMNS, SCHEMA_VERSION, STORE_ENV, StoreParams, object_array, as_text
+
+
+class _SourceFile:
+    """One store file (main or batch) opened for reading, columns read on demand."""
+
+    def __init__(self, path: Path, seq: int):
+        self.path = path
+        self.seq = seq
+        self.file = h5py.File(path, "r")
+        self._columns: dict = {}
+        self._offsets: dict = {}
+
+    def __len__(self) -> int:
+        return int(self.file["entries/size"].shape[0])
+
+    def column(self, name: str) -> np.ndarray:
+        if name not in self._columns:
+            self._columns[name] = _read(self.file[name], ENTRY_COLUMNS[name][0])
+        return self._columns[name]
+
+    def offsets(self, name: str) -> np.ndarray:
+        if name not in self._offsets:
+            self._offsets[name] = self.file[f"histograms/{name}/offsets"][()]
+        return self._offsets[name]
+
+    def counts_of(self, name: str, rows: np.ndarray):
+        """(flat counts, lengths) of ``rows`` (sorted, increasing), reading one span of the file."""
+        offsets = self.offsets(name)
+        if len(rows) == 0:
+            return np.zeros(0, dtype=COUNT_DTYPE), np.zeros(0, dtype=np.int64)
+        lo, hi = int(offsets[rows[0]]), int(offsets[rows[-1] + 1])
+        span = self.file[f"histograms/{name}/counts"][lo:hi]
+        return take_ragged(span, offsets, rows, base=lo)
+
+    def paths_of(self, group: str) -> np.ndarray:
+        if group not in self.file:
+            return object_array([])
+        return _read(self.file[f"{group}/path"], object)
+
+    def close(self) -> None:
+        self.file.close()
+
+
+def _read(dataset: h5py.Dataset, dtype) -> np.ndarray:
+    if dtype is object:
+        return dataset.asstr()[()] if dataset.shape[0] else object_array([])
+    return dataset[()]
+
+
+class StoreReader:
+    """A consistent view of a store: its entries (main file plus journal), sorted by path.
+
+    Open with :func:`open_store`; use as a context manager. The view holds its files open,
+    so it stays readable while a build merges and deletes them.
+
+    Attributes
+    ----------
+    path : Path
+    attrs : dict
+        The main file's attributes (parameters, versions, root, times).
+    params : StoreParams
+    journal : int
+        Batches applied on top of the main file.
+    """
+
+    def __init__(self, path: Path, main: _SourceFile, batches: list[_SourceFile]):
+        self.path = path
+        self.attrs = {k: (as_text(v) if isinstance(v, (bytes, str)) else v) for k, v in main.file.attrs.items()}
+        self.params = StoreParams.from_attrs(self.attrs)
+        self.journal = len(batches)
+        self._sources = [main] + batches
+        self._assemble()
+
+    # -- assembly: which row of which file holds each live entry
+    def _assemble(self) -> None:
+        main = self._sources[0]
+        if len(self._sources) == 1:
+            self.source = np.zeros(len(main), dtype=np.int64)
+            self.row = np.arange(len(main), dtype=np.int64)
+            self._overrides = {}
+            return
+        main_paths = main.column("entries/path")
+        alive = np.ones(len(main), dtype=bool)
+        latest: dict = {}  # path -> (source, row), for entries written by batches
+        touched: dict = {}  # path -> (size, mtime_ns)
+
+        def supersede(paths):
+            for p in paths:
+                latest.pop(p, None)
+                touched.pop(p, None)
+            if len(main_paths) and len(paths):
+                at = np.minimum(np.searchsorted(main_paths, paths), len(main_paths) - 1)
+                alive[at[main_paths[at] == paths]] = False
+
+        for index, batch in enumerate(self._sources[1:], start=1):
+            supersede(batch.paths_of("removed"))
+            paths = batch.column("entries/path")
+            supersede(paths)
+            latest.update((p, (index, r)) for r, p in enumerate(paths))
+            if "touched" in batch.file:
+                size, mtime = batch.file["touched/size"][()], batch.file["touched/mtime_ns"][()]
+                touched.update((p, (int(s), int(m))) for p, s, m in zip(batch.paths_of("touched"), size, mtime))
+        self._merge_order(main_paths, alive, latest)
+        self._overrides = touched
+
+    def _merge_order(self, main_paths, alive, latest) -> None:
+        kept = np.flatnonzero(alive)
+        new_paths = object_array(sorted(latest))
+        insert_at = np.searchsorted(main_paths[kept], new_paths) + np.arange(len(new_paths))
+        n = len(kept) + len(new_paths)
+        self.source = np.zeros(n, dtype=np.int64)
+        self.row = np.zeros(n, dtype=np.int64)
+        from_main = np.ones(n, dtype=bool)
+        from_main[insert_at] = False
+        self.row[from_main] = kept
+        refs = np.array([latest[p] for p in new_paths], dtype=np.int64).reshape(-1, 2)
+        self.source[insert_at], self.row[insert_at] = refs[:, 0], refs[:, 1]
+
+    # -- columns
+    def __len__(self) -> int:
+        return len(self.row)
+
+    def column(self, name: str) -> np.ndarray:
+        """One per-entry column (e.g. ``"entries/path"``) for every live entry, in path order."""
+        dtype = ENTRY_COLUMNS[name][0]
+        sample = self._sources[0].column(name)
+        out = np.empty((len(self),) + sample.shape[1:], dtype=dtype if dtype is not object else object)
+        for index, source in enumerate(self._sources):
+            mine = self.source == index
+            if mine.any():
+                out[mine] = source.column(name)[self.row[mine]]
+        if self._overrides and name in ("entries/size", "entries/mtime_ns"):
+            self._apply_touched(name, out)
+        return out
+
+    def _apply_touched(self, name, out) -> None:
+        paths = self.paths
+        field_index = 0 if name == "entries/size" else 1
+        for p, values in self._overrides.items():
+            i = self.index_of(p, paths)
+            if i is not None:
+                out[i] = values[field_index]
+
+    @property
+    def paths(self) -> np.ndarray:
+        if not hasattr(self, "_paths"):
+            self._paths = self.column("entries/path")
+        return self._paths
+
+    def index_of(self, path: str, paths=None) -> int | None:
+        """Position of the entry with this relative path, or None."""
+        paths = self.paths if paths is None else paths
+        i = int(np.searchsorted(paths, path))
+        return i if i < len(paths) and paths[i] == path else None
+
+    def counts(self, name: str, rows: np.ndarray | None = None):
+        """Histogram ``name`` of the entries ``rows`` (default all): (flat counts, lengths)."""
+        rows = np.arange(len(self)) if rows is None else np.asarray(rows, dtype=np.int64)
+        pieces = []  # (positions in ``rows``, their counts laid end to end, their lengths)
+        for index, source in enumerate(self._sources):
+            positions = np.flatnonzero(self.source[rows] == index)
+            if len(positions) == 0:
+                continue
+            source_rows = self.row[rows[positions]]
+            by_row = np.argsort(source_rows, kind="stable")  # one increasing span per file
+            flat, got = source.counts_of(name, source_rows[by_row])
+            pieces.append((positions[by_row], flat, got))
+        if len(pieces) == 1 and np.array_equal(pieces[0][0], np.arange(len(rows))):
+            return pieces[0][1], pieces[0][2]
+        lengths = np.zeros(len(rows), dtype=np.int64)
+        for positions, _, got in pieces:
+            lengths[positions] = got
+        offsets = offsets_of(lengths)
+        out = np.empty(int(offsets[-1]), dtype=COUNT_DTYPE)
+        for positions, flat, got in pieces:
+            out[np.repeat(offsets[positions] - offsets_of(got)[:-1], got) + np.arange(len(flat))] = flat
+        return out, lengths
+
+    def signature(self, index: int) -> Signature:
+        """The stored signature of entry ``index`` (an ok entry)."""
+        histograms = {}
+        for name in HISTOGRAMS:
+            counts, _ = self.counts(name, np.array([index]))
+            mean = float(self.column(f"histograms/{name}/mean")[index])
+            width = float(self.column(f"histograms/{name}/bin_width")[index])
+            histograms[name] = Histogram(counts.astype(np.int64), mean, width)
+        return Signature(points=self.params.points, seed=self.params.seed, histograms=histograms)
+
+    def size_on_disk(self) -> int:
+        """Bytes of the main file and the journal."""
+        return sum(s.path.stat().st_size for s in self._sources if s.path.exists())
+
+    def close(self) -> None:
+        for source in self._sources:
+            source.close()
+
+    def __enter__(self) -> "StoreReader":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def resolve_store_path(path: str | os.PathLike | None) -> Path:
+    """The store to use: ``path``, else ``$SHAPEIDX_STORE``, else ``./shapeidx.h5``."""
+    return Path(path or os.environ.get(STORE_ENV) or DEFAULT_STORE)
+
+
+def open_store(path: str | os.PathLike, attempts: int = 20) -> StoreReader:
+    """Open a store for reading: the main file and the journal batches it does not hold yet.
+
+    Raises
+    ------
+    StoreError
+        No store there, a file that is not a store, or one of a newer layout.
+    """
+    path = Path(path)
+    for _ in range(attempts):
+        try:
+            main = _SourceFile(path, 0)
+        except FileNotFoundError:
+            raise StoreError(f"no store at {path} (run 'shapeidx build DIR' first, or give --store)") from None
+        except OSError as exc:
+            raise StoreError(f"{path}: cannot open the store ({exc})") from None
+        batches = []
+        try:
+            _check_schema(path, main.file.attrs)
+            merged = int(main.file.attrs["journal_seq"])
+            for seq, batch in batch_files(path):
+                if seq > merged:
+                    batches.append(_SourceFile(batch, seq))
+            if _same_file(path, main):  # no merge replaced the main file while the batches were listed
+                return StoreReader(path, main, batches)
+        except FileNotFoundError:  # a batch went: a merge finished meanwhile
+            pass
+        except BaseException:
+            _close_all([main, *batches])
+            raise
+        _close_all([main, *batches])
+        time.sleep(0.02)
+    raise StoreError(f"{path}: the store kept changing while being opened; try again")
+
+
+def _same_file(path: Path, source: _SourceFile) -> bool:
+    """Whether ``path`` still names the file ``source`` has open.
+
+    A merge renames its new main file into place before deleting the batches it holds. A
+    reader that opened the old main file and then found the batches gone would miss their
+    entries; seeing the main file unchanged after listing the batches rules that out.
+    """
+    try:
+        now = os.stat(path)
+    except FileNotFoundError:
+        return False
+    opened = os.fstat(source.file.id.get_vfd_handle())
+    return (now.st_dev, now.st_ino) == (opened.st_dev, opened.st_ino)
+
+
+def _close_all(sources) -> None:
+    for source in sources:
+        source.close()
+
+
+def _check_schema(path: Path, attrs) -> None:
+    if "schema_version" not in attrs or "points" not in attrs:
+        raise StoreError(f"{path} is not a shapeidx store")
+    version = int(attrs["schema_version"])
+    if version > SCHEMA_VERSION:
+        raise StoreError(f"{path} was written by a newer shapeidx (layout {version}; this one reads {SCHEMA_VERSION})")
+
+
+def check_params(reader: StoreReader, wanted: StoreParams) -> None:
+    """Refuse a store built with other signature parameters (never mix signatures)."""
+    differences = reader.params.differences(wanted)
+    if differences:
+        raise StoreError(
+            f"store {reader.path} was built with other signature parameters: {', '.join(differences)}; "
+            "use another --store, or delete this one to rebuild it"
+        )
+
+
+def check_root(reader: StoreReader, root) -> None:
+    """Refuse a store that indexes another directory (its paths are relative to its root)."""
+    if reader.attrs.get("root") != str(root):
+        raise StoreError(
+            f"store {reader.path} indexes {reader.attrs.get('root')}, not {root}; use another --store for this directory"
+        )

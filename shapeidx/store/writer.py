@@ -1,0 +1,250 @@
+"""The one writer of a store: its lock, its commits (journal batches) and its merges.
+
+A build commits its progress as a new batch file in the journal; a merge writes a fresh main
+file holding the main and every batch, renames it over the old one, and only then deletes the
+batches. The main file records the last batch it holds (``journal_seq``), so batches that
+outlive a kill between that rename and their deletion are ignored, never applied twice.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import socket
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from .. import __version__
+from ..errors import StoreError
+from ..ragged import offsets_of
+from ..signing.parameters import HISTOGRAMS
+from .files import batch_files, glob_escape, journal_dir, lock_path, remove_if_empty, write_atomically
+from .layout import (
+    COUNT_DTYPE,
+    ENTRY_COLUMNS,
+    MERGE_ROWS,
+    SCHEMA_VERSION,
+    StoreParams,
+    utc_now,
+    entries_to_columns,
+    write_columns,
+    write_counts,
+    write_paths,
+)
+from .reader import StoreReader, check_params, check_root, open_store
+
+
+class StoreLock:
+    """The single-writer lock: an exclusive ``flock`` on ``STORE.lock``.
+
+    The kernel drops it when its holder dies, even by kill -9, so a crash never leaves a
+    stale lock. Readers take no lock.
+    """
+
+    def __init__(self, store: Path):
+        self.path = lock_path(store)
+        self.fd: int | None = None
+
+    def acquire(self, wait: bool = False, on_wait=None) -> None:
+        """Take the lock, or raise :class:`StoreError` naming the holder (``wait``: block)."""
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _holder(fd)
+            if not wait:
+                os.close(fd)
+                raise StoreError(
+                    f"another build is writing {self.path.name[: -len('.lock')]} ({holder}); "
+                    "try again later, or pass --wait"
+                ) from None
+            if on_wait:
+                on_wait(holder)
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"pid {os.getpid()} on {socket.gethostname()}, since {utc_now()}\n".encode(), 0)
+        self.fd = fd
+
+    def release(self) -> None:
+        if self.fd is not None:
+            os.ftruncate(self.fd, 0)
+            fcntl.flock(self.fd, fcntl.LOCK_UN)
+            os.close(self.fd)
+            self.fd = None
+
+
+def _holder(fd: int, patience: float = 0.5) -> str:
+    """Who holds the lock, as its holder wrote it (it writes right after taking the lock)."""
+    deadline = time.monotonic() + patience
+    while True:
+        text = os.pread(fd, 500, 0).decode(errors="replace").strip()
+        if text or time.monotonic() > deadline:
+            return text or "a process that did not say who it is"
+        time.sleep(0.01)
+
+
+@dataclass
+class Batch:
+    """What one commit adds to the store: new or changed entries, touched and removed paths."""
+
+    entries: list = field(default_factory=list)
+    #: (path, size, mtime_ns): same content, new file times; the signature is kept.
+    touched: list = field(default_factory=list)
+    removed: list = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.entries) + len(self.touched) + len(self.removed)
+
+
+class StoreWriter:
+    """The one writer of a store (holds its lock): commits batches, merges the journal.
+
+    Parameters
+    ----------
+    path : Path
+    params : StoreParams
+        The build's parameters; an existing store with others is refused.
+    root : Path
+        The indexed directory; an existing store of another directory is refused.
+    wait : bool
+        Wait for another build's lock instead of refusing at once.
+    """
+
+    def __init__(self, path: Path, params: StoreParams, root: Path, wait: bool = False, on_wait=None):
+        self.path = Path(path)
+        self.params = params
+        self.root = str(root)
+        if not self.path.parent.is_dir():
+            raise StoreError(f"cannot create the store {self.path}: no directory {self.path.parent}")
+        self.lock = StoreLock(self.path)
+        self.lock.acquire(wait, on_wait)
+        try:
+            self._prepare()
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def _prepare(self) -> None:
+        self._remove_leftovers()
+        if not self.path.exists():
+            self._create_empty()
+        with open_store(self.path) as reader:
+            check_params(reader, self.params)
+            check_root(reader, self.root)
+            self.merged_seq = int(reader.attrs["journal_seq"])
+        self.next_seq = max([self.merged_seq] + [seq for seq, _ in batch_files(self.path)]) + 1
+
+    def _remove_leftovers(self) -> None:
+        """Temporary files of killed writers, and batches already in the main file."""
+        for tmp in self.path.parent.glob(f"{glob_escape(self.path.name)}.tmp-*"):
+            tmp.unlink(missing_ok=True)
+        folder = journal_dir(self.path)
+        if folder.is_dir():
+            for tmp in folder.glob("*.tmp-*"):
+                tmp.unlink(missing_ok=True)
+        if self.path.exists():
+            with h5py.File(self.path, "r") as f:
+                merged = int(f.attrs["journal_seq"]) if "journal_seq" in f.attrs else 0
+            for seq, batch in batch_files(self.path):
+                if seq <= merged:
+                    batch.unlink(missing_ok=True)
+
+    def _main_attrs(self, journal_seq: int, extra: dict | None = None) -> dict:
+        attrs = {
+            "schema_version": SCHEMA_VERSION,
+            "shapeidx_version": __version__,
+            **self.params.as_attrs(),
+            "histograms": " ".join(HISTOGRAMS),
+            "root": self.root,
+            "journal_seq": journal_seq,
+            "updated": utc_now(),
+        }
+        attrs.update(extra or {})
+        return attrs
+
+    def _create_empty(self) -> None:
+        columns, counts = entries_to_columns([])
+        attrs = self._main_attrs(0, {"created": utc_now()})
+
+        def fill(f):
+            f.attrs.update(attrs)
+            write_columns(f, columns)
+            for name, (flat, lengths) in counts.items():
+                write_counts(f, name, flat, lengths)
+
+        write_atomically(self.path, fill)
+
+    @property
+    def pending_batches(self) -> int:
+        return self.next_seq - 1 - self.merged_seq
+
+    def commit(self, batch: Batch) -> int:
+        """Write ``batch`` to the journal (atomically); return its sequence number."""
+        folder = journal_dir(self.path)
+        folder.mkdir(exist_ok=True)
+        seq = self.next_seq
+        columns, counts = entries_to_columns(batch.entries)
+        touched = sorted(batch.touched)
+
+        def fill(f):
+            f.attrs.update({"seq": seq, "schema_version": SCHEMA_VERSION, **self.params.as_attrs()})
+            write_columns(f, columns)
+            for name, (flat, lengths) in counts.items():
+                write_counts(f, name, flat, lengths)
+            write_paths(f, "touched/path", [t[0] for t in touched])
+            f.create_dataset("touched/size", data=np.array([t[1] for t in touched], dtype=np.int64))
+            f.create_dataset("touched/mtime_ns", data=np.array([t[2] for t in touched], dtype=np.int64))
+            write_paths(f, "removed/path", sorted(batch.removed))
+
+        write_atomically(folder / f"batch-{seq:010d}.h5", fill)
+        self.next_seq += 1
+        return seq
+
+    def merge(self) -> None:
+        """Write a fresh main file holding every entry, rename it into place, drop the journal.
+
+        Nothing is written when the journal is empty: a build that changed nothing costs
+        no rewrite of a large store.
+        """
+        with open_store(self.path) as reader:
+            if reader.journal == 0:
+                return
+            through = max(source.seq for source in reader._sources)
+            attrs = self._main_attrs(through, {"created": reader.attrs.get("created", utc_now())})
+            write_atomically(self.path, lambda f: _write_snapshot(f, reader, attrs))
+        self.merged_seq = through
+        for seq, batch in batch_files(self.path):
+            if seq <= through:
+                batch.unlink(missing_ok=True)
+        remove_if_empty(journal_dir(self.path))
+
+    def close(self) -> None:
+        self.lock.release()
+
+    def __enter__(self) -> "StoreWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _write_snapshot(f: h5py.File, reader: StoreReader, attrs: dict) -> None:
+    """Every live entry of ``reader`` into ``f``; histogram counts copied in bounded steps."""
+    f.attrs.update(attrs)
+    write_columns(f, {name: reader.column(name) for name in ENTRY_COLUMNS})
+    for name in HISTOGRAMS:
+        lengths = np.zeros(len(reader), dtype=np.int64)
+        for source_index, source in enumerate(reader._sources):
+            mine = reader.source == source_index
+            lengths[mine] = np.diff(source.offsets(name))[reader.row[mine]]
+        offsets = offsets_of(lengths)
+        f.create_dataset(f"histograms/{name}/offsets", data=offsets)
+        counts = f.create_dataset(f"histograms/{name}/counts", shape=(int(offsets[-1]),), dtype=COUNT_DTYPE)
+        for start in range(0, len(reader), MERGE_ROWS):
+            rows = np.arange(start, min(start + MERGE_ROWS, len(reader)))
+            flat, _ = reader.counts(name, rows)
+            counts[offsets[rows[0]] : offsets[rows[-1] + 1]] = flat
