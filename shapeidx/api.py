@@ -19,6 +19,9 @@ from :class:`~shapeidx.errors.ShapeidxError`.
 from __future__ import annotations
 
 import os
+import tempfile
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -70,6 +73,11 @@ def load(part, file_type: str | None = None, limits=None):
             raise LoadError(name, "the file object is not binary (open it with 'rb')")
         if len(data) == 0:
             raise LoadError(name, "is empty (0 bytes)")
+        limits = limits or io.LoadLimits()
+        if name == STREAM_NAME and limits.root is None:
+            # a stream has no folder: its VRML Inline references must not reach the working directory
+            with tempfile.TemporaryDirectory() as nowhere:
+                return make_solid(io.load_bytes(bytes(data), name, file_type, replace(limits, root=Path(nowhere))), name)
         return make_solid(io.load_bytes(bytes(data), name, file_type, limits), name)
     vertices, faces, label = _arrays_of(part)
     mesh = io.PolygonMesh.from_triangles(vertices, faces, format=label)

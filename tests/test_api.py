@@ -46,6 +46,16 @@ class TestOneSignatureForEveryForm:
         assert same_signature(by_path, shapeidx.signature(io.BytesIO(data), points=128))
         assert same_signature(by_path, shapeidx.signature(io.BytesIO(gzip.compress(data)), points=128))
 
+    def test_a_stream_follows_no_inline(self, data_dir, tmp_path, monkeypatch):
+        """A stream has no folder: an Inline in it must not read files of the working directory."""
+        (tmp_path / "secret.wrl").write_bytes((data_dir / VRML).read_bytes())
+        inline = tmp_path / "inline.wrl"
+        inline.write_bytes(b'#VRML V2.0 utf8\nInline { url "secret.wrl" }\n')
+        monkeypatch.chdir(tmp_path)
+        assert len(shapeidx.load(inline).faces) > 0  # from a file, inside its folder: followed
+        with pytest.raises(shapeidx.LoadError, match="contains no polygons"):
+            shapeidx.load(io.BytesIO(inline.read_bytes()))
+
     def test_file_type_for_content_that_does_not_say(self, tmp_path):
         box = trimesh.creation.box((1, 2, 3))
         obj = box.export(file_type="obj").encode()
