@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import LoadError
+from ..errors import LoadError, OutOfMemory
 from . import obj, off, ply, stl, vrml
-from .base import LoadLimits, PolygonMesh, read_bytes
+from .base import LoadLimits, PolygonMesh, read_bytes, without_float_warnings
 
 #: File name endings each reader handles (compared in lower case).
 SUFFIX_FORMATS = {
@@ -37,6 +37,7 @@ def format_of(path: str | os.PathLike) -> str | None:
     return SUFFIX_FORMATS.get(Path(name).suffix)
 
 
+@without_float_warnings
 def load(path: str | os.PathLike, limits: LoadLimits | None = None) -> PolygonMesh:
     """Read a part file into a :class:`PolygonMesh`.
 
@@ -65,7 +66,7 @@ def load(path: str | os.PathLike, limits: LoadLimits | None = None) -> PolygonMe
     except LoadError:
         raise
     except MemoryError:
-        raise LoadError(path, "out of memory while reading") from None
+        raise OutOfMemory(path, "out of memory while reading") from None
     except RecursionError:
         raise LoadError(path, "nesting too deep to read") from None
     except Exception as exc:  # a reader bug must still end as one line, never a traceback
@@ -97,8 +98,9 @@ def check_polygon_mesh(path, mesh: PolygonMesh, limits: LoadLimits) -> None:
             path,
             f"would give {triangles:,} triangles, more than the limit of {limits.max_triangles:,}",
         )
+    limits.check_memory(path, triangles, len(mesh.vertices))
     if not np.isfinite(mesh.vertices).all():
-        raise LoadError(path, "has NaN or infinite vertex coordinates")
+        raise LoadError(path, "has NaN or infinite vertex coordinates (as written, or overflowing when transformed)")
 
 
 def _sniff(path: Path, data: bytes) -> str:
