@@ -160,6 +160,9 @@ def _size(n: int) -> str:
 @click.option("--retry-failed", is_flag=True, help="Try failed files again even if unchanged.")
 @click.option("--timeout", type=click.FloatRange(0), default=DEFAULT_TIMEOUT, show_default=True,
               help="Seconds one file may take before it is recorded as failed (0: no limit).")
+@click.option("--worker-memory", type=click.FloatRange(0), metavar="GIB",
+              help="Memory limit of each worker process in GiB; a file that needs more fails as out of memory "
+                   "(0: no limit) [default: its share of 80% of the memory, at most 8].")
 @click.option("--commit-interval", type=click.FloatRange(0.05), default=DEFAULT_COMMIT_INTERVAL, show_default=True,
               help="Seconds between commits: the most work a crash can lose.")
 @click.option("--wait", is_flag=True, help="If another build holds the store, wait for it instead of exiting.")
@@ -170,12 +173,13 @@ def _size(n: int) -> str:
 @json_option
 @click.option("--merge-after", type=click.IntRange(1), default=MERGE_AFTER, hidden=True)
 @click.pass_context
-def build(ctx, directory, store, points, seed, workers, full, rehash, retry_failed, timeout, commit_interval,
-          wait, strict, quiet, verbose, dry_run, as_json, merge_after):
+def build(ctx, directory, store, points, seed, workers, full, rehash, retry_failed, timeout, worker_memory,
+          commit_interval, wait, strict, quiet, verbose, dry_run, as_json, merge_after):
     """Index every part file under DIRECTORY into the store (incremental)."""
     options = BuildOptions(points=points, seed=seed, workers=workers or 0, full=full, rehash=rehash,
                            retry_failed=retry_failed, timeout=timeout, wait=wait,
-                           commit_interval=commit_interval, merge_after=merge_after, dry_run=dry_run)
+                           commit_interval=commit_interval, merge_after=merge_after, dry_run=dry_run,
+                           worker_memory=None if worker_memory is None else int(worker_memory * (1 << 30)))
     reporter = BuildReporter(quiet=quiet, verbose=verbose)
     store_path = resolve_store_path(store)
     try:

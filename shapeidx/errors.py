@@ -3,10 +3,46 @@
 from __future__ import annotations
 
 import os
+import re
+
+# C0 and C1 control characters, DEL, Unicode line and paragraph separators, and the lone
+# surrogates by which Python stands for bytes of a file name that are not UTF-8.
+_UNPRINTABLE = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\ud800-\udfff]")
+_NAMED = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}
+
+
+def _escape(match: re.Match) -> str:
+    char = match.group()
+    if char in _NAMED:
+        return _NAMED[char]
+    code = ord(char)
+    if 0xDC80 <= code <= 0xDCFF:  # surrogateescape: the raw byte of a non-UTF-8 name
+        return f"\\x{code - 0xDC00:02x}"
+    return f"\\x{code:02x}" if code < 0x100 else f"\\u{code:04x}"
+
+
+def printable(text: object) -> str:
+    """``text`` safe to print as (part of) one log line.
+
+    Control characters (a newline or a carriage return in a file name could forge a line
+    of its own, an escape sequence could rewrite the terminal) become ``\\n``, ``\\r``,
+    ``\\t``, ``\\xNN`` or ``\\uNNNN``; bytes of a file name that are not UTF-8 become
+    ``\\xNN`` (printing them raw would fail with UnicodeEncodeError). Backslashes are left
+    alone: a Windows path stays readable. Other text is returned unchanged.
+    """
+    text = str(text)
+    return _UNPRINTABLE.sub(_escape, text) if _UNPRINTABLE.search(text) else text
 
 
 class ShapeidxError(Exception):
-    """Base class of every error shapeidx reports to its user as one line."""
+    """Base class of every error shapeidx reports to its user as one line.
+
+    ``str(err)`` passes the message through :func:`printable`, so that a file name or a
+    reason holding a newline or another control character still prints as one line.
+    """
+
+    def __str__(self) -> str:
+        return printable(super().__str__())
 
 
 class LoadError(ShapeidxError):
@@ -22,10 +58,16 @@ class LoadError(ShapeidxError):
         super().__init__(str(self))
 
     def __str__(self) -> str:
-        where = self.path if self.path is not None else "<input>"
+        where = printable(self.path) if self.path is not None else "<input>"
         if self.line is not None:
             where = f"{where}:{self.line}"
-        return f"{where}: {self.reason}"
+        return f"{where}: {printable(self.reason)}"
+
+
+class OutOfMemory(LoadError):
+    """A file whose reading or cleaning ran out of memory (a MemoryError, often at the
+    worker's memory limit). The process that saw it should not be trusted with another file:
+    a native library may have been left half-way through an allocation."""
 
 
 class StoreError(ShapeidxError):

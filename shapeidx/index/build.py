@@ -41,6 +41,7 @@ class BuildOptions:
     wait: bool = False
     commit_interval: float = DEFAULT_COMMIT_INTERVAL
     merge_after: int = MERGE_AFTER
+    worker_memory: int | None = None  # bytes per worker; None: workers.default_memory_limit, 0: none
     #: Only plan: walk the tree and compare it with the store, change nothing.
     dry_run: bool = False
 
@@ -123,7 +124,7 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         committer = Committer(writer, options.commit_interval, options.merge_after, reporter)
         committer.remove(plan.removed)
         summary.removed = len(plan.removed)
-        pool = WorkerPool(options.workers or available_cores(), params, str(root), options.timeout)
+        pool = WorkerPool(options.workers or available_cores(), params, str(root), options.timeout, options.worker_memory)
         try:
             for outcome in pool.run(plan.tasks):
                 if outcome is not None:

@@ -13,6 +13,8 @@ import time
 
 import click
 
+from ..errors import printable
+
 #: Seconds between progress lines when stderr is not a terminal.
 LOG_EVERY = 30.0
 
@@ -82,9 +84,9 @@ class BuildReporter:
         if outcome.kind == "failed":
             self.failed += 1
             if not self.quiet:
-                self._say(f"failed {outcome.task.path}: {outcome.entry.reason}")
+                self._say(f"failed {printable(outcome.task.path)}: {printable(outcome.entry.reason)}")
         elif self.verbose and outcome.kind == "indexed":
-            self._say(f"indexed {outcome.task.path} ({outcome.seconds:.1f}s)")
+            self._say(f"indexed {printable(outcome.task.path)} ({outcome.seconds:.1f}s)")
         if self.bar is not None:
             self.bar.update(1)
         elif not self.quiet and time.monotonic() - self.last_line >= LOG_EVERY:

@@ -8,7 +8,17 @@ busy worker's pipe, its process and its deadline together:
 * the process dies (a segfault in a native library, the kernel's OOM killer): the file
   it held is recorded as failed with the signal's name, and a fresh worker takes its place;
 * the deadline passes: the worker is killed, the file is recorded as timed out, and a
-  fresh worker takes its place.
+  fresh worker takes its place;
+* the file ran the worker out of memory: it is recorded as failed ("out of memory") and the
+  worker is replaced too, although it still runs: a native library (Embree, manifold3d)
+  whose allocation failed half-way may be left broken, and the next file would crash it.
+
+Each worker runs under a memory limit (``RLIMIT_DATA``, :func:`default_memory_limit`,
+``WorkerPool(memory_limit=...)``, ``shapeidx build --worker-memory``): an allocation
+beyond it fails with MemoryError inside the worker, which costs one file, instead of
+drawing the machine into swap or the kernel's OOM killer. ``RLIMIT_DATA`` counts what the
+worker really writes (its heap and private mappings) and not the address space that
+Embree's threads reserve and never touch, which ``RLIMIT_AS`` would.
 
 So no file, however hostile, stops a build, and one bad file costs only itself.
 """
@@ -25,13 +35,15 @@ from dataclasses import dataclass
 from multiprocessing.connection import wait
 from pathlib import Path
 
-from ..errors import LoadError, ShapeidxError
+from ..errors import LoadError, OutOfMemory, ShapeidxError, printable
 from ..store import Entry, StoreParams
 
 #: Default per-file time limit, seconds: ample for a part of millions of triangles at 1024
 #: points, short enough that a pathological file cannot stall a nightly run for long.
 DEFAULT_TIMEOUT = 600.0
 _HASH_CHUNK = 1 << 20
+#: Upper bound of the default per-worker memory limit.
+MAX_DEFAULT_MEMORY = 8 << 30
 _REASON_LIMIT = 300
 
 
@@ -59,6 +71,8 @@ class Outcome:
     size: int = 0
     mtime_ns: int = 0
     seconds: float = 0.0
+    #: The worker ran out of memory on this file: replace it before the next one.
+    replace_worker: bool = False
 
 
 def file_hash(path: str) -> str:
@@ -71,8 +85,8 @@ def file_hash(path: str) -> str:
 
 
 def one_line(text: str) -> str:
-    """A reason on one line, of bounded length."""
-    text = " ".join(str(text).split())
+    """A reason on one line, of bounded length, without control characters."""
+    text = printable(" ".join(str(text).split()))
     return text if len(text) <= _REASON_LIMIT else text[: _REASON_LIMIT - 3] + "..."
 
 
@@ -106,10 +120,14 @@ def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
         signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor)
         entry = Entry.indexed(task.path, digest, size, mtime, signature, solid.describe())
         kind = "indexed"
+    except OutOfMemory as exc:
+        entry = Entry.failed(task.path, digest, size, mtime, reason_of(exc, task.absolute))
+        return Outcome(task, "failed", entry, size, mtime, time.monotonic() - started, replace_worker=True)
     except LoadError as exc:
         entry, kind = Entry.failed(task.path, digest, size, mtime, reason_of(exc, task.absolute)), "failed"
     except MemoryError:
-        entry, kind = Entry.failed(task.path, digest, size, mtime, "out of memory"), "failed"
+        entry = Entry.failed(task.path, digest, size, mtime, "out of memory")
+        return Outcome(task, "failed", entry, size, mtime, time.monotonic() - started, replace_worker=True)
     except Exception as exc:  # a bug in a later stage must cost one file, not the build
         reason = one_line(f"internal error: {type(exc).__name__}: {exc}")
         entry, kind = Entry.failed(task.path, digest, size, mtime, reason), "failed"
@@ -130,10 +148,37 @@ def _die_with_parent() -> None:
 _PARENT_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 
 
-def _worker_main(conn, params: StoreParams, root: str, parent: int) -> None:
+def default_memory_limit(workers: int) -> int:
+    """Bytes each of ``workers`` workers may use: their share of 80 % of the machine's
+    memory, at least 1 GiB and at most :data:`MAX_DEFAULT_MEMORY` (8 GiB)."""
+    try:
+        physical = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return MAX_DEFAULT_MEMORY
+    return int(min(MAX_DEFAULT_MEMORY, max(1 << 30, 0.8 * physical / max(1, workers))))
+
+
+def limit_memory(limit: int | None) -> bool:
+    """Limit this process's data (``RLIMIT_DATA``) to ``limit`` bytes; False where impossible."""
+    if not limit:
+        return False
+    try:
+        import resource
+
+        _, hard = resource.getrlimit(resource.RLIMIT_DATA)
+        if hard != resource.RLIM_INFINITY:
+            limit = min(limit, hard)
+        resource.setrlimit(resource.RLIMIT_DATA, (limit, hard))
+    except (ImportError, ValueError, OSError):
+        return False
+    return True
+
+
+def _worker_main(conn, params: StoreParams, root: str, parent: int, memory_limit: int | None = None) -> None:
     from ..system import keep_freed_memory
 
     _die_with_parent()
+    limit_memory(memory_limit)
     keep_freed_memory()
     if os.getppid() != parent:  # the parent died before the request above took effect
         return
@@ -172,9 +217,11 @@ def death_reason(exitcode: int | None) -> str:
 
 
 class _Worker:
-    def __init__(self, context, params: StoreParams, root: str):
+    def __init__(self, context, params: StoreParams, root: str, memory_limit: int | None = None):
         self.conn, child = context.Pipe()
-        self.process = context.Process(target=_worker_main, args=(child, params, root, os.getpid()), daemon=True)
+        self.process = context.Process(
+            target=_worker_main, args=(child, params, root, os.getpid(), memory_limit), daemon=True
+        )
         # the new process inherits blocked signals: none can reach it before it ignores them
         previous = signal.pthread_sigmask(signal.SIG_BLOCK, _PARENT_SIGNALS)
         try:
@@ -224,11 +271,22 @@ class WorkerPool:
         The indexed directory (VRML Inline may not leave it).
     timeout : float or None
         Seconds one file may take; None or 0 for no limit.
+    memory_limit : int or None
+        Bytes of data each worker may use (``RLIMIT_DATA``); None for
+        :func:`default_memory_limit`, 0 for no limit.
     """
 
-    def __init__(self, workers: int, params: StoreParams, root: str, timeout: float | None = DEFAULT_TIMEOUT):
+    def __init__(
+        self,
+        workers: int,
+        params: StoreParams,
+        root: str,
+        timeout: float | None = DEFAULT_TIMEOUT,
+        memory_limit: int | None = None,
+    ):
         self.context = multiprocessing.get_context("spawn")
         self.size = max(1, workers)
+        self.memory_limit = default_memory_limit(self.size) if memory_limit is None else memory_limit
         self.params = params
         self.root = root
         self.timeout = timeout or None
@@ -262,7 +320,7 @@ class WorkerPool:
             self.close()
 
     def _spawn(self) -> _Worker:
-        worker = _Worker(self.context, self.params, self.root)
+        worker = _Worker(self.context, self.params, self.root, self.memory_limit)
         self.workers.append(worker)
         return worker
 
@@ -282,7 +340,7 @@ class WorkerPool:
                 continue
             busy.remove(worker)
             worker.task, worker.deadline = None, float("inf")
-            idle.append(self._replace(worker) if lost else worker)
+            idle.append(self._replace(worker) if lost or outcome.replace_worker else worker)
             yielded = True
             yield outcome
         if not yielded:

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import LoadError
+from ..errors import LoadError, OutOfMemory
 from . import obj, off, ply, stl, vrml
-from .base import GZIP_MAGIC, Format, LoadLimits, PolygonMesh, gunzip_bounded, read_bytes
+from .base import GZIP_MAGIC, Format, LoadLimits, PolygonMesh, gunzip_bounded, read_bytes, without_float_warnings
 
 __all__ = [
     "FORMATS",
@@ -65,6 +65,7 @@ def format_of(path: str | os.PathLike) -> str | None:
     return fmt.name if fmt else None
 
 
+@without_float_warnings
 def load(path: str | os.PathLike, limits: LoadLimits | None = None, file_type: str | None = None) -> PolygonMesh:
     """Read a part file into a :class:`PolygonMesh`.
 
@@ -88,6 +89,7 @@ def load(path: str | os.PathLike, limits: LoadLimits | None = None, file_type: s
     return _read(data, path, file_type or format_of(path), limits)
 
 
+@without_float_warnings
 def load_bytes(
     data: bytes, path: str | os.PathLike, file_type: str | None = None, limits: LoadLimits | None = None
 ) -> PolygonMesh:
@@ -111,7 +113,7 @@ def _read(data: bytes, path: Path, file_type: str | None, limits: LoadLimits) ->
     except LoadError:
         raise
     except MemoryError:
-        raise LoadError(path, "out of memory while reading") from None
+        raise OutOfMemory(path, "out of memory while reading") from None
     except RecursionError:
         raise LoadError(path, "nesting too deep to read") from None
     except Exception as exc:  # a reader bug must still end as one line, never a traceback
@@ -143,8 +145,9 @@ def check_polygon_mesh(path, mesh: PolygonMesh, limits: LoadLimits) -> None:
             path,
             f"would give {triangles:,} triangles, more than the limit of {limits.max_triangles:,}",
         )
+    limits.check_memory(path, triangles, len(mesh.vertices))
     if not np.isfinite(mesh.vertices).all():
-        raise LoadError(path, "has NaN or infinite vertex coordinates")
+        raise LoadError(path, "has NaN or infinite vertex coordinates (as written, or overflowing when transformed)")
 
 
 def _sniff(path: Path, data: bytes) -> Format:

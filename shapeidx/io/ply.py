@@ -36,8 +36,9 @@ def read_ply(path, data: bytes, limits: LoadLimits | None = None) -> PolygonMesh
     end = data.find(b"end_header")
     if not data[:3].lower() == b"ply" or end < 0:
         raise LoadError(path, "not a PLY file (missing 'ply' magic or 'end_header')")
-    body_start = data.find(b"\n", end) + 1
+    body_start = data.find(b"\n", end) + 1 or len(data)  # no line end after end_header: no body
     fmt, elements = _parse_header(path, data[:end].decode("ascii", errors="replace"))
+    _check_header_elements(path, elements)
     if fmt == "ascii":
         values = _read_ascii(path, data[body_start:].decode("ascii", errors="replace"), elements)
     else:
@@ -46,14 +47,17 @@ def read_ply(path, data: bytes, limits: LoadLimits | None = None) -> PolygonMesh
     if "vertex" not in values:
         raise LoadError(path, "PLY file has no vertex element")
     vertex = values["vertex"]
-    try:
-        points = np.stack([np.asarray(vertex[c], dtype=np.float64) for c in "xyz"], axis=1)
-    except KeyError:
-        raise LoadError(path, "PLY vertex element lacks x, y or z") from None
+    if any(c not in vertex for c in "xyz"):
+        raise LoadError(path, "PLY vertex element lacks x, y or z")
+    if any(isinstance(vertex[c], tuple) for c in "xyz"):
+        raise LoadError(path, "PLY vertex x, y or z is declared a list, not a number")
+    points = np.stack([np.asarray(vertex[c], dtype=np.float64) for c in "xyz"], axis=1)
     face = values.get("face", {})
     lists = face.get("vertex_indices", face.get("vertex_index"))
     if lists is None:
         raise LoadError(path, "PLY file has no faces (a point cloud is not a surface)")
+    if not isinstance(lists, tuple):
+        raise LoadError(path, "PLY face vertex_indices is declared a number, not a list")
     sizes, corners = lists
     warnings = []
     owner = np.repeat(np.arange(len(sizes)), sizes)
@@ -64,6 +68,27 @@ def read_ply(path, data: bytes, limits: LoadLimits | None = None) -> PolygonMesh
         corners = corners[np.repeat(keep, sizes)]
         sizes = sizes[keep]
     return PolygonMesh(points, sizes.astype(np.int64), corners.astype(np.int64), "ply", warnings)
+
+
+def _check_header_elements(path, elements: list[_Element]) -> None:
+    """Refuse, before reading any data, a header without what a surface needs."""
+    by_name = {e.name: e for e in elements}
+    vertex = by_name.get("vertex")
+    if vertex is None:
+        raise LoadError(path, "PLY file has no vertex element")
+    props = {p.name: p for p in vertex.properties}
+    if any(c not in props for c in "xyz"):
+        raise LoadError(path, "PLY vertex element lacks x, y or z")
+    if any(props[c].count_dtype is not None for c in "xyz"):
+        raise LoadError(path, "PLY vertex x, y or z is declared a list, not a number")
+    face = by_name.get("face")
+    lists = [p for p in face.properties if p.name in ("vertex_indices", "vertex_index")] if face else []
+    if not lists:
+        raise LoadError(path, "PLY file has no faces (a point cloud is not a surface)")
+    if lists[0].count_dtype is None:
+        raise LoadError(path, f"PLY face {lists[0].name} is declared a number, not a list")
+    if lists[0].dtype[0] == "f":
+        raise LoadError(path, f"PLY face list {lists[0].name!r} holds floating-point numbers, not vertex indices")
 
 
 def _parse_header(path, header: str):
@@ -105,11 +130,15 @@ def _read_ascii(path, text: str, elements: list[_Element]):
             raise LoadError(path, f"PLY announces {element.count:,} {element.name} rows but has {len(rows):,}")
         row += element.count
         if all(p.count_dtype is None for p in element.properties):
+            width = len(element.properties)
+            short = next((r for r in rows if len(r) < width), None)
+            if short is not None:
+                raise LoadError(path, f"PLY {element.name} row with {len(short)} value(s), fewer than its {width} properties")
             try:
-                table = np.array([r[: len(element.properties)] for r in rows], dtype=np.float64)
+                table = np.array([r[:width] for r in rows], dtype=np.float64)
             except ValueError:
                 raise LoadError(path, f"PLY {element.name} row that is not numbers") from None
-            table = table.reshape(element.count, len(element.properties))
+            table = table.reshape(element.count, width)
             values[element.name] = {p.name: table[:, i] for i, p in enumerate(element.properties)}
             continue
         columns: dict = {p.name: ([], []) for p in element.properties}
@@ -122,8 +151,15 @@ def _read_ascii(path, text: str, elements: list[_Element]):
                         pos += 1
                     else:
                         n = int(r[pos])
+                        items = r[pos + 1 : pos + 1 + n]
+                        if n < 0 or len(items) < n:
+                            raise LoadError(
+                                path,
+                                f"PLY {element.name} row whose list announces {n} values but has {len(items)}: "
+                                f"{' '.join(r)[:60]!r}",
+                            )
                         columns[p.name][0].append(n)
-                        columns[p.name][1].extend(int(x) for x in r[pos + 1 : pos + 1 + n])
+                        columns[p.name][1].extend(int(x) for x in items)
                         pos += 1 + n
             except (ValueError, IndexError):
                 raise LoadError(path, f"bad PLY {element.name} row {' '.join(r)[:60]!r}") from None
@@ -140,6 +176,11 @@ def _read_binary(path, data: bytes, offset: int, elements: list[_Element], order
     values: dict = {}
     for element in elements:
         props = element.properties
+        if not props:  # nothing to read, whatever the count says
+            values[element.name] = {}
+            continue
+        if len({p.name for p in props}) < len(props):
+            raise LoadError(path, f"PLY {element.name!r} element names a property twice")
         if all(p.count_dtype is None for p in props):
             dtype = np.dtype([(p.name, order + p.dtype) for p in props])
             offset = _need(path, data, offset, dtype.itemsize * element.count, element)
@@ -170,6 +211,8 @@ def _read_binary(path, data: bytes, offset: int, elements: list[_Element], order
                     _need(path, data, offset, csize, element)
                     n = int(np.frombuffer(data, order + p.count_dtype, 1, offset)[0])
                     offset += csize
+                    if n < 0:
+                        raise LoadError(path, f"PLY {element.name!r} list with a negative length ({n})")
                     isize = np.dtype(p.dtype).itemsize
                     _need(path, data, offset, isize * n, element)
                     columns[p.name][0].append(n)
@@ -196,6 +239,8 @@ def _fixed_length_lists(data: bytes, offset: int, element: _Element, order: str)
             if pos + np.dtype(p.count_dtype).itemsize > len(data):
                 return None
             n = int(np.frombuffer(data, order + p.count_dtype, 1, pos)[0])
+            if n < 0 or pos + n * np.dtype(p.dtype).itemsize > len(data):
+                return None  # left to the row-by-row reading, which says what is wrong
             fields.append((p.name + "#n", order + p.count_dtype))
             fields.append((p.name, order + p.dtype, (n,)))
             pos += np.dtype(p.count_dtype).itemsize + n * np.dtype(p.dtype).itemsize

@@ -10,7 +10,7 @@ from ..errors import LoadError
 from .base import Format, LoadLimits, PolygonMesh
 
 _BINARY_RECORD = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
-_ASCII_VERTEX = re.compile(rb"vertex\s+(\S+)\s+(\S+)\s+(\S+)")
+_ASCII_VERTEX = re.compile(rb"vertex\s+(\S+)\s+(\S+)\s+(\S+)", re.IGNORECASE)  # some exporters write VERTEX
 
 
 def read_stl(path, data: bytes, limits: LoadLimits | None = None) -> PolygonMesh:
@@ -36,9 +36,19 @@ def _read_ascii(path, data: bytes) -> PolygonMesh:
         raise LoadError(path, f"ASCII STL has {len(found)} vertices, not a multiple of three")
     try:
         corners = np.array(found, dtype=np.float64).reshape(-1, 3, 3)
-    except ValueError as exc:
-        raise LoadError(path, f"ASCII STL has a vertex that is not a number ({exc})") from None
+    except ValueError:
+        bad = next(f for v in found for f in v if not _is_number(f))
+        text = bad[:40].decode("latin-1")
+        raise LoadError(path, f"ASCII STL has a vertex coordinate that is not a number: {text!r}") from None
     return _from_corners(path, corners, "stl")
+
+
+def _is_number(text: bytes) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _from_corners(path, corners: np.ndarray, fmt: str) -> PolygonMesh:

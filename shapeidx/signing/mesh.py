@@ -245,6 +245,8 @@ def group_rows(rows: np.ndarray):
     group : (n,) int
         Group of each row.
     """
+    if len(rows) == 0:  # the code below would index the first of no rows
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     order = np.lexsort(rows.T[::-1])
     ordered = rows[order]
     starts = np.concatenate([[True], np.any(ordered[1:] != ordered[:-1], axis=1)])
@@ -276,6 +278,8 @@ def remove_bad_faces(vertices: np.ndarray, faces: np.ndarray, relative_area: flo
         return faces, 0, 0, 0
     repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
     faces = faces[~repeated]
+    if len(faces) == 0:  # every triangle had a repeated corner
+        return faces, int(repeated.sum()), 0, 0
     first, _ = group_rows(np.sort(faces, axis=1))
     first.sort()
     duplicate = len(faces) - len(first)

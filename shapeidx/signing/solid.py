@@ -24,7 +24,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from ..errors import LoadError
-from ..io.base import PolygonMesh
+from ..io.base import PolygonMesh, check_coordinate_range, without_float_warnings
 from .mesh import (
     Shells,
     flip_faces,
@@ -321,16 +321,19 @@ class Solid:
         }
 
 
+@without_float_warnings
 def make_solid(mesh: PolygonMesh, path=None) -> Solid:
     """Clean, orient and unite a loaded part; see the module docstring for the steps.
 
     Raises
     ------
     LoadError
-        When nothing with an area is left (every face degenerate).
+        When nothing with an area is left (every face degenerate, or collapsed by merging),
+        or when the coordinates are too large or too small to compute areas and volumes.
     """
     warnings = list(mesh.warnings)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    check_coordinate_range(path, vertices[np.unique(mesh.face_indices)])
     triangles = triangulate_polygons(vertices, mesh.face_sizes, mesh.face_indices)
     read_area = float(triangle_areas(vertices, triangles).sum())
     referenced = np.zeros(len(vertices), dtype=bool)
@@ -352,7 +355,7 @@ def make_solid(mesh: PolygonMesh, path=None) -> Solid:
     faces, degenerate, duplicate, flat = remove_bad_faces(vertices, faces)
     report.update(degenerate_removed=degenerate, duplicates_removed=duplicate, flat_kept=flat)
     if len(faces) == flat:
-        raise LoadError(path, "has zero surface area (every face is degenerate)")
+        raise _nothing_left(path, used, triangles, degenerate)
     if duplicate:
         warnings.append(f"{duplicate} duplicate triangle(s) removed")
 
@@ -376,3 +379,21 @@ def make_solid(mesh: PolygonMesh, path=None) -> Solid:
         report=report,
         warnings=warnings,
     )
+
+
+def _nothing_left(path, used: np.ndarray, triangles: np.ndarray, degenerate: int) -> LoadError:
+    """Why no face with an area is left after merging, although the faces read had one."""
+    repeated_as_read = int(
+        np.sum((triangles[:, 0] == triangles[:, 1]) | (triangles[:, 1] == triangles[:, 2]) | (triangles[:, 0] == triangles[:, 2]))
+    )
+    if degenerate > repeated_as_read:
+        # merge_vertices merges points closer than 1e-9 of the bounding-box diagonal, far
+        # below anything 1024 sample points can see; a part whose every face is smaller
+        # than that is a speck beside its extent (typically one stray vertex far away)
+        extent = float(np.linalg.norm(used.max(axis=0) - used.min(axis=0)))
+        return LoadError(
+            path,
+            f"every face collapses when points closer than {extent * 1e-9:.3g} (1e-9 of the part's extent, "
+            f"{extent:.3g}) are merged: its faces are tiny beside its extent (a stray vertex far from the rest?)",
+        )
+    return LoadError(path, "has zero surface area (every face is degenerate)")

@@ -105,6 +105,7 @@ class _VrmlLoad:
                 f"would expand to {triangles:,} triangles, more than the limit of "
                 f"{self.limits.max_triangles:,} (refused as a possible DEF/USE bomb)",
             )
+        self.limits.check_memory(self.path, triangles)
         if visits > MAX_NODE_VISITS:
             raise LoadError(
                 self.path,
