@@ -28,6 +28,7 @@ import numpy as np
 from . import __version__
 from .errors import ShapeidxError
 from .io import format_of
+from .io.faceting import Faceting
 from .pipeline import DEFAULT_POINTS, SIGNATURE_VERSION
 from .sampling import DEFAULT_SEED
 from .signature import BIN_DIVISOR
@@ -129,10 +130,12 @@ class Plan:
 
 @dataclass(frozen=True)
 class BuildOptions:
-    """How to build; the CLI's options. ``points``/``seed`` None: the store's, else the defaults."""
+    """How to build; the CLI's options. ``points``/``seed``/deflections None: the store's, else the defaults."""
 
     points: int | None = None
     seed: int | None = None
+    linear_deflection: float | None = None  # faceting of STEP/IGES, see shapeidx.io.faceting
+    angular_deflection: float | None = None
     workers: int = 0  # 0: one per core
     full: bool = False
     rehash: bool = False
@@ -250,7 +253,11 @@ def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
             existing = reader.params
     points = options.points or (existing.points if existing else DEFAULT_POINTS)
     seed = options.seed if options.seed is not None else (existing.seed if existing else DEFAULT_SEED)
-    return StoreParams(points=points, seed=seed, bin_divisor=BIN_DIVISOR, signature_version=SIGNATURE_VERSION)
+    faceting = existing.faceting if existing else Faceting()
+    linear = options.linear_deflection or faceting.linear_deflection
+    angular = options.angular_deflection or faceting.angular_deflection
+    return StoreParams(points=points, seed=seed, bin_divisor=BIN_DIVISOR, signature_version=SIGNATURE_VERSION,
+                       linear_deflection=linear, angular_deflection=angular)
 
 
 def default_workers() -> int:

@@ -18,6 +18,7 @@ import numpy as np
 
 from .distance import METRIC_HISTOGRAMS, METRICS, HistogramBank, rank_distances
 from .errors import StoreError
+from .io import LoadLimits
 from .pipeline import signature_of_solid, solid_of_file
 from .signature import HISTOGRAMS, Signature
 from .store import STATUS_OK, StoreReader, open_store
@@ -134,7 +135,7 @@ def query_store(
             signature = reader.signature(int(table.rows[first]))
         else:
             params = reader.params
-            solid = solid_of_file(file)
+            solid = solid_of_file(file, LoadLimits(faceting=params.faceting))  # STEP faceted as the store's
             signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor, threads)
             own = entry_path_of(file, reader)
             first = table.index_of(own) if own is not None else None

@@ -34,6 +34,7 @@ import numpy as np
 
 from . import __version__
 from .errors import StoreError
+from .io.faceting import DEFAULT_ANGULAR_DEFLECTION, DEFAULT_LINEAR_DEFLECTION, Faceting
 from .signature import HISTOGRAMS, Histogram, Signature
 
 #: Layout version of the files; a store with a newer one is refused.
@@ -84,6 +85,9 @@ class StoreParams:
     bin_divisor: int
     signature_version: int
     seed_policy: str = "fixed"
+    #: Faceting of solid models (STEP, IGES): see shapeidx.io.faceting.
+    linear_deflection: float = DEFAULT_LINEAR_DEFLECTION
+    angular_deflection: float = DEFAULT_ANGULAR_DEFLECTION
 
     def as_attrs(self) -> dict:
         return {
@@ -92,6 +96,8 @@ class StoreParams:
             "bin_divisor": self.bin_divisor,
             "signature_version": self.signature_version,
             "seed_policy": self.seed_policy,
+            "linear_deflection": self.linear_deflection,
+            "angular_deflection": self.angular_deflection,
         }
 
     @classmethod
@@ -102,7 +108,15 @@ class StoreParams:
             bin_divisor=int(attrs["bin_divisor"]),
             signature_version=int(attrs["signature_version"]),
             seed_policy=_text(attrs["seed_policy"]),
+            # stores written before STEP support used the faceting defaults (they held no solid model)
+            linear_deflection=float(attrs.get("linear_deflection", DEFAULT_LINEAR_DEFLECTION)),
+            angular_deflection=float(attrs.get("angular_deflection", DEFAULT_ANGULAR_DEFLECTION)),
         )
+
+    @property
+    def faceting(self) -> Faceting:
+        """The faceting of solid models these parameters ask for."""
+        return Faceting(self.linear_deflection, self.angular_deflection)
 
     def differences(self, other: "StoreParams") -> list[str]:
         """``name=mine (asked: theirs)`` for every parameter that differs."""

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import LoadError
-from . import obj, off, ply, stl, vrml
+from . import obj, off, ply, step, stl, vrml
 from .base import LoadLimits, PolygonMesh, read_bytes
 
 #: File name endings each reader handles (compared in lower case).
@@ -24,6 +24,10 @@ SUFFIX_FORMATS = {
     ".wrl": "vrml",
     ".wrz": "vrml",
     ".vrml": "vrml",
+    ".step": "step",
+    ".stp": "step",
+    ".iges": "step",
+    ".igs": "step",
 }
 
 __all__ = ["LoadLimits", "PolygonMesh", "SUFFIX_FORMATS", "format_of", "load", "read_bytes"]
@@ -60,6 +64,8 @@ def load(path: str | os.PathLike, limits: LoadLimits | None = None) -> PolygonMe
             fmt = fmt or _sniff(path, data)
             if fmt == "vrml":
                 mesh = vrml.load_vrml(path, limits)
+            elif fmt == "step":  # STEP and IGES: faceted at limits.faceting
+                mesh = step.read_step(path, data, limits)
             else:
                 mesh = _READERS[fmt](path, data)
     except LoadError:
@@ -109,9 +115,11 @@ def _sniff(path: Path, data: bytes) -> str:
         return "ply"
     if head[:3] == b"OFF" or head[:4] in (b"COFF", b"NOFF"):
         return "off"
+    if step.sniff_solid_model(data) is not None:
+        return "step"
     if head[:5].lower() == b"solid" or len(data) >= 84:
         return "stl"
-    raise LoadError(path, "unknown file type (expected STL, OBJ, OFF, PLY or VRML)")
+    raise LoadError(path, "unknown file type (expected STL, OBJ, OFF, PLY, VRML, STEP or IGES)")
 
 
 _READERS = {"stl": stl.read_stl, "obj": obj.read_obj, "off": off.read_off, "ply": ply.read_ply}

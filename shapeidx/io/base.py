@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import LoadError
+from .faceting import Faceting
 
 GZIP_MAGIC = b"\x1f\x8b"
 
@@ -31,12 +32,16 @@ class LoadLimits:
     root : Path or None
         Directory that Inline references must stay inside (the tree being indexed).
         ``None`` means the directory of the file being loaded.
+    faceting : Faceting or None
+        Tolerances for faceting solid models (STEP, IGES); None: the defaults.
+        ``max_triangles`` applies to the faceted result too.
     """
 
     max_triangles: int = 50_000_000
     max_uncompressed_bytes: int = 1 << 30
     max_inline_depth: int = 8
     root: Path | None = None
+    faceting: Faceting | None = None
 
 
 @dataclass
