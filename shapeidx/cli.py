@@ -61,12 +61,43 @@ seed_option = click.option("--seed", default=DEFAULT_SEED, show_default=True, ty
 json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 
 
+def _deflection_options(defaults: bool):
+    """``--linear-deflection`` / ``--angular-deflection``: faceting of STEP and IGES files."""
+    from .io.faceting import (ANGULAR_DEFLECTION_RANGE, DEFAULT_ANGULAR_DEFLECTION, DEFAULT_LINEAR_DEFLECTION,
+                              LINEAR_DEFLECTION_RANGE)
+
+    linear_help = "STEP/IGES faceting: largest facet-to-surface distance, as a fraction of the part's diagonal"
+    angular_help = "STEP/IGES faceting: largest angle (radians) between neighbouring facets"
+    if not defaults:  # build: the store's own, else the defaults
+        linear_help += f" [default: the store's, else {DEFAULT_LINEAR_DEFLECTION}]."
+        angular_help += f" [default: the store's, else {DEFAULT_ANGULAR_DEFLECTION}]."
+
+    def decorate(command):
+        command = click.option("--angular-deflection", type=click.FloatRange(*ANGULAR_DEFLECTION_RANGE),
+                               default=DEFAULT_ANGULAR_DEFLECTION if defaults else None, show_default=defaults,
+                               help=angular_help + ("." if defaults else ""))(command)
+        return click.option("--linear-deflection", type=click.FloatRange(*LINEAR_DEFLECTION_RANGE),
+                            default=DEFAULT_LINEAR_DEFLECTION if defaults else None, show_default=defaults,
+                            help=linear_help + ("." if defaults else ""))(command)
+
+    return decorate
+
+
 @main.command()
 @click.argument("file", type=click.Path(path_type=str))
+@_deflection_options(defaults=True)
 @json_option
-def inspect(file, as_json):
-    """What the loader sees in FILE: size, shells, watertightness, warnings."""
-    facts = load(file).describe()
+def inspect(file, linear_deflection, angular_deflection, as_json):
+    """What the loader sees in FILE: size, shells, watertightness, warnings (and faceting, for STEP/IGES)."""
+    from .io import LoadLimits
+    from .io.faceting import Faceting
+
+    faceting = Faceting(linear_deflection, angular_deflection)
+    facts = load(file, limits=LoadLimits(faceting=faceting)).describe()
+    if facts["format"] in ("step", "iges"):  # read again to measure the faceting against the exact surfaces
+        from .io.step import faceting_report
+
+        facts["faceting"] = faceting_report(file, faceting)
     if as_json:
         _emit_json(facts)
         return
@@ -83,6 +114,14 @@ def inspect(file, as_json):
         f" {solid['cavities']} cavities{', united' if solid['united'] else ''}"
     )
     click.echo(f"  watertight  {'yes' if facts['watertight'] else 'no'}")
+    if "faceting" in facts:
+        f = facts["faceting"]
+        units = ", ".join(f["file_units"]) or "not stated"
+        click.echo(f"  faceting    linear deflection {f['linear_deflection']:g} of the diagonal ({f['deflection_mm']:.4g} mm),"
+                   f" angular {f['angular_deflection']:g} rad -> {f['triangles']:,} triangles")
+        click.echo(f"  chordal     measured max {f['max_chordal_error_mm']:.4g} mm ({f['max_chordal_error']:.3g} of the diagonal)"
+                   f" at {f['measured_points']:,} points of curved faces")
+        click.echo(f"  units       file: {units}; coordinates in mm")
     for warning in facts["warnings"]:
         click.echo(f"  warning     {warning}")
 
@@ -154,6 +193,7 @@ def _size(n: int) -> str:
 @store_option
 @click.option("--points", type=click.IntRange(2, 8192), help="Surface samples [default: the store's, else 1024].")
 @click.option("--seed", type=int, help="Sampling seed [default: the store's, else the fixed default].")
+@_deflection_options(defaults=False)
 @click.option("--workers", "-j", type=click.IntRange(1), help="Worker processes [default: one per core].")
 @click.option("--full", is_flag=True, help="Recompute every file, changed or not.")
 @click.option("--rehash", is_flag=True, help="Hash every file, even when its size and time are unchanged.")
@@ -173,10 +213,12 @@ def _size(n: int) -> str:
 @json_option
 @click.option("--merge-after", type=click.IntRange(1), default=MERGE_AFTER, hidden=True)
 @click.pass_context
-def build(ctx, directory, store, points, seed, workers, full, rehash, retry_failed, timeout, worker_memory,
-          commit_interval, wait, strict, quiet, verbose, dry_run, as_json, merge_after):
+def build(ctx, directory, store, points, seed, linear_deflection, angular_deflection, workers, full, rehash,
+          retry_failed, timeout, worker_memory, commit_interval, wait, strict, quiet, verbose, dry_run, as_json,
+          merge_after):
     """Index every part file under DIRECTORY into the store (incremental)."""
     options = BuildOptions(points=points, seed=seed, workers=workers or 0, full=full, rehash=rehash,
+                           linear_deflection=linear_deflection, angular_deflection=angular_deflection,
                            retry_failed=retry_failed, timeout=timeout, wait=wait,
                            commit_interval=commit_interval, merge_after=merge_after, dry_run=dry_run,
                            worker_memory=None if worker_memory is None else int(worker_memory * (1 << 30)))
@@ -235,6 +277,8 @@ def stats(store, as_json):
     click.echo(f"  root        {facts['root']}")
     click.echo(f"  entries     {facts['entries']:,}: {facts['ok']:,} ok, {facts['failed']:,} failed")
     click.echo(f"  parameters  {p['points']} points, bin divisor {p['bin_divisor']}, seed {p['seed']} ({p['seed_policy']})")
+    click.echo(f"  faceting    STEP/IGES: linear deflection {p['linear_deflection']:g} of the diagonal,"
+               f" angular {p['angular_deflection']:g} rad")
     click.echo(f"  versions    signature {p['signature_version']}, layout {facts['schema_version']},"
                f" shapeidx {facts['shapeidx_version']}")
     if facts["journal_batches"]:

@@ -160,9 +160,11 @@ def signature_with_params(part, params, threads: int = 1, file_type: str | None 
             )
         return part
     from .api import load
+    from .io import LoadLimits
     from .signing.pipeline import signature_of_solid
 
-    return signature_of_solid(load(part, file_type), params.points, params.seed, params.bin_divisor, threads)
+    solid = load(part, file_type, LoadLimits(faceting=params.faceting))  # a STEP part faceted as the store's
+    return signature_of_solid(solid, params.points, params.seed, params.bin_divisor, threads)
 
 
 def _check_usable(reader: StoreReader) -> None:

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ShapeidxError
+from ..io.faceting import Faceting
 from ..signing.parameters import BIN_DIVISOR, DEFAULT_POINTS, DEFAULT_SEED, SIGNATURE_VERSION
 from ..store import STATUS_FAILED, STATUS_OK, StoreParams, StoreWriter, check_params, check_root, open_store
 from ..system import available_cores
@@ -29,10 +30,12 @@ from .workers import DEFAULT_TIMEOUT, Outcome, Task, WorkerPool
 
 @dataclass(frozen=True)
 class BuildOptions:
-    """How to build; the CLI's options. ``points``/``seed`` None: the store's, else the defaults."""
+    """How to build; the CLI's options. ``points``/``seed``/deflections None: the store's, else the defaults."""
 
     points: int | None = None
     seed: int | None = None
+    linear_deflection: float | None = None  # faceting of STEP/IGES, see shapeidx.io.faceting
+    angular_deflection: float | None = None
     workers: int = 0  # 0: one per core
     full: bool = False
     rehash: bool = False
@@ -90,7 +93,11 @@ def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
             existing = reader.params
     points = options.points or (existing.points if existing else DEFAULT_POINTS)
     seed = options.seed if options.seed is not None else (existing.seed if existing else DEFAULT_SEED)
-    return StoreParams(points=points, seed=seed, bin_divisor=BIN_DIVISOR, signature_version=SIGNATURE_VERSION)
+    faceting = existing.faceting if existing else Faceting()
+    linear = options.linear_deflection or faceting.linear_deflection
+    angular = options.angular_deflection or faceting.angular_deflection
+    return StoreParams(points=points, seed=seed, bin_divisor=BIN_DIVISOR, signature_version=SIGNATURE_VERSION,
+                       linear_deflection=linear, angular_deflection=angular)
 
 
 def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:

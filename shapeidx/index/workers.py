@@ -116,7 +116,7 @@ def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
     if task.known_hash is not None and digest == task.known_hash:
         return Outcome(task, "same", size=size, mtime_ns=mtime)
     try:
-        solid = solid_of_file(task.absolute, LoadLimits(root=Path(root)))
+        solid = solid_of_file(task.absolute, LoadLimits(root=Path(root), faceting=params.faceting))
         signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor)
         entry = Entry.indexed(task.path, digest, size, mtime, signature, solid.describe())
         kind = "indexed"

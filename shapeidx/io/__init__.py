@@ -8,6 +8,7 @@ reason. gzip compression is detected from the content, for every format.
 
     stl.py obj.py off.py ply.py   the mesh formats
     vrml/                         VRML 1.0 and 2.0 (a package of its own: lexer, parser, ...)
+    step.py                       STEP and IGES solids, faceted by OpenCASCADE (faceting.py)
     base.py                       PolygonMesh, Format, LoadLimits, reading (gzipped) bytes
 """
 
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import LoadError, OutOfMemory
-from . import obj, off, ply, stl, vrml
+from . import obj, off, ply, step, stl, vrml
 from .base import GZIP_MAGIC, Format, LoadLimits, PolygonMesh, gunzip_bounded, read_bytes, without_float_warnings
 
 __all__ = [
@@ -47,8 +48,9 @@ def register(fmt: Format) -> None:
         _BY_SUFFIX[suffix] = fmt
 
 
-for _module in (stl, obj, off, ply, vrml):
-    register(_module.FORMAT)
+for _module in (stl, obj, off, ply, vrml, step):
+    for _format in _module.FORMATS:
+        register(_format)
 
 
 def suffixes() -> list[str]:
@@ -151,10 +153,9 @@ def check_polygon_mesh(path, mesh: PolygonMesh, limits: LoadLimits) -> None:
 
 
 def _sniff(path: Path, data: bytes) -> Format:
-    head = data[:512].lstrip()
     ordered = sorted((f for f in FORMATS.values() if f.sniff), key=lambda f: f.weak)
     for fmt in ordered:
-        if fmt.sniff(head, len(data)):
+        if fmt.sniff(data):
             return fmt
     labels = [f.label for f in FORMATS.values()]
     raise LoadError(path, f"unknown file type (expected {', '.join(labels[:-1])} or {labels[-1]})")

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import LoadError
+from .faceting import Faceting
 
 GZIP_MAGIC = b"\x1f\x8b"
 
@@ -34,6 +35,9 @@ class LoadLimits:
     root : Path or None
         Directory that Inline references must stay inside (the tree being indexed).
         ``None`` means the directory of the file being loaded.
+    faceting : Faceting or None
+        Tolerances for faceting solid models (STEP, IGES); None: the defaults.
+        ``max_triangles`` applies to the faceted result too.
     max_bytes : int
         Refuse a part whose reading and cleaning would need more memory than this, as
         estimated from its triangle and vertex counts (:meth:`estimated_bytes`) before the
@@ -47,6 +51,7 @@ class LoadLimits:
     max_uncompressed_bytes: int = 1 << 30
     max_inline_depth: int = 8
     root: Path | None = None
+    faceting: Faceting | None = None
     max_bytes: int = 4 << 30
 
     def estimated_bytes(self, triangles: int, vertices: int = 0) -> int:
@@ -75,6 +80,11 @@ BYTES_PER_TRIANGLE = 800
 BYTES_PER_VERTEX = 48
 
 
+def head_of(data: bytes) -> bytes:
+    """The first 512 bytes with leading white space removed: what magic numbers are read from."""
+    return data[:512].lstrip()
+
+
 @dataclass(frozen=True)
 class Format:
     """A file format a reader module handles; every reader module declares one as ``FORMAT``.
@@ -92,8 +102,8 @@ class Format:
         decompressed; ``path`` names the file in errors (and locates VRML Inline files).
         Raises :class:`~shapeidx.errors.LoadError`.
     sniff : callable or None
-        ``sniff(head, size) -> bool``: whether content starting with ``head`` (the first 512
-        bytes, leading white space removed) of ``size`` bytes is in this format.
+        ``sniff(data) -> bool``: whether this content is in this format (judged by its
+        first bytes, :func:`head_of`, for most formats).
     weak : bool
         The sniff test is a last resort (binary STL has no magic number): tried after
         every other format's.

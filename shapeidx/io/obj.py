@@ -56,4 +56,4 @@ def _all_numbers(fields: list[str]) -> bool:
     return True
 
 
-FORMAT = Format("obj", "OBJ", (".obj",), read_obj)
+FORMATS = [Format("obj", "OBJ", (".obj",), read_obj)]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import LoadError
-from .base import Format, LoadLimits, PolygonMesh
+from .base import Format, LoadLimits, PolygonMesh, head_of
 from .text import decode_text
 
 
@@ -56,4 +56,4 @@ def read_off(path, data: bytes, limits: LoadLimits | None = None) -> PolygonMesh
     return PolygonMesh(points.reshape(-1, 3), np.array(sizes, dtype=np.int64), np.array(corners, dtype=np.int64), "off", warnings)
 
 
-FORMAT = Format("off", "OFF", (".off",), read_off, sniff=lambda head, size: head[:3] == b"OFF" or head[:4] in (b"COFF", b"NOFF"))
+FORMATS = [Format("off", "OFF", (".off",), read_off, sniff=lambda data: head_of(data)[:3] == b"OFF" or head_of(data)[:4] in (b"COFF", b"NOFF"))]

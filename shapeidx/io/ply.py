@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import LoadError
-from .base import Format, LoadLimits, PolygonMesh
+from .base import Format, LoadLimits, PolygonMesh, head_of
 
 _TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -260,4 +260,4 @@ def _need(path, data: bytes, offset: int, size: int, element: _Element) -> int:
     return offset + size
 
 
-FORMAT = Format("ply", "PLY", (".ply",), read_ply, sniff=lambda head, size: head[:3].lower() == b"ply")
+FORMATS = [Format("ply", "PLY", (".ply",), read_ply, sniff=lambda data: head_of(data)[:3].lower() == b"ply")]

@@ -7,7 +7,7 @@ import re
 import numpy as np
 
 from ..errors import LoadError
-from .base import Format, LoadLimits, PolygonMesh
+from .base import Format, LoadLimits, PolygonMesh, head_of
 
 _BINARY_RECORD = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
 _ASCII_VERTEX = re.compile(rb"vertex\s+(\S+)\s+(\S+)\s+(\S+)", re.IGNORECASE)  # some exporters write VERTEX
@@ -58,4 +58,4 @@ def _from_corners(path, corners: np.ndarray, fmt: str) -> PolygonMesh:
     return PolygonMesh.from_triangles(vertices, np.arange(len(vertices)).reshape(-1, 3), fmt)
 
 
-FORMAT = Format("stl", "STL", (".stl",), read_stl, sniff=lambda head, size: head[:5].lower() == b"solid" or size >= 84, weak=True)
+FORMATS = [Format("stl", "STL", (".stl",), read_stl, sniff=lambda data: head_of(data)[:5].lower() == b"solid" or len(data) >= 84, weak=True)]

@@ -12,6 +12,7 @@ import h5py
 import numpy as np
 
 from ..errors import StoreError
+from ..io.faceting import DEFAULT_ANGULAR_DEFLECTION, DEFAULT_LINEAR_DEFLECTION, Faceting
 from ..ragged import offsets_of
 from ..signing.histogram import Histogram, Signature
 from ..signing.parameters import HISTOGRAMS
@@ -59,6 +60,9 @@ class StoreParams:
     bin_divisor: int
     signature_version: int
     seed_policy: str = "fixed"
+    #: Faceting of solid models (STEP, IGES): see shapeidx.io.faceting.
+    linear_deflection: float = DEFAULT_LINEAR_DEFLECTION
+    angular_deflection: float = DEFAULT_ANGULAR_DEFLECTION
 
     def as_attrs(self) -> dict:
         return {
@@ -67,6 +71,8 @@ class StoreParams:
             "bin_divisor": self.bin_divisor,
             "signature_version": self.signature_version,
             "seed_policy": self.seed_policy,
+            "linear_deflection": self.linear_deflection,
+            "angular_deflection": self.angular_deflection,
         }
 
     @classmethod
@@ -77,7 +83,15 @@ class StoreParams:
             bin_divisor=int(attrs["bin_divisor"]),
             signature_version=int(attrs["signature_version"]),
             seed_policy=as_text(attrs["seed_policy"]),
+            # stores written before STEP support used the faceting defaults (they held no solid model)
+            linear_deflection=float(attrs.get("linear_deflection", DEFAULT_LINEAR_DEFLECTION)),
+            angular_deflection=float(attrs.get("angular_deflection", DEFAULT_ANGULAR_DEFLECTION)),
         )
+
+    @property
+    def faceting(self) -> Faceting:
+        """The faceting of solid models these parameters ask for."""
+        return Faceting(self.linear_deflection, self.angular_deflection)
 
     def differences(self, other: "StoreParams") -> list[str]:
         """``name=mine (asked: theirs)`` for every parameter that differs."""

@@ -7,6 +7,6 @@
     reader.py    files, gzip, Inline, limits -> a PolygonMesh
 """
 
-from .reader import FORMAT, load_vrml
+from .reader import FORMATS, load_vrml
 
-__all__ = ["FORMAT", "load_vrml"]
+__all__ = ["FORMATS", "load_vrml"]

@@ -29,12 +29,12 @@ from urllib.parse import unquote
 import numpy as np
 
 from ...errors import LoadError
-from ..base import Format, LoadLimits, PolygonMesh, read_bytes
+from ..base import Format, LoadLimits, PolygonMesh, head_of, read_bytes
 from .geometry import Placement
 from .parser import Node, Scene, parse_vrml
 from .scene import MAX_NODE_VISITS, MeshBuilder, SceneWalker, Warnings
 
-__all__ = ["FORMAT", "load_vrml"]
+__all__ = ["FORMATS", "load_vrml"]
 
 _URL_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.\-]+:")
 
@@ -202,10 +202,10 @@ class _VrmlLoad:
         return self.scenes[target]
 
 
-def _looks_like_vrml(head: bytes, size: int) -> bool:
-    return head.startswith(b"#VRML") or head.startswith(b"#Inventor")
+def _looks_like_vrml(data: bytes) -> bool:
+    return head_of(data).startswith((b"#VRML", b"#Inventor"))
 
 
-FORMAT = Format(
-    "vrml", "VRML", (".wrl", ".wrz", ".vrml"), lambda path, data, limits: load_vrml(path, limits, data), sniff=_looks_like_vrml
-)
+FORMATS = [
+    Format("vrml", "VRML", (".wrl", ".wrz", ".vrml"), lambda path, data, limits: load_vrml(path, limits, data), sniff=_looks_like_vrml)
+]

@@ -1,0 +1,362 @@
+"""STEP (ISO 10303-21) and IGES solid models, read and faceted by OpenCASCADE.
+
+The exact geometry (B-rep: faces on planes, cylinders, B-spline surfaces ...) is turned into
+triangles by ``BRepMesh_IncrementalMesh`` at a chosen fidelity (:class:`Faceting`), and
+the triangles of every face become one :class:`~shapeidx.io.base.PolygonMesh`, so that
+everything downstream is the same as for a mesh format.
+
+* **What is read**: every face of the file's shapes: faces of solids, of shells that
+  bound no solid, and free faces (an open shell stays open, as in the VRML reader;
+  :mod:`shapeidx.solid` then judges inside and outside by winding numbers).
+* **Assemblies**: the plain ``STEPControl_Reader`` / ``IGESControl_Reader`` transfer
+  gives one compound whose sub-shapes carry their placements (``TopLoc_Location``); each
+  face's triangulation is moved by the location accumulated down to it, so a solid used
+  twice in two places appears twice. Reversed faces have their triangles turned.
+* **Units**: OpenCASCADE converts the file's length unit to its session unit, which is
+  set to millimetres here, so coordinates come out in mm whatever the file says (the
+  file's own unit is reported by :func:`faceting_report`).
+* **Faceting**: the linear deflection is relative to the part's bounding-box diagonal,
+  the angular one in radians (defaults and the study behind them: ``docs/faceting.md``).
+* **Bad files** (not STEP or IGES, truncated, no geometry, nothing that tessellates) raise
+  one :class:`~shapeidx.errors.LoadError` line. A file that crashes or hangs OpenCASCADE
+  itself is contained by the build's worker processes (:mod:`shapeidx.workers`).
+
+OpenCASCADE (the ``cadquery-ocp-novtk`` wheel, module ``OCP``) is imported only when a
+solid model is read: importing :mod:`shapeidx` does not load it.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import LoadError
+from .base import Format, LoadLimits, PolygonMesh, read_bytes
+from .faceting import Faceting
+
+__all__ = ["Faceting", "read_step", "sniff_solid_model", "faceting_report"]
+
+STEP_MAGIC = b"ISO-10303-21"
+_STEP_END = re.compile(rb"END-ISO-10303-21\s*;\s*$")
+#: How many bytes at the end are searched for the STEP terminator.
+_TAIL = 4096
+#: Up to this many triangles per curved face are measured by :func:`faceting_report`.
+_MEASURED_PER_FACE = 24
+
+
+def sniff_solid_model(data: bytes) -> str | None:
+    """``"step"`` or ``"iges"`` when the bytes look like one (by content, not by name), else None.
+
+    STEP part 21 files begin with ``ISO-10303-21;``; IGES files are 80-column records whose
+    first is a Start record: column 73 holds ``S`` (and often the file has only ``S``, ``G``,
+    ``D``, ``P``, ``T`` sections).
+    """
+    head = data[:4096].lstrip(b"\xef\xbb\xbf \t\r\n")
+    if head.startswith(STEP_MAGIC):
+        return "step"
+    first = data[:4096].split(b"\n", 1)[0].rstrip(b"\r")  # columns count: no stripping
+    if len(first) >= 73 and first[72:73] == b"S" and first[73:80].strip().isdigit():
+        return "iges"
+    return None
+
+
+@dataclass
+class _Read:
+    """One solid-model file after OpenCASCADE read it: the shape and what is known of it."""
+
+    shape: object  # TopoDS_Shape, in millimetres
+    kind: str  # "step" or "iges"
+    file_units: list  # length unit names the file declares
+
+
+def read_step(path, data: bytes | None = None, limits: LoadLimits | None = None) -> PolygonMesh:
+    """Read a STEP or IGES file (plain or gzip) and facet it into a :class:`PolygonMesh`.
+
+    Parameters
+    ----------
+    path : path-like
+        The file; named in every error.
+    data : bytes, optional
+        Its content, already decompressed (as :func:`~shapeidx.io.base.read_bytes` gives
+        it); read from ``path`` when not given.
+    limits : LoadLimits, optional
+        ``limits.faceting`` sets the tolerances (default :class:`Faceting`);
+        ``limits.max_triangles`` bounds the result.
+
+    Returns
+    -------
+    PolygonMesh
+        Triangles in millimetres, world placement, ``format`` ``"step"`` or ``"iges"``.
+
+    Raises
+    ------
+    LoadError
+        Not a STEP/IGES file, truncated, unreadable by OpenCASCADE, no geometry, or no face
+        that could be tessellated.
+    """
+    limits = limits or LoadLimits()
+    faceting = limits.faceting or Faceting()
+    read = read_shape(Path(path), data, limits)
+    tessellate(read.shape, faceting, Path(path))
+    vertices, triangles, failed, total = triangles_of(read.shape)
+    if len(triangles) == 0:
+        raise LoadError(path, f"OpenCASCADE could not tessellate any of its {total} faces")
+    warnings = []
+    if failed:
+        warnings.append(f"{failed} of {total} faces could not be tessellated and are left out (the surface has holes there)")
+    return PolygonMesh.from_triangles(vertices, triangles, read.kind, warnings)
+
+
+def faceting_report(path, faceting: Faceting | None = None, limits: LoadLimits | None = None, seed: int = 0) -> dict:
+    """What :func:`read_step` does with ``path``, measured: tolerances, triangles, chordal error.
+
+    The chordal error is measured independently of the mesher's own bookkeeping: for up to
+    24 triangles of every curved face (chosen at random with ``seed``; plane faces are
+    faceted exactly), the centroid and the three edge midpoints are projected onto the
+    face's exact surface (``GeomAPI_ProjectPointOnSurf``) and the largest distance is kept.
+
+    Returns
+    -------
+    dict
+        ``linear_deflection`` (relative), ``angular_deflection`` (rad), ``deflection_mm``
+        (absolute, given to OpenCASCADE), ``diagonal_mm``, ``triangles``, ``faces``,
+        ``faces_failed``, ``max_chordal_error_mm``, ``max_chordal_error`` (relative to the
+        diagonal), ``measured_points``, ``file_units``.
+    """
+    limits = limits or LoadLimits()
+    faceting = faceting or limits.faceting or Faceting()
+    read = read_shape(Path(path), None, limits)
+    diagonal = tessellate(read.shape, faceting, Path(path))
+    _, triangles, failed, total = triangles_of(read.shape)
+    error, measured = chordal_error(read.shape, np.random.default_rng(seed))
+    return {
+        "linear_deflection": faceting.linear_deflection,
+        "angular_deflection": faceting.angular_deflection,
+        "deflection_mm": faceting.absolute(diagonal),
+        "diagonal_mm": diagonal,
+        "triangles": int(len(triangles)),
+        "faces": total,
+        "faces_failed": failed,
+        "max_chordal_error_mm": error,
+        "max_chordal_error": error / diagonal if diagonal > 0 else float("nan"),
+        "measured_points": measured,
+        "file_units": read.file_units,
+    }
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def read_shape(path: Path, data: bytes | None, limits: LoadLimits) -> _Read:
+    if data is None:
+        data, _ = read_bytes(path, limits)
+    if not data.strip():
+        raise LoadError(path, "is empty (no STEP or IGES data)")
+    kind = sniff_solid_model(data)
+    if kind is None:
+        raise LoadError(path, "not a STEP or IGES file (a STEP file starts with 'ISO-10303-21;', IGES has 80-column records)")
+    if kind == "step" and not _STEP_END.search(data[-_TAIL:]):
+        raise LoadError(path, "truncated STEP file (it does not end with 'END-ISO-10303-21;')")
+    _quiet_opencascade()
+    # OpenCASCADE reads from a file name: gzip-compressed or in-memory content goes through
+    # a private temporary copy (also spares OCCT unusual characters in the real name)
+    with tempfile.TemporaryDirectory(prefix="shapeidx-step-") as folder:
+        copy = os.path.join(folder, "part.stp" if kind == "step" else "part.igs")
+        with open(copy, "wb") as f:
+            f.write(data)
+        return _transfer(path, copy, kind)
+
+
+def _transfer(path: Path, copy: str, kind: str) -> _Read:
+    from OCP.IFSelect import IFSelect_RetDone, IFSelect_RetVoid
+    from OCP.Interface import Interface_Static
+
+    if kind == "step":
+        from OCP.STEPControl import STEPControl_Reader as Reader
+    else:
+        from OCP.IGESControl import IGESControl_Reader as Reader
+    # the unit OpenCASCADE converts every file's lengths to (its default, said explicitly)
+    Interface_Static.SetCVal_s("xstep.cascade.unit", "MM")
+    reader = Reader()
+    status = reader.ReadFile(copy)
+    name = kind.upper()
+    if status == IFSelect_RetVoid:
+        raise LoadError(path, f"{name} file holds no entities (no geometry)")
+    if status != IFSelect_RetDone:
+        raise LoadError(path, f"OpenCASCADE cannot read this {name} file ({_status_name(status)})")
+    units = _file_units(reader) if kind == "step" else []
+    if reader.NbRootsForTransfer() == 0:
+        raise LoadError(path, f"{name} file has no shape to read (no geometry)")
+    reader.TransferRoots()
+    if reader.NbShapes() == 0:
+        raise LoadError(path, f"{name} file has no geometry that OpenCASCADE could transfer")
+    shape = reader.OneShape()
+    if shape is None or shape.IsNull():
+        raise LoadError(path, f"{name} file has no geometry that OpenCASCADE could transfer")
+    if kind == "iges":
+        shape = _sewn(shape)
+    return _Read(shape, kind, units)
+
+
+def _sewn(shape):
+    """IGES faces, sewn along their common edges.
+
+    IGES usually stores each face with its own boundary curves: unsewn, neighbouring faces
+    are meshed along their common edge independently and the triangles would not meet.
+    """
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_Sewing
+
+    diagonal = _bounding_diagonal(shape)
+    # gaps up to 1e-5 of the part's size are closed (0.001 mm on a 100 mm part)
+    sewing = BRepBuilderAPI_Sewing(max(1e-5 * diagonal, 1e-7))
+    sewing.Add(shape)
+    sewing.Perform()
+    sewn = sewing.SewedShape()
+    return shape if sewn is None or sewn.IsNull() else sewn
+
+
+def _status_name(status) -> str:
+    return str(status).rsplit(".", 1)[-1].replace("IFSelect_Ret", "read status ")
+
+
+def _file_units(reader) -> list:
+    """The length units the STEP file's representations declare (e.g. ``['MM']``), best effort."""
+    try:
+        from OCP.collections import Sequence_TCollection_AsciiString
+
+        lengths, angles, solids = (Sequence_TCollection_AsciiString() for _ in range(3))
+        reader.FileUnits(lengths, angles, solids)
+        return sorted({lengths.Value(i).ToCString() for i in range(1, lengths.Length() + 1)})
+    except Exception:  # a binding without this call: the unit is still converted, just not reported
+        return []
+
+
+_QUIET = False
+
+
+def _quiet_opencascade() -> None:
+    """Stop OpenCASCADE's messenger from writing to stdout (it would mix with our output)."""
+    global _QUIET
+    if _QUIET:
+        return
+    from OCP.Message import Message
+
+    messenger = Message.DefaultMessenger_s()
+    printers = messenger.Printers()
+    for printer in [printers.Value(i) for i in range(1, printers.Size() + 1)]:
+        messenger.RemovePrinter(printer)
+    _QUIET = True
+
+
+# --------------------------------------------------------------------------- faceting
+
+
+def _bounding_diagonal(shape) -> float:
+    from OCP.Bnd import Bnd_Box
+    from OCP.BRepBndLib import BRepBndLib
+
+    box = Bnd_Box()
+    BRepBndLib.Add_s(shape, box, False)  # from the exact geometry, not a previous mesh
+    if box.IsVoid():
+        return 0.0
+    return float(box.CornerMin().Distance(box.CornerMax()))
+
+
+def tessellate(shape, faceting: Faceting, path=None) -> float:
+    """Mesh every face of ``shape`` in place at ``faceting``; returns the bounding diagonal (mm).
+
+    A previous triangulation is removed first, so the same shape can be faceted again at
+    another fidelity.
+    """
+    from OCP.BRepMesh import BRepMesh_IncrementalMesh
+    from OCP.BRepTools import BRepTools
+
+    diagonal = _bounding_diagonal(shape)
+    if not np.isfinite(diagonal) or diagonal <= 0:
+        raise LoadError(path, "has no geometry with an extent (empty or degenerate bounding box)")
+    BRepTools.Clean_s(shape)
+    # relative=False: OCCT's own "relative" mode scales per edge and face; ours is per part
+    BRepMesh_IncrementalMesh(shape, faceting.absolute(diagonal), False, faceting.angular_deflection, False)
+    return diagonal
+
+
+def _faces(shape):
+    from OCP.TopAbs import TopAbs_FACE
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    explorer = TopExp_Explorer(shape, TopAbs_FACE)
+    while explorer.More():
+        yield TopoDS.Face(explorer.Current())
+        explorer.Next()
+
+
+def triangles_of(shape):
+    """All faces' triangles in world placement: vertices, triangles, failed and total faces."""
+    from OCP.BRep import BRep_Tool
+    from OCP.TopAbs import TopAbs_REVERSED
+    from OCP.TopLoc import TopLoc_Location
+
+    vertices, triangles = [], []
+    offset = failed = total = 0
+    for face in _faces(shape):
+        total += 1
+        location = TopLoc_Location()
+        mesh = BRep_Tool.Triangulation_s(face, location)
+        if mesh is None or mesh.NbTriangles() == 0:
+            failed += 1
+            continue
+        transform = location.Transformation()
+        nodes = np.array([mesh.Node(i).Transformed(transform).Coord() for i in range(1, mesh.NbNodes() + 1)])
+        corners = np.array([mesh.Triangle(i).Get() for i in range(1, mesh.NbTriangles() + 1)], dtype=np.int64) - 1
+        # a mirroring placement turns the winding as a reversed face does
+        if (face.Orientation() == TopAbs_REVERSED) != (transform.IsNegative()):
+            corners = corners[:, ::-1]
+        vertices.append(nodes)
+        triangles.append(corners + offset)
+        offset += len(nodes)
+    if not triangles:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), failed, total
+    return np.vstack(vertices), np.vstack(triangles), failed, total
+
+
+def chordal_error(shape, rng) -> tuple[float, int]:
+    """Largest measured distance (mm) from facet points to the exact surface; points measured."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepAdaptor import BRepAdaptor_Surface
+    from OCP.GeomAbs import GeomAbs_Plane
+    from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
+    from OCP.gp import gp_Pnt
+    from OCP.TopLoc import TopLoc_Location
+
+    worst, measured = 0.0, 0
+    for face in _faces(shape):
+        location = TopLoc_Location()
+        mesh = BRep_Tool.Triangulation_s(face, location)
+        if mesh is None or mesh.NbTriangles() == 0:
+            continue
+        if BRepAdaptor_Surface(face).GetType() == GeomAbs_Plane:
+            continue  # triangles of a plane lie on it
+        # triangulation and surface are both in the face's own frame (before its placement)
+        surface = BRep_Tool.Surface_s(face, TopLoc_Location())
+        count = mesh.NbTriangles()
+        chosen = rng.choice(count, size=min(count, _MEASURED_PER_FACE), replace=False) + 1
+        for t in chosen:
+            a, b, c = (np.array(mesh.Node(i).Coord()) for i in mesh.Triangle(int(t)).Get())
+            for point in ((a + b + c) / 3, (a + b) / 2, (b + c) / 2, (c + a) / 2):
+                projection = GeomAPI_ProjectPointOnSurf(gp_Pnt(*point), surface)
+                if projection.NbPoints():
+                    worst = max(worst, float(projection.LowerDistance()))
+                    measured += 1
+    return worst, measured
+
+
+FORMATS = [
+    Format("step", "STEP", (".step", ".stp"), read_step, sniff=lambda data: sniff_solid_model(data) == "step"),
+    Format("iges", "IGES", (".iges", ".igs"), read_step, sniff=lambda data: sniff_solid_model(data) == "iges"),
+]
