@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..workers import file_hash
-from .render import DEFAULT_SIZE, RENDER_VERSION, render_file_png
+from .render import DEFAULT_SIZE, RENDER_VERSION, render_file_png, render_solid_png
 
 
 def cache_dir_of_store(store: str | os.PathLike) -> Path:
@@ -58,11 +58,12 @@ class ThumbnailCache:
         """Where the thumbnail of a file with SHA-256 ``digest`` is kept."""
         return self.folder / f"{digest}-{self.size}px-v{RENDER_VERSION}.png"
 
-    def png(self, path: str | os.PathLike, digest: str | None = None) -> bytes:
+    def png(self, path: str | os.PathLike, digest: str | None = None, solid=None) -> bytes:
         """The PNG bytes of the thumbnail of part file ``path``.
 
         ``digest`` is the file's SHA-256 when already known (a store entry whose file did not
-        change); otherwise the file is hashed. Raises :class:`~shapeidx.errors.LoadError`
+        change); otherwise the file is hashed. ``solid``, when the caller has loaded the part
+        already, spares loading it again. Raises :class:`~shapeidx.errors.LoadError`
         when the part cannot be read (no picture is cached then).
         """
         from ..errors import LoadError
@@ -76,7 +77,7 @@ class ThumbnailCache:
             return target.read_bytes()
         except OSError:
             pass
-        data = render_file_png(path, self.size)
+        data = render_solid_png(solid, self.size) if solid is not None else render_file_png(path, self.size)
         self.rendered += 1
         self._write(target, data)
         return data
