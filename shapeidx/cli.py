@@ -296,6 +296,28 @@ def stats(store, as_json):
         click.echo(f"  failed      {item['count']:>5}  {item['reason']}")
 
 
+@main.command()
+@store_option
+@click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on (the default: this machine only).")
+@click.option("--port", default=8765, show_default=True, type=click.IntRange(1, 65535), help="Port to listen on.")
+@click.option("--max-upload", default=64, show_default=True, type=click.IntRange(1), help="Largest part file accepted, MB.")
+def serve(store, host, port, max_upload):
+    """A local web page and JSON API over the store: query by example, compare, browse."""
+    try:
+        import uvicorn
+
+        from .web.app import StoreService, create_app
+    except ImportError as exc:
+        raise ShapeidxError(f"shapeidx serve needs the web extra ({exc.name} is missing): pip install 'shapeidx[web]'") from None
+    service = StoreService(resolve_store_path(store))
+    app = create_app(service, max_upload * 1024 * 1024)
+    click.echo(f"shapeidx serve: {len(service.table):,} parts of {service.store} on http://{host}:{port}/ (Ctrl-C stops)")
+    try:
+        uvicorn.run(app, host=host, port=port, log_level="warning", access_log=False)
+    finally:
+        service.close()
+
+
 main.add_command(click.Command("info", callback=stats.callback, params=stats.params, help="Same as stats."))
 
 
