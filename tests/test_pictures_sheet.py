@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 from html.parser import HTMLParser
 from pathlib import Path
@@ -16,7 +17,7 @@ from storetools import build, cli, cli_json, small_kicad
 from shapeidx.distance import compare
 from shapeidx.pictures.plot import figure_of
 from shapeidx.pictures.sheet import PAGE, SheetHit, SheetPart, sheet_html
-from shapeidx.pictures.similarity import WORDS, SimilarityScale, signatures_of
+from shapeidx.pictures.similarity import MAX_DRAWS, WORDS, SimilarityScale, signatures_of
 from shapeidx.pipeline import signature_of_solid, solid_of_file
 from shapeidx.query import SignatureTable
 from shapeidx.signature import BIN_DIVISOR, HISTOGRAMS
@@ -118,10 +119,27 @@ class TestSimilarity:
             scale = SimilarityScale.of_table(reader, table, "weighted")
             signatures = signatures_of(reader, table.rows)
         n = len(table)
-        assert scale.draws == min(n, 64) and scale.pairs == scale.draws * (n - 1)
+        assert scale.draws == min(n, MAX_DRAWS) and scale.pairs == scale.draws * (n - 1)
         # with every entry drawn, the sample is exactly every ordered pair's distance
         expected = sorted(compare(signatures[i], signatures[j])["weighted"] for i in range(n) for j in range(n) if i != j)
         assert np.allclose(scale.distances, expected)
+
+    def test_calibration_is_kept_beside_the_store_until_it_changes(self, store, tmp_path):
+        _, path = store
+        with open_store(path) as reader:
+            table = SignatureTable.load(reader)
+            fresh = SimilarityScale.of_table(reader, table, "avg4")
+            first = SimilarityScale.cached(reader, table, "avg4", tmp_path)
+            kept = list(tmp_path.glob("calibration-avg4-*.npz"))
+            again = SimilarityScale.cached(reader, table, "avg4", tmp_path)
+        assert len(kept) == 1 and np.array_equal(first.distances, fresh.distances)
+        assert np.array_equal(again.distances, fresh.distances) and again.pairs == fresh.pairs
+        # another store file (a new build): drawn again, the old sample replaced
+        os.utime(path, ns=(1, 1))
+        with open_store(path) as reader:
+            SimilarityScale.cached(reader, SignatureTable.load(reader), "avg4", tmp_path)
+        assert [p.name for p in tmp_path.glob("calibration-avg4-*.npz")] != [p.name for p in kept]
+        assert len(list(tmp_path.glob("calibration-avg4-*.npz"))) == 1
 
 
 def query_json(store_path, *args):

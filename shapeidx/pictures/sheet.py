@@ -321,7 +321,7 @@ def query_sheet(
             query = SheetPart(str(file), Path(file).absolute(), signature, png, note)
         distances = table.rank(signature, metric)
         hits = top_hits(distances, table.paths, top, first)
-        scale = SimilarityScale.of_table(reader, table, metric)
+        scale = SimilarityScale.cached(reader, table, metric, cache_dir_of_store(store))
         rows = np.array([table.rows[table.index_of(h["path"])] for h in hits], dtype=np.int64)
         sheet_hits = []
         for k, (hit, sig) in enumerate(zip(hits, signatures_of(reader, rows))):

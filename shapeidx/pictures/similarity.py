@@ -5,8 +5,10 @@ A distance by itself says little (Weighted distances of kicad6 parts are around 
 compares with the other pairs of parts in the same store, so the words come from the
 distribution of the distances between entries of that store:
 
-* up to 64 entries, drawn with a fixed seed, are each ranked against every entry (itself
+* up to 32 entries, drawn with a fixed seed, are each ranked against every entry (itself
   left out); at 100,000 entries, 20 draws (two million pairs) are enough for the quantiles;
+  the sample is kept in the store's thumbnail folder (``STORE.thumbs/``), keyed by the
+  store file's size and time, so it is drawn once per build, not once per sheet;
 * a hit's **share** is the fraction of those pairs that are at most as far apart as the hit;
 * the words follow the share (:data:`WORDS`): "very similar" means closer than 99% of the
   pairs in the store, and so on. An exact 0 is "identical signature".
@@ -31,7 +33,7 @@ WORDS = (
 )
 #: Pairs the calibration aims at, and its bounds on the number of sampled entries.
 TARGET_PAIRS = 2_000_000
-MIN_DRAWS, MAX_DRAWS = 8, 64
+MIN_DRAWS, MAX_DRAWS = 8, 32
 #: Distances kept for the quantiles (a sorted subsample when there are more).
 KEPT = 200_000
 
@@ -94,6 +96,38 @@ class SimilarityScale:
         if pairs > KEPT:  # evenly spaced order statistics keep the quantiles
             distances = distances[np.linspace(0, pairs - 1, KEPT).astype(np.int64)]
         return cls(metric, distances, pairs, draws)
+
+    @classmethod
+    def cached(cls, reader, table, metric: str, folder) -> "SimilarityScale":
+        """:meth:`of_table`, kept in ``folder`` for the same store file and metric."""
+        import os
+        import tempfile
+        from pathlib import Path
+
+        folder = Path(folder)
+        try:
+            stat = os.stat(reader.path)
+            key = f"{stat.st_size}-{stat.st_mtime_ns}-{reader.journal}-{len(table)}"
+        except OSError:
+            return cls.of_table(reader, table, metric)
+        target = folder / f"calibration-{metric}-d{MAX_DRAWS}-{key}.npz"
+        try:
+            with np.load(target) as data:
+                return cls(metric, data["distances"], int(data["pairs"]), int(data["draws"]))
+        except (OSError, KeyError, ValueError):
+            pass
+        scale = cls.of_table(reader, table, metric)
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            for old in folder.glob(f"calibration-{metric}-*.npz"):  # of an older build
+                old.unlink(missing_ok=True)
+            fd, temporary = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=folder)
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, distances=scale.distances, pairs=scale.pairs, draws=scale.draws)
+            os.replace(temporary, target)
+        except OSError:
+            pass  # a cache that cannot be written only costs time
+        return scale
 
     def share(self, distance: float) -> float | None:
         """Fraction of the store's pairs at most ``distance`` apart (None without calibration)."""

@@ -144,7 +144,7 @@ class StoreService:
     def scale(self, metric: str) -> SimilarityScale:
         with self._lock:
             if metric not in self._scales:
-                self._scales[metric] = SimilarityScale.of_table(self.reader, self.table, metric)
+                self._scales[metric] = SimilarityScale.cached(self.reader, self.table, metric, self.thumbs.cache.folder)
             return self._scales[metric]
 
     def entries(self, offset: int, limit: int, status: str, contains: str) -> dict:
@@ -211,9 +211,12 @@ class StoreService:
             return found
 
     # -- answers
-    def describe(self, query_id: str) -> dict:
-        """An entry or upload for the page: name, path, fractions, histograms, picture."""
-        signature, i = self.signature_of(query_id)
+    def describe(self, query_id: str, known: tuple | None = None) -> dict:
+        """An entry or upload for the page: name, path, fractions, histograms, picture.
+
+        ``known`` is ``signature_of(query_id)`` when the caller has it already.
+        """
+        signature, i = known or self.signature_of(query_id)
         out = {"id": query_id, "fractions": signature.fractions, "histograms": _histograms_json(signature)}
         if i is None:
             upload = self.upload(query_id)
@@ -230,6 +233,7 @@ class StoreService:
     def _answer(self, query_id, signature, first, top, metric) -> dict:
         from ..query import top_hits
 
+        query = self.describe(query_id, (signature, first))
         distances = self.table.rank(signature, metric)
         hits = top_hits(distances, self.table.paths, top, first)
         scale = self.scale(metric)
@@ -243,7 +247,7 @@ class StoreService:
                 fractions=_fractions_json(self.table.fractions[i]),
             )
             hit["thumbnail"] = f"/api/thumbnail?id={_quote(hit['id'])}"
-        return {"query": self.describe(query_id), "metric": metric, "top": top, "entries": len(self.table),
+        return {"query": query, "metric": metric, "top": top, "entries": len(self.table),
                 "calibration": scale.describe(), "hits": hits}
 
     def query_upload(self, filename: str, data: bytes, top: int, metric: str) -> dict:
