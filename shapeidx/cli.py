@@ -153,12 +153,18 @@ def signature(file, points, seed, as_json):
 @points_option
 @seed_option
 @json_option
-def compare(a, b, points, seed, as_json):
+@click.option("--sheet", type=click.Path(dir_okay=False, path_type=str), help="Also write an HTML sheet of the two parts.")
+def compare(a, b, points, seed, as_json, sheet):
     """The paper's four distances between parts A and B (0 = same shape)."""
     from .distance import compare as distances_between
 
     sig_a, sig_b = signature_of(a, points, seed), signature_of(b, points, seed)
     distances = distances_between(sig_a, sig_b)
+    if sheet:
+        from .pictures.sheet import compare_sheet
+
+        compare_sheet(sheet, a, b, sig_a, sig_b, distances)
+        click.echo(f"shapeidx: wrote {sheet}", err=True)
     if as_json:
         _emit_json({"a": a, "b": b, **distances, "fractions": {"a": sig_a.fractions, "b": sig_b.fractions}})
         return
@@ -249,17 +255,72 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
 @click.option("--metric", type=click.Choice(METRICS), default="weighted", show_default=True, help="The distance.")
 @click.option("--id", "entry", metavar="PATH", help="Query with an entry of the store (its path in the store).")
 @json_option
-def query(file, store, top, metric, entry, as_json):
+@click.option("--sheet", type=click.Path(dir_okay=False, path_type=str),
+              help="Also write the answer as one self-contained HTML file (thumbnails, histograms, words).")
+@click.option("--thumbnails", default=200, show_default=True, type=click.IntRange(0),
+              help="With --sheet: thumbnails for the first N hits (each new one is rendered and cached).")
+def query(file, store, top, metric, entry, as_json, sheet, thumbnails):
     """The store's parts nearest to FILE (or to --id PATH), nearest first."""
     if (file is None) == (entry is None):
         raise click.UsageError("give either FILE or --id PATH")
-    # a one-off query shares its ray queries among all cores
-    hits = query_store(resolve_store_path(store), part=file, entry=entry, top=top, metric=metric, threads=available_cores())
+    if sheet:
+        from .pictures.sheet import query_sheet
+
+        hits = query_sheet(resolve_store_path(store), sheet, file=file, entry=entry, top=top, metric=metric,
+                           thumbnails=thumbnails, threads=available_cores())
+        click.echo(f"shapeidx: wrote {sheet}", err=True)
+    else:
+        hits = query_store(resolve_store_path(store), part=file, entry=entry, top=top, metric=metric,
+                           threads=available_cores())
     if as_json:
         _emit_json(hits)
         return
     for hit in hits:
         click.echo(f"{hit['rank']:>4}  {hit['distance']:<11.6g} {hit['path']}")
+
+
+@main.command()
+@click.argument("parts", nargs=-1, type=click.Path(dir_okay=False, path_type=str))
+@click.option("--output", "-o", required=True, type=click.Path(dir_okay=False, path_type=str),
+              help="The figure: .png, .svg or .pdf.")
+@click.option("--id", "entries", multiple=True, metavar="PATH", help="An entry of --store (repeatable).")
+@store_option
+@click.option("--label", "labels", multiple=True, help="Names for the parts, in order: PARTS, then --id entries (repeatable).")
+@click.option("--title", help="A first line for the figure's title.")
+@click.option("--points", type=click.IntRange(2, 8192), help="Surface samples for PARTS [default: the store's with --id, else 1024].")
+@click.option("--seed", type=int, help="Sampling seed for PARTS [default: the store's with --id, else the fixed default].")
+def plot(parts, output, entries, store, labels, title, points, seed):
+    """The ALL, IN, OUT and MIXED histograms of PARTS (and --id entries), overlaid (the paper's Figure 3/4)."""
+    from .pictures.plot import check_format, labels_for, plot_signatures
+
+    check_format(output)
+    if not parts and not entries:
+        raise click.UsageError("give one or more PARTS or --id PATH")
+    if len(labels) > len(parts) + len(entries):
+        raise click.UsageError(f"{len(labels)} --label for {len(parts) + len(entries)} parts")
+    signatures = []
+    if entries:
+        from .pictures.similarity import signatures_of
+        from .store import STATUS_OK
+
+        with open_store(resolve_store_path(store)) as reader:
+            rows = []
+            for entry in entries:
+                i = reader.index_of(entry)
+                if i is None:
+                    raise ShapeidxError(f"no entry {entry!r} in {reader.path} (give the path relative to the indexed folder)")
+                if reader.column("entries/status")[i] != STATUS_OK:
+                    raise ShapeidxError(f"entry {entry!r} failed to index: {reader.column('entries/reason')[i]}")
+                rows.append(i)
+            stored = signatures_of(reader, rows)
+            points, seed = points or reader.params.points, reader.params.seed if seed is None else seed
+    for part in parts:
+        signatures.append(signature_of(part, points or DEFAULT_POINTS, DEFAULT_SEED if seed is None else seed))
+    if entries:
+        signatures += stored
+    names = list(labels) + labels_for(list(parts) + list(entries))[len(labels):]
+    plot_signatures(list(zip(names, signatures)), output, title)
+    click.echo(f"wrote {output}")
 
 
 @main.command()
@@ -285,6 +346,28 @@ def stats(store, as_json):
         click.echo(f"  journal     {facts['journal_batches']} committed batch(es) not merged yet (a build runs or was stopped)")
     for item in facts["failure_reasons"][:5]:
         click.echo(f"  failed      {item['count']:>5}  {item['reason']}")
+
+
+@main.command()
+@store_option
+@click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on (the default: this machine only).")
+@click.option("--port", default=8765, show_default=True, type=click.IntRange(1, 65535), help="Port to listen on.")
+@click.option("--max-upload", default=64, show_default=True, type=click.IntRange(1), help="Largest part file accepted, MB.")
+def serve(store, host, port, max_upload):
+    """A local web page and JSON API over the store: query by example, compare, browse."""
+    try:
+        import uvicorn
+
+        from .web.app import StoreService, create_app
+    except ImportError as exc:
+        raise ShapeidxError(f"shapeidx serve needs the web extra ({exc.name} is missing): pip install 'shapeidx[web]'") from None
+    service = StoreService(resolve_store_path(store))
+    app = create_app(service, max_upload * 1024 * 1024)
+    click.echo(f"shapeidx serve: {len(service.table):,} parts of {service.store} on http://{host}:{port}/ (Ctrl-C stops)")
+    try:
+        uvicorn.run(app, host=host, port=port, log_level="warning", access_log=False)
+    finally:
+        service.close()
 
 
 main.add_command(click.Command("info", callback=stats.callback, params=stats.params, help="Same as stats."))

@@ -19,7 +19,7 @@ class OcclusionScene:
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
         from embreex import mesh_construction, rtcore_scene
 
-        self._scene = rtcore_scene.EmbreeScene(_embree_device())
+        self._scene = rtcore_scene.EmbreeScene(embree_device())
         self._mesh = mesh_construction.TriangleMesh(
             self._scene,
             np.ascontiguousarray(vertices, dtype=np.float32),
@@ -52,7 +52,7 @@ class OcclusionScene:
 
 
 @lru_cache(maxsize=1)
-def _embree_device():
+def embree_device():
     """One Embree device per process: starting a device costs milliseconds, a scene does not."""
     from embreex import rtcore
 

@@ -1,0 +1,362 @@
+"""Result sheets: one self-contained HTML file of a query and its hits (``query --sheet``).
+
+The file needs nothing but itself: thumbnails are PNG ``data:`` URIs, the histogram overlays
+inline SVG, the style and the pager inline; it makes no network request and opens from disk.
+Each hit shows its rank, thumbnail, distance, the similarity in words
+(:mod:`shapeidx.pictures.similarity`), its path as an absolute ``file://`` link, its class
+fractions and its four histograms over the query's.
+
+Long answers stay usable: images are ``loading="lazy"``, hits are shown :data:`PAGE` at a
+time by a few lines of script (all of them without script), the query's curves are written
+once and reused by every hit (SVG ``<use>``), and thumbnails are made for the first
+``thumbnails`` hits only (default :data:`DEFAULT_THUMBNAILS`; each new one costs a render).
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime
+import html
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..signing.histogram import Signature
+from ..signing.parameters import BIN_DIVISOR, HISTOGRAMS
+
+PAGE = 100
+DEFAULT_THUMBNAILS = 200
+#: The overlays show distance / mean from 0 to XMAX.
+XMAX = 3.0
+QUERY_COLOUR, HIT_COLOUR = "#1f77b4", "#d62728"
+CLASS_COLOURS = {"in": "#4c9f70", "out": "#e0a030", "mixed": "#8a8fb8"}
+METRIC_TITLES = {"all": "ALL", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted": "Weighted", "combined": "combined"}
+
+
+@dataclass
+class SheetPart:
+    """A part on a sheet: what to call it, where it is, its signature and its picture.
+
+    Attributes
+    ----------
+    label : str
+    path : absolute path of the part file (or None)
+    signature : Signature
+    png : bytes or None
+        The thumbnail; ``None`` shows ``note`` instead.
+    note : str
+        Why there is no picture.
+    """
+
+    label: str
+    path: Path | None
+    signature: Signature
+    png: bytes | None = None
+    note: str = ""
+
+
+@dataclass
+class SheetHit:
+    part: SheetPart
+    rank: int
+    distance: float
+    words: str = ""
+    extra: dict = field(default_factory=dict)
+
+
+# ----------------------------------------------------------------------------- pieces
+
+
+def _esc(text) -> str:
+    return html.escape(str(text), quote=True)
+
+
+def data_uri(png: bytes) -> str:
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def _curve(histogram, width: float, height: float, y_top: float) -> str:
+    """Polyline points of a histogram in a panel of ``width`` x ``height`` (y down)."""
+    p = histogram.p
+    if len(p) == 0 or y_top <= 0:
+        return ""
+    x = (np.arange(len(p)) + 0.5) / BIN_DIVISOR
+    keep = x <= XMAX
+    x, p = x[keep], p[keep]
+    px = x / XMAX * width
+    py = height - np.minimum(p / y_top, 1.0) * height
+    return " ".join(f"{a:.1f},{b:.1f}" for a, b in zip(px, py))
+
+
+PANEL_W, PANEL_H, GAP, LABEL_H = 128, 46, 8, 12
+
+
+def overlay_svg(query: Signature, hit: Signature) -> str:
+    """Four small panels (ALL, IN, OUT, MIXED): the hit's curves (red) over the query's (blue)."""
+    width = 2 * PANEL_W + GAP
+    height = 2 * (PANEL_H + LABEL_H) + GAP
+    body = []
+    for k, name in enumerate(HISTOGRAMS):
+        x0 = (k % 2) * (PANEL_W + GAP)
+        y0 = (k // 2) * (PANEL_H + LABEL_H + GAP) + LABEL_H
+        hq, hh = query.histograms[name], hit.histograms[name]
+        q_peak = float(hq.p.max()) if len(hq.p) else 0.0
+        h_peak = float(hh.p.max()) if len(hh.p) else 0.0
+        top = max(q_peak, h_peak) * 1.05
+        body.append(f'<text x="{x0}" y="{y0 - 3}" font-size="9" fill="#444">{name.upper()}</text>')
+        body.append(f'<rect x="{x0}" y="{y0}" width="{PANEL_W}" height="{PANEL_H}" fill="#fafafa" stroke="#ddd"/>')
+        if q_peak:
+            # the query's curve is drawn at height 1 per its peak: scale it to this panel's top
+            body.append(f'<use href="#q-{name}" transform="translate({x0},{y0 + PANEL_H}) scale(1,{-PANEL_H * q_peak / top:.4f})"/>')
+        if h_peak:
+            body.append(
+                f'<polyline transform="translate({x0},{y0})" points="{_curve(hh, PANEL_W, PANEL_H, top)}" fill="none"'
+                f' stroke="{HIT_COLOUR}" stroke-width="1.1"/>'
+            )
+    return (
+        f'<svg class="overlay" width="{width}" height="{height}" viewBox="0 0 {width} {height}" role="img"'
+        ' aria-label="histograms of the query (blue) and the hit (red)">' + "".join(body) + "</svg>"
+    )
+
+
+def query_symbols(query: Signature) -> str:
+    """A hidden SVG defining the query's four curves once, y up from 0 to its own peak 1 (every <use> scales them)."""
+    parts = []
+    for name in HISTOGRAMS:
+        h = query.histograms[name]
+        p = h.p
+        points = ""
+        if len(p):
+            x = (np.arange(len(p)) + 0.5) / BIN_DIVISOR
+            keep = x <= XMAX
+            px, py = x[keep] / XMAX * PANEL_W, p[keep] / p.max()
+            points = " ".join(f"{a:.1f},{b:.4f}" for a, b in zip(px, py))
+        parts.append(
+            f'<g id="q-{name}"><polyline points="{points}" fill="none" stroke="{QUERY_COLOUR}" stroke-width="1.4"'
+            ' vector-effect="non-scaling-stroke"/></g>'
+        )
+    return '<svg width="0" height="0" style="position:absolute" aria-hidden="true"><defs>' + "".join(parts) + "</defs></svg>"
+
+
+def fractions_html(signature: Signature) -> str:
+    """The class fractions as words and as a stacked bar."""
+    f = signature.fractions
+    bar = "".join(
+        f'<span style="width:{100 * f[c]:.2f}%;background:{CLASS_COLOURS[c]}" title="{c.upper()} {100 * f[c]:.2f}%"></span>'
+        for c in ("in", "out", "mixed")
+    )
+    words = " · ".join(f"{c.upper()} {100 * f[c]:.1f}%" for c in ("in", "out", "mixed"))
+    return f'<div class="fractions">{words}<div class="bar">{bar}</div></div>'
+
+
+def _picture(part: SheetPart, size: int, lazy: bool) -> str:
+    if part.png is None:
+        return f'<div class="nopic" style="width:{size}px;height:{size}px">{_esc(part.note or "no picture")}</div>'
+    loading = ' loading="lazy" decoding="async"' if lazy else ""
+    return f'<img class="thumb" src="{data_uri(part.png)}" width="{size}" height="{size}" alt="{_esc(part.label)}"{loading}>'
+
+
+def _link(part: SheetPart) -> str:
+    if part.path is None:
+        return f'<span class="path">{_esc(part.label)}</span>'
+    path = Path(part.path).absolute()
+    return f'<a class="path" href="{_esc(path.as_uri())}" title="{_esc(path)}">{_esc(part.label)}</a>'
+
+
+STYLE = """
+body{font:14px/1.4 system-ui,-apple-system,'Segoe UI',sans-serif;margin:0;background:#f3f4f6;color:#222}
+header{background:#fff;border-bottom:1px solid #ddd;padding:16px 24px;display:flex;gap:24px;align-items:flex-start}
+header h1{font-size:20px;margin:0 0 6px}
+.meta{color:#555;font-size:13px;max-width:70em}
+.hits{display:grid;grid-template-columns:repeat(auto-fill,minmax(300px,1fr));gap:14px;padding:18px 24px}
+.hit{background:#fff;border:1px solid #ddd;border-radius:6px;padding:10px;display:flex;flex-direction:column;gap:4px}
+.hit .top{display:flex;justify-content:space-between;align-items:baseline}
+.rank{font-weight:700;font-size:18px}
+.distance{font-variant-numeric:tabular-nums;color:#333}
+.words{font-weight:600;color:#1a5e3a}
+.words.far{color:#8a4b00}
+.share{font-weight:400;color:#555;font-size:12px}
+details{font-size:12px;color:#555;margin-top:4px}
+.thumb{display:block;margin:0 auto;background:#fff}
+.nopic{display:flex;align-items:center;justify-content:center;margin:0 auto;color:#888;font-size:12px;text-align:center;border:1px dashed #ccc}
+.path{word-break:break-all;font-size:12.5px}
+.fractions{font-size:12px;color:#444}
+.bar{display:flex;height:6px;margin-top:2px;border-radius:3px;overflow:hidden}
+.bar span{display:block;height:6px}
+.legend{font-size:12px;color:#555}
+.legend b.q{color:%s}.legend b.h{color:%s}
+nav.pages{padding:0 24px 24px;display:flex;gap:6px;flex-wrap:wrap}
+nav.pages button{border:1px solid #bbb;background:#fff;border-radius:4px;padding:3px 9px;cursor:pointer}
+nav.pages button.on{background:#1f77b4;color:#fff;border-color:#1f77b4}
+""" % (QUERY_COLOUR, HIT_COLOUR)
+
+PAGER = """
+(function(){var hits=document.querySelectorAll('.hit[data-page]');var n=0;hits.forEach(function(h){n=Math.max(n,+h.dataset.page)});
+if(n<1)return;var nav=document.createElement('nav');nav.className='pages';document.body.appendChild(nav);
+function show(p){hits.forEach(function(h){h.style.display=(+h.dataset.page===p)?'':'none'});
+nav.querySelectorAll('button').forEach(function(b){b.className=(+b.dataset.page===p)?'on':''});window.scrollTo(0,0)}
+for(var p=0;p<=n;p++){var b=document.createElement('button');b.textContent=(p*%d+1)+'-'+Math.min((p+1)*%d,hits.length);
+b.dataset.page=p;b.onclick=function(){show(+this.dataset.page)};nav.appendChild(b)}show(0)})();
+""" % (PAGE, PAGE)
+
+
+def sheet_html(title: str, query: SheetPart, hits: list[SheetHit], meta: list[str], calibration: str = "") -> str:
+    """The whole sheet as one HTML string."""
+    cards = []
+    for k, hit in enumerate(hits):
+        far = " far" if hit.words in ("weakly similar", "not similar") else ""
+        cards.append(
+            f'<article class="hit" data-page="{k // PAGE}" data-rank="{hit.rank}" data-path="{_esc(hit.part.label)}">'
+            f'<div class="top"><span class="rank">#{hit.rank}</span><span class="distance">distance {hit.distance:.4g}</span></div>'
+            + (f'<div class="words{far}">{_esc(hit.words)} <span class="share">{_esc(hit.extra.get("share", ""))}</span></div>'
+               if hit.words else "")
+            + _picture(hit.part, 160, lazy=k >= 12)
+            + _link(hit.part)
+            + fractions_html(hit.part.signature)
+            + overlay_svg(query.signature, hit.part.signature)
+            + "</article>"
+        )
+    meta_html = "".join(f"<div>{line}</div>" for line in meta)
+    if calibration:
+        meta_html += f"<details><summary>How the similarity words are calibrated</summary>{_esc(calibration)}</details>"
+    return (
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+        f"<meta name=\"viewport\" content=\"width=device-width,initial-scale=1\"><title>{_esc(title)}</title>"
+        "<meta http-equiv=\"Content-Security-Policy\" content=\"default-src 'none'; img-src data:; style-src 'unsafe-inline';"
+        " script-src 'unsafe-inline'\">"
+        f"<style>{STYLE}</style></head><body>"
+        + query_symbols(query.signature)
+        + "<header>"
+        + _picture(query, 200, lazy=False)
+        + f'<div><h1>{_esc(title)}</h1><div class="query">{_link(query)}</div>{fractions_html(query.signature)}'
+        f'<div class="meta">{meta_html}</div>'
+        f'<div class="legend">Histograms: distance / mean of the set from 0 to {XMAX:g}; <b class="q">query</b> and'
+        f' <b class="h">hit</b>.</div></div></header>'
+        f'<main class="hits">{"".join(cards)}</main>'
+        + (f"<script>{PAGER}</script>" if len(hits) > PAGE else "")
+        + "</body></html>\n"
+    )
+
+
+def write_sheet(output: str | os.PathLike, title: str, query: SheetPart, hits: list[SheetHit], meta: list[str],
+                calibration: str = "") -> Path:
+    """Write the sheet to ``output`` (atomically: a temporary file renamed into place)."""
+    from ..errors import ShapeidxError
+
+    output = Path(output)
+    temporary = output.with_name(f".{output.name}.tmp-{os.getpid()}")
+    try:
+        temporary.write_text(sheet_html(title, query, hits, meta, calibration), encoding="utf-8")
+        os.replace(temporary, output)
+    except OSError as exc:
+        temporary.unlink(missing_ok=True) if temporary.parent.is_dir() else None
+        raise ShapeidxError(f"{output}: cannot write the sheet ({exc.strerror or exc})") from None
+    return output
+
+
+# ----------------------------------------------------------------------------- sheets of the commands
+
+
+def _picture_of(render, label: str) -> tuple[bytes | None, str]:
+    from ..errors import ShapeidxError
+
+    try:
+        return render(), ""
+    except ShapeidxError as exc:
+        return None, f"no picture: {exc}"
+    except OSError as exc:
+        return None, f"no picture: {exc.strerror or exc}"
+
+
+def query_sheet(
+    store: str | os.PathLike,
+    output: str | os.PathLike,
+    file: str | os.PathLike | None = None,
+    entry: str | None = None,
+    top: int = 10,
+    metric: str = "weighted",
+    thumbnails: int = DEFAULT_THUMBNAILS,
+    threads: int = 1,
+) -> list[dict]:
+    """Rank the store against a part (file or ``entry``) and write the result sheet.
+
+    Returns the hits as :func:`shapeidx.query.top_hits` gives them (each with ``"words"``
+    added). Raises StoreError / LoadError as :func:`shapeidx.query.query_store` does.
+    """
+    from ..errors import StoreError
+    from ..api import load
+    from ..io import LoadLimits
+    from ..signing.parameters import SIGNATURE_VERSION
+    from ..signing.pipeline import signature_of_solid
+    from ..ranking import SignatureTable, entry_path_of, top_hits
+    from ..store import open_store
+    from .similarity import SimilarityScale, signatures_of
+    from .thumbcache import StoreThumbnails, ThumbnailCache, cache_dir_of_store
+
+    store = Path(store)
+    if not Path(output).absolute().parent.is_dir():
+        raise StoreError(f"{output}: no folder {Path(output).absolute().parent} to write the sheet in")
+    with open_store(store) as reader:
+        if reader.params.signature_version != SIGNATURE_VERSION:
+            raise StoreError(f"store {store} holds signatures of version {reader.params.signature_version}, this"
+                             f" shapeidx makes version {SIGNATURE_VERSION}: rebuild it")
+        table = SignatureTable.load(reader)
+        thumbs = StoreThumbnails(reader)
+        if entry is not None:
+            first = table.index_of(entry)
+            if first is None:
+                j = reader.index_of(entry)
+                if j is None:
+                    raise StoreError(f"no entry {entry!r} in {store} (give the path relative to the indexed folder)")
+                raise StoreError(f"entry {entry!r} failed to index: {reader.column('entries/reason')[j]}")
+            signature = signatures_of(reader, table.rows[[first]])[0]
+            png, note = _picture_of(lambda: thumbs.png(entry), entry)
+            query = SheetPart(entry, thumbs.file_of(entry), signature, png, note)
+        else:
+            params = reader.params
+            solid = load(file, limits=LoadLimits(faceting=params.faceting))  # a STEP part faceted as the store's
+            signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor, threads)
+            own = entry_path_of(file, reader)
+            first = table.index_of(own) if own is not None else None
+            cache = ThumbnailCache(cache_dir_of_store(store))
+            png, note = _picture_of(lambda: cache.png(file, solid=solid), str(file))
+            query = SheetPart(str(file), Path(file).absolute(), signature, png, note)
+        distances = table.distances(signature, metric)
+        hits = top_hits(distances, table.paths, top, first)
+        scale = SimilarityScale.cached(reader, table, metric, cache_dir_of_store(store))
+        rows = np.array([table.rows[table.index_of(h["path"])] for h in hits], dtype=np.int64)
+        sheet_hits = []
+        for k, (hit, sig) in enumerate(zip(hits, signatures_of(reader, rows))):
+            if k < thumbnails:
+                png, note = _picture_of(lambda: thumbs.png(hit["path"]), hit["path"])
+            else:
+                png, note = None, f"no picture beyond the first {thumbnails} hits (--thumbnails)"
+            hit["words"] = scale.words(hit["distance"])
+            part = SheetPart(hit["path"], thumbs.file_of(hit["path"]), sig, png, note)
+            share = scale.share(hit["distance"])
+            extra = {"share": f"closer than {100 * (1 - share):.1f}% of the store's pairs"} if share is not None and hit["distance"] > 0 else {}
+            sheet_hits.append(SheetHit(part, hit["rank"], hit["distance"], hit["words"], extra))
+        meta = [
+            f"Store <code>{_esc(store.absolute())}</code>: {len(table):,} parts (root <code>{_esc(thumbs.root)}</code>).",
+            f"Metric {_esc(METRIC_TITLES.get(metric, metric))}, top {len(hits)}. Made {datetime.datetime.now():%Y-%m-%d %H:%M}.",
+        ]
+        calibration = scale.describe()
+    write_sheet(output, f"Parts nearest to {Path(query.label).name}", query, sheet_hits, meta, calibration)
+    return hits
+
+
+def compare_sheet(output, a, b, sig_a: Signature, sig_b: Signature, distances: dict, metric: str = "weighted") -> Path:
+    """The sheet of ``shapeidx compare A B``: A as the query, B as the one hit."""
+    from .thumbcache import ThumbnailCache, default_cache_dir
+
+    cache = ThumbnailCache(default_cache_dir())
+    png_a, note_a = _picture_of(lambda: cache.png(a), str(a))
+    png_b, note_b = _picture_of(lambda: cache.png(b), str(b))
+    query = SheetPart(str(a), Path(a).absolute(), sig_a, png_a, note_a)
+    hit = SheetHit(SheetPart(str(b), Path(b).absolute(), sig_b, png_b, note_b), 1, distances[metric])
+    meta = ["Distances: " + ", ".join(f"{METRIC_TITLES[m]} {distances[m]:.4g}" for m in distances if m in METRIC_TITLES),
+            f"Made {datetime.datetime.now():%Y-%m-%d %H:%M}. No store: no similarity words (they are calibrated on a store;"
+            " see <code>shapeidx query --sheet</code>)."]
+    return write_sheet(output, f"{Path(a).name} against {Path(b).name}", query, [hit], meta)

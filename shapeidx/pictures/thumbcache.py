@@ -1,0 +1,142 @@
+"""Thumbnails of part files, cached on disk by the file's content.
+
+The cache is a plain folder of PNG files named by the SHA-256 of the part file, the picture
+size and :data:`~shapeidx.pictures.render.RENDER_VERSION`:
+
+* beside a store ``S``: ``S.thumbs/`` (:func:`cache_dir_of_store`), never inside the HDF5
+  file, so nothing the cache does can make a store unreadable;
+* otherwise ``$XDG_CACHE_HOME/shapeidx/thumbs`` (``~/.cache/shapeidx/thumbs``).
+
+A changed file has another hash, so it gets a new picture; a thumbnail is written under a
+temporary name and renamed into place, so a reader never sees half a PNG. A cache folder that
+cannot be written is not an error: the picture is rendered and returned all the same.
+
+For an entry of a store the hash recorded by the build is used when the file's size and
+modification time still match the entry (no need to read the file); otherwise the file is
+hashed again.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..index.workers import file_hash
+from .render import DEFAULT_SIZE, RENDER_VERSION, render_file_png, render_solid_png
+
+
+def cache_dir_of_store(store: str | os.PathLike) -> Path:
+    """The thumbnail folder that belongs to a store: ``STORE.thumbs`` beside it."""
+    store = Path(store)
+    return store.with_name(store.name + ".thumbs")
+
+
+def default_cache_dir() -> Path:
+    """The per-user thumbnail folder, for parts that are not entries of a store."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "shapeidx" / "thumbs"
+
+
+class ThumbnailCache:
+    """PNG thumbnails of part files, rendered once per file content.
+
+    Parameters
+    ----------
+    folder : where the PNG files go (created when first needed)
+    size : picture side in pixels
+    """
+
+    def __init__(self, folder: str | os.PathLike, size: int = DEFAULT_SIZE):
+        self.folder = Path(folder)
+        self.size = size
+        self.rendered = 0  # pictures rendered (cache misses) by this object, for benchmarks and tests
+
+    def key_path(self, digest: str) -> Path:
+        """Where the thumbnail of a file with SHA-256 ``digest`` is kept."""
+        return self.folder / f"{digest}-{self.size}px-v{RENDER_VERSION}.png"
+
+    def png(self, path: str | os.PathLike, digest: str | None = None, solid=None) -> bytes:
+        """The PNG bytes of the thumbnail of part file ``path``.
+
+        ``digest`` is the file's SHA-256 when already known (a store entry whose file did not
+        change); otherwise the file is hashed. ``solid``, when the caller has loaded the part
+        already, spares loading it again. Raises :class:`~shapeidx.errors.LoadError`
+        when the part cannot be read (no picture is cached then).
+        """
+        from ..errors import LoadError
+
+        try:
+            digest = digest or file_hash(os.fspath(path))
+        except OSError as exc:
+            raise LoadError(path, f"cannot read the file ({exc.strerror or exc})") from None
+        target = self.key_path(digest)
+        try:
+            return target.read_bytes()
+        except OSError:
+            pass
+        data = render_solid_png(solid, self.size) if solid is not None else render_file_png(path, self.size)
+        self.rendered += 1
+        self._write(target, data)
+        return data
+
+    def _write(self, target: Path, data: bytes) -> None:
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            fd, temporary = tempfile.mkstemp(prefix=".tmp-", suffix=".png", dir=self.folder)
+        except OSError:
+            return  # a cache that cannot be written only costs time
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+            os.replace(temporary, target)
+        except OSError:
+            try:
+                os.unlink(temporary)
+            except OSError:
+                pass
+
+
+class StoreThumbnails:
+    """Thumbnails of a store's entries, in the store's own cache folder ``STORE.thumbs/``.
+
+    Parameters
+    ----------
+    reader : an open :class:`~shapeidx.store.StoreReader`
+    size : picture side in pixels
+    folder : the cache folder (default :func:`cache_dir_of_store` of the reader's store)
+    """
+
+    def __init__(self, reader, size: int = DEFAULT_SIZE, folder: str | os.PathLike | None = None):
+        self.root = Path(reader.attrs.get("root") or ".")
+        self.cache = ThumbnailCache(folder or cache_dir_of_store(reader.path), size)
+        self._paths = reader.paths
+        # the columns once, not per picture: a sheet may show thousands of entries
+        self._size = reader.column("entries/size")
+        self._mtime = reader.column("entries/mtime_ns")
+        self._hash = reader.column("entries/hash")
+
+    def file_of(self, entry: str) -> Path:
+        """The absolute path of an entry's part file."""
+        return self.root / entry
+
+    def png(self, entry: str) -> bytes:
+        """The thumbnail of the entry with relative path ``entry`` (LoadError if unreadable)."""
+        absolute = self.file_of(entry)
+        return self.cache.png(absolute, self._digest(entry, absolute))
+
+    def _digest(self, entry: str, absolute: Path) -> str | None:
+        i = int(np.searchsorted(self._paths, entry))
+        if i >= len(self._paths) or self._paths[i] != entry:
+            return None
+        try:
+            stat = os.stat(absolute)
+        except OSError:
+            return None
+        digest = self._hash[i]
+        digest = digest.decode() if isinstance(digest, bytes) else str(digest)
+        if stat.st_size == int(self._size[i]) and stat.st_mtime_ns == int(self._mtime[i]) and len(digest) == 64:
+            return digest
+        return None  # changed since the build: hash it again

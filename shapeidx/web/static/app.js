@@ -1,0 +1,243 @@
+// shapeidx serve: the page. Views by URL hash: #/query?id=..., #/compare?a=...&b=..., #/browse?...
+"use strict";
+
+const QUERY_COLOUR = "#1f77b4", HIT_COLOUR = "#d62728", XMAX = 3.0, BINS_PER_MEAN = 50;
+const HISTOGRAMS = ["all", "in", "out", "mixed"];
+const METRIC_TITLES = {all: "ALL (plain D2)", avg3: "AvgOf3", avg4: "AvgOf4", weighted: "Weighted", combined: "combined"};
+const state = {info: null, cache: new Map()};
+
+function h(tag, attrs, ...children) {
+  const el = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs || {})) {
+    if (v === null || v === undefined || v === false) continue;
+    if (k === "text") el.textContent = v;
+    else if (k.startsWith("on")) el.addEventListener(k.slice(2), v);
+    else if (k === "dataset") Object.assign(el.dataset, v);
+    else el.setAttribute(k, v);
+  }
+  for (const c of children.flat()) if (c !== null && c !== undefined) el.append(c);
+  return el;
+}
+
+function svg(tag, attrs) {
+  const el = document.createElementNS("http://www.w3.org/2000/svg", tag);
+  for (const [k, v] of Object.entries(attrs || {})) el.setAttribute(k, v);
+  return el;
+}
+
+async function api(url, options) {
+  const response = await fetch(url, options);
+  let body;
+  try { body = await response.json(); } catch (e) { body = {error: `${response.status} ${response.statusText}`}; }
+  if (!response.ok) throw new Error(body.error || `${response.status} ${response.statusText}`);
+  return body;
+}
+
+function showError(message) {
+  const el = document.getElementById("error");
+  el.textContent = message;
+  el.hidden = false;
+}
+function clearError() { document.getElementById("error").hidden = true; }
+function busy(on) { document.getElementById("busy").hidden = !on; }
+
+function params() { return new URLSearchParams(location.hash.split("?")[1] || ""); }
+function metricValue() { return document.getElementById("metric").value || "weighted"; }
+function topValue() { return document.getElementById("top").value || "10"; }
+function go(view, values) { location.hash = `#/${view}?` + new URLSearchParams(values).toString(); }
+
+function pct(x) { return (100 * x).toFixed(1) + "%"; }
+function fractions(fr) {
+  const bar = h("div", {class: "bar"});
+  for (const c of ["in", "out", "mixed"]) { const s = h("span", {class: c, title: `${c.toUpperCase()} ${pct(fr[c])}`}); s.style.width = pct(fr[c]); bar.append(s); }
+  return h("div", {class: "fractions"}, `IN ${pct(fr.in)} · OUT ${pct(fr.out)} · MIXED ${pct(fr.mixed)}`, bar);
+}
+
+function thumb(src, size, alt, onclick, lazy) {
+  if (!src) return h("div", {class: "muted"}, "no picture");
+  return h("img", {class: "thumb", src, width: size, height: size, alt, title: onclick ? "query by this part" : null,
+                   loading: lazy ? "lazy" : null, onclick, dataset: {testid: "thumbnail"}});
+}
+
+// Four panels, ALL IN / OUT MIXED: each histogram's probability against distance / mean.
+function overlay(curves, panelW, panelH) {
+  const gap = 12, label = 14, width = 2 * panelW + gap, height = 2 * (panelH + label) + gap;
+  const root = svg("svg", {width, height, viewBox: `0 0 ${width} ${height}`, class: "overlay", role: "img"});
+  HISTOGRAMS.forEach((name, k) => {
+    const x0 = (k % 2) * (panelW + gap), y0 = Math.floor(k / 2) * (panelH + label + gap) + label;
+    let peak = 0;
+    for (const c of curves) for (const v of c.histograms[name].p) peak = Math.max(peak, v);
+    peak = peak * 1.05 || 1;
+    const title = svg("text", {x: x0, y: y0 - 3}); title.textContent = name.toUpperCase(); root.append(title);
+    root.append(svg("rect", {x: x0, y: y0, width: panelW, height: panelH, fill: "#fafafa", stroke: "#ddd"}));
+    for (const c of curves) {
+      const p = c.histograms[name].p, points = [];
+      for (let i = 0; i < p.length; i++) {
+        const x = (i + 0.5) / BINS_PER_MEAN;
+        if (x > XMAX) break;
+        points.push(`${(x0 + x / XMAX * panelW).toFixed(1)},${(y0 + panelH - p[i] / peak * panelH).toFixed(1)}`);
+      }
+      root.append(svg("polyline", {points: points.join(" "), fill: "none", stroke: c.colour, "stroke-width": 1.3}));
+    }
+  });
+  return root;
+}
+
+function queryCard(q, extra) {
+  return h("section", {class: "query", dataset: {testid: "query-card"}},
+    thumb(q.thumbnail, 180, q.name, null, false),
+    h("div", {}, h("h2", {text: q.name}), q.path ? h("div", {class: "path", text: q.path}) : null,
+      fractions(q.fractions), extra || null));
+}
+
+function renderQuery(result) {
+  const view = document.getElementById("view");
+  const q = result.query;
+  const info = h("div", {class: "muted"},
+    `${METRIC_TITLES[result.metric] || result.metric}, top ${result.hits.length} of ${result.entries.toLocaleString()} parts. `,
+    h("details", {}, h("summary", {text: "How the similarity words are calibrated"}), result.calibration));
+  const hits = h("div", {class: "hits", dataset: {testid: "hits"}});
+  result.hits.forEach((hit, k) => {
+    const far = hit.words === "weakly similar" || hit.words === "not similar";
+    const share = hit.share === null || hit.distance === 0 ? "" : ` (closer than ${(100 * (1 - hit.share)).toFixed(1)}% of the store's pairs)`;
+    hits.append(h("article", {class: "hit", dataset: {testid: "hit", rank: hit.rank, id: hit.id}},
+      h("div", {class: "top"}, h("span", {class: "rank", text: `#${hit.rank}`}), h("span", {class: "distance", text: `distance ${hit.distance.toPrecision(4)}`})),
+      h("div", {class: far ? "words far" : "words", text: hit.words + share}),
+      thumb(hit.thumbnail, 160, hit.id, () => go("query", {id: hit.id, metric: result.metric, top: result.top}), k >= 12),
+      h("div", {class: "path", text: hit.id}),
+      fractions(hit.fractions),
+      h("div", {class: "actions"},
+        h("button", {class: "plain", dataset: {testid: "compare"}, onclick: () => go("compare", {a: q.id, b: hit.id}), text: "compare"}))));
+  });
+  view.replaceChildren(queryCard(q, info), hits);
+}
+
+function renderCompare(result) {
+  const view = document.getElementById("view");
+  const side = (part, cls, colour) => h("div", {class: `side ${cls}`},
+    h("h3", {text: part.name}), thumb(part.thumbnail, 220, part.name, part.id.startsWith("upload:") ? null : () => go("query", {id: part.id, metric: metricValue(), top: topValue()}), false),
+    part.path ? h("div", {class: "path", text: part.path}) : null, fractions(part.fractions));
+  const rows = Object.entries(result.distances).map(([m, d]) => h("tr", {}, h("td", {text: METRIC_TITLES[m] || m}), h("td", {text: d.toPrecision(5)})));
+  view.replaceChildren(h("section", {class: "compare", dataset: {testid: "compare-view"}},
+    h("div", {class: "pair"}, side(result.a, "a"), side(result.b, "b")),
+    h("p", {class: "muted"}, "Histograms: probability against distance / mean of each set; ",
+      h("b", {text: "blue"}), " the first part, ", h("b", {text: "red"}), " the second."),
+    h("div", {class: "figures"},
+      overlay([{histograms: result.a.histograms, colour: QUERY_COLOUR}, {histograms: result.b.histograms, colour: HIT_COLOUR}], 300, 120),
+      h("table", {dataset: {testid: "distances"}}, h("tr", {}, h("th", {text: "distance"}), h("th", {text: "value"})), rows)),
+    h("div", {class: "actions"}, h("button", {class: "plain", onclick: () => history.back(), text: "back"}))));
+}
+
+function renderBrowse(data, p) {
+  const view = document.getElementById("view");
+  const limit = 50, offset = Number(p.get("offset") || 0), status = p.get("status") || "all", filter = p.get("q") || "";
+  const input = h("input", {type: "search", placeholder: "path contains…", value: filter});
+  const select = h("select", {id: "status-filter"}, ...["all", "ok", "failed"].map(s => h("option", {value: s, text: s, selected: s === status ? "" : null})));
+  const apply = () => go("browse", {status: select.value, q: input.value, offset: 0});
+  input.addEventListener("change", apply); select.addEventListener("change", apply);
+  const table = h("table", {dataset: {testid: "entries"}},
+    h("tr", {}, ["", "path", "status", "triangles", "IN / OUT / MIXED or reason"].map(t => h("th", {text: t}))));
+  for (const e of data.entries) {
+    const ok = e.status === "ok";
+    table.append(h("tr", {dataset: {id: e.id, status: e.status}},
+      h("td", {}, ok ? thumb(`/api/thumbnail?id=${encodeURIComponent(e.id)}`, 56, e.id, () => go("query", {id: e.id, metric: metricValue(), top: topValue()}), true) : ""),
+      h("td", {}, ok ? h("a", {href: "#/query?" + new URLSearchParams({id: e.id, metric: metricValue(), top: topValue()}), text: e.id}) : e.id),
+      h("td", {text: e.status}), h("td", {text: e.triangles >= 0 ? e.triangles.toLocaleString() : ""}),
+      ok ? h("td", {text: `${pct(e.fractions.in)} / ${pct(e.fractions.out)} / ${pct(e.fractions.mixed)}`}) : h("td", {class: "reason", text: e.reason})));
+  }
+  const pager = h("div", {class: "pager"},
+    h("button", {class: "plain", disabled: offset <= 0 ? "" : null, onclick: () => go("browse", {status, q: filter, offset: Math.max(0, offset - limit)}), text: "previous"}),
+    h("span", {text: data.total ? `${offset + 1}-${Math.min(offset + limit, data.total)} of ${data.total.toLocaleString()}` : "no entries"}),
+    h("button", {class: "plain", disabled: offset + limit >= data.total ? "" : null, onclick: () => go("browse", {status, q: filter, offset: offset + limit}), text: "next"}));
+  view.replaceChildren(h("div", {class: "filters"}, "Show", select, input), pager, table);
+}
+
+function renderIntro() {
+  const i = state.info;
+  document.getElementById("view").replaceChildren(h("section", {class: "intro"},
+    h("p", {}, `Choose or drop a part file above to find the parts of the store that look like it, or `,
+      h("a", {href: "#/browse", text: "browse the store"}), " and click any thumbnail to query by that part."),
+    i ? h("p", {class: "muted", text: `${i.ok.toLocaleString()} parts indexed, ${i.failed.toLocaleString()} failed, under ${i.root}.`}) : null));
+}
+
+async function route() {
+  clearError();
+  const view = (location.hash.split("?")[0] || "#/").slice(2);
+  const p = params();
+  if (p.get("metric")) document.getElementById("metric").value = p.get("metric");
+  if (p.get("top")) document.getElementById("top").value = p.get("top");
+  const key = location.hash;
+  busy(true);
+  try {
+    if (view === "query") {
+      const url = "/api/query?" + new URLSearchParams({id: p.get("id") || "", metric: metricValue(), top: topValue()});
+      renderQuery(state.cache.get(key) || await api(url));
+    } else if (view === "compare") {
+      renderCompare(await api("/api/compare?" + new URLSearchParams({a: p.get("a") || "", b: p.get("b") || ""})));
+    } else if (view === "browse") {
+      const url = "/api/entries?" + new URLSearchParams({offset: p.get("offset") || 0, limit: 50, status: p.get("status") || "all", q: p.get("q") || ""});
+      renderBrowse(await api(url), p);
+    } else {
+      renderIntro();
+    }
+  } catch (e) {
+    showError(e.message);
+  } finally {
+    busy(false);
+  }
+}
+
+async function upload(file) {
+  clearError();
+  if (!file) { showError("choose a part file first"); return; }
+  if (state.info && file.size > state.info.max_upload) {
+    showError(`${file.name}: ${file.size.toLocaleString()} bytes is over the upload limit of ${state.info.max_upload.toLocaleString()} bytes`);
+    return;
+  }
+  const form = new FormData();
+  form.append("file", file, file.name);
+  form.append("top", topValue());
+  form.append("metric", metricValue());
+  busy(true);
+  try {
+    const result = await api("/api/query", {method: "POST", body: form});
+    const key = "#/query?" + new URLSearchParams({id: result.query.id, metric: result.metric, top: result.top});
+    state.cache.clear();
+    state.cache.set(key, result);
+    if (location.hash === key) renderQuery(result); else location.hash = key;
+  } catch (e) {
+    showError(e.message);
+  } finally {
+    busy(false);
+  }
+}
+
+function requery() {
+  const p = params();
+  const view = (location.hash.split("?")[0] || "#/").slice(2);
+  if (view === "query" && p.get("id")) go("query", {id: p.get("id"), metric: metricValue(), top: topValue()});
+}
+
+async function start() {
+  const select = document.getElementById("metric");
+  try {
+    state.info = await api("/api/store");
+    for (const m of state.info.metrics) select.append(h("option", {value: m, text: METRIC_TITLES[m] || m}));
+    select.value = "weighted";
+    document.getElementById("store-info").textContent =
+      `${state.info.store}: ${state.info.ok.toLocaleString()} parts, ${state.info.failed.toLocaleString()} failed`;
+  } catch (e) {
+    showError(`cannot read the store: ${e.message}`);
+  }
+  document.getElementById("upload-form").addEventListener("submit", (ev) => { ev.preventDefault(); upload(document.getElementById("file").files[0]); });
+  select.addEventListener("change", requery);
+  document.getElementById("top").addEventListener("change", requery);
+  const drop = document.getElementById("drop");
+  drop.addEventListener("dragover", (ev) => { ev.preventDefault(); drop.classList.add("over"); });
+  drop.addEventListener("dragleave", () => drop.classList.remove("over"));
+  drop.addEventListener("drop", (ev) => { ev.preventDefault(); drop.classList.remove("over"); upload(ev.dataTransfer.files[0]); });
+  window.addEventListener("hashchange", route);
+  route();
+}
+
+start();
