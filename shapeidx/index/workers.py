@@ -117,6 +117,7 @@ def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
         return Outcome(task, "same", size=size, mtime_ns=mtime)
     try:
         solid = solid_of_file(task.absolute, LoadLimits(root=Path(root), faceting=params.faceting))
+        check_signature_headroom(task.absolute, len(solid.faces))
         signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor)
         entry = Entry.indexed(task.path, digest, size, mtime, signature, solid.describe())
         kind = "indexed"
@@ -132,6 +133,59 @@ def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
         reason = one_line(f"internal error: {type(exc).__name__}: {exc}")
         entry, kind = Entry.failed(task.path, digest, size, mtime, reason), "failed"
     return Outcome(task, kind, entry, size, mtime, time.monotonic() - started)
+
+
+#: What a signature allocates beyond the solid, mostly Embree's, which aborts the process
+#: instead of failing cleanly when an allocation is refused: per triangle, plus a fixed part,
+#: larger the first time (the Embree device and its threads). Measured by the lowest
+#: RLIMIT_DATA under which signatures of 180,000 and 720,000 triangles still succeed:
+#: some 370 MB + 300 bytes per triangle above what cleaning left.
+SIGNATURE_BYTES_PER_TRIANGLE = 400
+SIGNATURE_BYTES_FIRST = 400 << 20
+SIGNATURE_BYTES_FIXED = 64 << 20
+
+
+def _data_bytes() -> int | None:
+    """This process's VmData (what RLIMIT_DATA counts), or None where unknown."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmData:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def check_signature_headroom(path: str, triangles: int) -> None:
+    """Raise OutOfMemory when the memory limit leaves too little for a signature of
+    ``triangles`` triangles: Embree would die with SIGSEGV on the refused allocation."""
+    try:
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_DATA)[0]
+    except (ImportError, ValueError, OSError):
+        return
+    if limit == resource.RLIM_INFINITY:
+        return
+    from ..signing.occlusion import embree_device
+
+    first = embree_device.cache_info().currsize == 0
+    need = SIGNATURE_BYTES_PER_TRIANGLE * triangles + (SIGNATURE_BYTES_FIRST if first else SIGNATURE_BYTES_FIXED)
+    used = _data_bytes()
+    if used is None or limit - used >= need:
+        return
+    try:  # give what cleaning freed back to the system, and look again
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+    used = _data_bytes() or used
+    if limit - used < need:
+        raise OutOfMemory(
+            path,
+            f"out of memory: the signature of {triangles:,} triangles needs about {need >> 20:,} MiB more, "
+            f"beyond the worker's memory limit of {limit >> 20:,} MiB (shapeidx build --worker-memory)",
+        )
 
 
 def _die_with_parent() -> None:
@@ -231,6 +285,7 @@ class _Worker:
         child.close()
         self.task: Task | None = None
         self.deadline = float("inf")
+        self.done = 0  # files this process has finished
         self.ready = False
 
     def wait_ready(self) -> None:
@@ -339,7 +394,15 @@ class WorkerPool:
             if outcome is None:
                 continue
             busy.remove(worker)
-            worker.task, worker.deadline = None, float("inf")
+            task, worker.task, worker.deadline = worker.task, None, float("inf")
+            worker.done += 1
+            if outcome.replace_worker and worker.done > 1:
+                # out of memory in a worker that still holds what earlier files freed (glibc
+                # keeps it): once more in a fresh one, so that only the file decides
+                fresh = self._replace(worker)
+                fresh.give(task, self.timeout)
+                busy.append(fresh)
+                continue
             idle.append(self._replace(worker) if lost or outcome.replace_worker else worker)
             yielded = True
             yield outcome

@@ -148,6 +148,13 @@ def check_polygon_mesh(path, mesh: PolygonMesh, limits: LoadLimits) -> None:
             f"would give {triangles:,} triangles, more than the limit of {limits.max_triangles:,}",
         )
     limits.check_memory(path, triangles, len(mesh.vertices))
+    largest = int(np.max(mesh.face_sizes))
+    if largest > limits.max_polygon_corners:
+        raise LoadError(
+            path,
+            f"has a polygon of {largest:,} corners, more than the limit of {limits.max_polygon_corners:,} "
+            f"(refused: triangulating it would take too long)",
+        )
     if not np.isfinite(mesh.vertices).all():
         raise LoadError(path, "has NaN or infinite vertex coordinates (as written, or overflowing when transformed)")
 

@@ -29,7 +29,8 @@ class LoadLimits:
         Refuse a file whose polygons (after DEF/USE and Inline expansion) would give more
         triangles than this.
     max_uncompressed_bytes : int
-        Refuse gzip data that would expand beyond this many bytes.
+        Refuse gzip data that would expand beyond this many bytes (default 256 MiB: the
+        decompressed text is held in memory, and parsing it takes several times as much).
     max_inline_depth : int
         Deepest chain of VRML Inline nodes followed.
     root : Path or None
@@ -38,6 +39,10 @@ class LoadLimits:
     faceting : Faceting or None
         Tolerances for faceting solid models (STEP, IGES); None: the defaults.
         ``max_triangles`` applies to the faceted result too.
+    max_polygon_corners : int
+        Refuse a polygon of more corners than this: triangulating a concave polygon takes
+        time that grows as the square of its corners (10,000 take half a second, 100,000
+        two minutes). Real files stay far below (the most in the shared data: 936).
     max_bytes : int
         Refuse a part whose reading and cleaning would need more memory than this, as
         estimated from its triangle and vertex counts (:meth:`estimated_bytes`) before the
@@ -48,11 +53,12 @@ class LoadLimits:
     """
 
     max_triangles: int = 50_000_000
-    max_uncompressed_bytes: int = 1 << 30
+    max_uncompressed_bytes: int = 256 << 20
     max_inline_depth: int = 8
     root: Path | None = None
     faceting: Faceting | None = None
     max_bytes: int = 4 << 30
+    max_polygon_corners: int = 20_000
 
     def estimated_bytes(self, triangles: int, vertices: int = 0) -> int:
         """Peak memory of cleaning a part of ``triangles`` triangles over ``vertices`` points.
@@ -70,9 +76,13 @@ class LoadLimits:
             counts = f"{int(triangles):,} triangles" + (f", {int(vertices):,} vertices" if vertices else "")
             raise LoadError(
                 path,
-                f"would need about {need / (1 << 30):.1f} GiB of memory ({counts}), more than the limit of "
-                f"{self.max_bytes / (1 << 30):.1f} GiB (refused as a possible bomb)",
+                f"would need about {_binary_size(need)} of memory ({counts}), more than the limit of "
+                f"{_binary_size(self.max_bytes)} (refused as a possible bomb)",
             )
+
+
+def _binary_size(n: int) -> str:
+    return f"{n / (1 << 30):.1f} GiB" if n >= 1 << 30 else f"{n / (1 << 20):.1f} MiB"
 
 
 #: Memory estimate of :meth:`LoadLimits.estimated_bytes`, per triangle and per vertex.
