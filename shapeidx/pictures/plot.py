@@ -59,8 +59,8 @@ def figure_of(named: list, title: str | None = None, divisor: int = BIN_DIVISOR,
     FigureCanvasAgg(fig)
     axes = fig.subplots(2, 2)
     fig.subplots_adjust(left=0.07, right=0.98, bottom=0.6 / height, top=1 - head_inches / height, hspace=0.3, wspace=0.18)
-    reach = _common_reach(named, divisor)
     for ax, name in zip(axes.ravel(), HISTOGRAMS):
+        reach = _common_reach(named, name, divisor)
         top = 0.0
         for k, (label, sig) in enumerate(named):
             x, p = histogram_curve(sig.histograms[name], divisor)
@@ -88,14 +88,13 @@ def figure_of(named: list, title: str | None = None, divisor: int = BIN_DIVISOR,
     return fig
 
 
-def _common_reach(named: list, divisor: int) -> float:
-    """Distance / mean below which 99.9% of every histogram of every part lies (the x range)."""
+def _common_reach(named: list, name: str, divisor: int) -> float:
+    """Distance / mean below which 99.9% of histogram ``name`` of every part lies (a panel's x range)."""
     reach = 2.0
     for _, sig in named:
-        for h in sig.histograms.values():
-            p = h.p
-            if len(p):
-                reach = max(reach, (int(np.searchsorted(np.cumsum(p), 0.999)) + 1) / divisor)
+        p = sig.histograms[name].p
+        if len(p):
+            reach = max(reach, (int(np.searchsorted(np.cumsum(p), 0.999)) + 1) / divisor)
     return min(reach * 1.03, 6.0)
 
 
