@@ -34,6 +34,8 @@ from .layout import (
     write_columns,
     write_counts,
     write_paths,
+    write_int64,
+    checked,
 )
 from .reader import StoreReader, check_params, check_root, open_store
 
@@ -196,8 +198,8 @@ class StoreWriter:
             for name, (flat, lengths) in counts.items():
                 write_counts(f, name, flat, lengths)
             write_paths(f, "touched/path", [t[0] for t in touched])
-            f.create_dataset("touched/size", data=np.array([t[1] for t in touched], dtype=np.int64))
-            f.create_dataset("touched/mtime_ns", data=np.array([t[2] for t in touched], dtype=np.int64))
+            write_int64(f, "touched/size", [t[1] for t in touched])
+            write_int64(f, "touched/mtime_ns", [t[2] for t in touched])
             write_paths(f, "removed/path", sorted(batch.removed))
 
         write_atomically(folder / f"batch-{seq:010d}.h5", fill)
@@ -242,8 +244,9 @@ def _write_snapshot(f: h5py.File, reader: StoreReader, attrs: dict) -> None:
             mine = reader.source == source_index
             lengths[mine] = np.diff(source.offsets(name))[reader.row[mine]]
         offsets = offsets_of(lengths)
-        f.create_dataset(f"histograms/{name}/offsets", data=offsets)
-        counts = f.create_dataset(f"histograms/{name}/counts", shape=(int(offsets[-1]),), dtype=COUNT_DTYPE)
+        f.create_dataset(f"histograms/{name}/offsets", data=offsets, **checked(offsets.shape))
+        total = (int(offsets[-1]),)
+        counts = f.create_dataset(f"histograms/{name}/counts", shape=total, dtype=COUNT_DTYPE, **checked(total, counts=True))
         for start in range(0, len(reader), MERGE_ROWS):
             rows = np.arange(start, min(start + MERGE_ROWS, len(reader)))
             flat, _ = reader.counts(name, rows)
