@@ -510,8 +510,10 @@ METRIC_LABELS = {"all": "ALL (plain D2)", "avg3": "AvgOf3", "avg4": "AvgOf4", "w
 @click.option("--points", type=click.IntRange(2, 8192), help="Surface samples for a new store [default: 1024].")
 @click.option("--workers", "-j", type=click.IntRange(1), help="Worker processes for the build [default: one per core].")
 @click.option("--quiet", "-q", is_flag=True, help="No build progress.")
+@click.option("--follow-outside-links", is_flag=True, help="Also follow symbolic links that lead out of DIRECTORY.")
 @format_options
-def evaluate(directory, store, metrics, per_class, cross_validate, points, workers, quiet, output_format, as_json):
+def evaluate(directory, store, metrics, per_class, cross_validate, points, workers, quiet, follow_outside_links,
+             output_format, as_json):
     """Retrieval quality on DIRECTORY, whose sub-folders are the classes: NN, FT, ST, E, DCG.
 
     Figures of the combined metric on the collection its weights were learned on are
@@ -529,10 +531,11 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
 
     fmt = chosen_format(output_format, as_json)
     store_path = _store_path(store)
-    check_labelled_tree(directory)  # before a store appears in the working directory
+    check_labelled_tree(directory, follow_outside_links)  # before a store appears in the working directory
     reporter = BuildReporter(quiet=quiet)
     try:
-        run_build(directory, store_path, BuildOptions(points=points, workers=workers or 0), reporter)
+        options = BuildOptions(points=points, workers=workers or 0, follow_outside_links=follow_outside_links)
+        run_build(directory, store_path, options, reporter)
     finally:
         reporter.close()
     with open_store(store_path) as reader:

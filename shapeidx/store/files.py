@@ -32,10 +32,28 @@ def write_atomically(final: Path, fill) -> None:
             fill(f)
         _fsync_path(tmp)
         os.replace(tmp, final)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
+    except BaseException as exc:
+        _unlink_quietly(tmp)
+        reason = _environment_reason(exc)
+        if reason is not None:  # disk full, read-only, quota: the old files are untouched
+            from ..errors import StoreError
+
+            raise StoreError(f"cannot write {final}: {reason} (nothing was changed: the store is as it was)") from None
         raise
     _fsync_path(final.parent)
+
+
+def _unlink_quietly(path: Path) -> None:
+    try:
+        path.unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
+def _environment_reason(exc: BaseException) -> str | None:
+    from ..oserrors import environment_reason
+
+    return environment_reason(exc)
 
 
 def _fsync_path(path: Path) -> None:
