@@ -254,6 +254,7 @@ def _check_totals(scan: FileScan, points: int | None) -> None:
     if points is None or "entries/status" not in scan.columns or len(scan.counts) != len(HISTOGRAMS):
         return
     ok = np.flatnonzero(scan.columns["entries/status"] == STATUS_OK)
+    ok = ok[~np.isin(ok, np.fromiter(scan.bad_rows, dtype=np.int64, count=len(scan.bad_rows)))]  # already known bad
     if len(ok) == 0:
         return
     sums = {}
@@ -339,6 +340,25 @@ def _file_hash(path: str) -> str:
     return digest.hexdigest()
 
 
+def refuse_damaged(store: Path) -> None:
+    """Raise the one-line :class:`StoreDamagedError` if the store's main file fails a check.
+
+    ``build`` calls this before it changes anything (journal batches are verified whenever a
+    store is opened). It reads the whole main file once: about a second per 100 MB.
+    """
+    from .reader import damaged
+
+    store = Path(store)
+    if not store.exists():
+        return
+    _, points, attrs = _store_files(store)
+    scan = scan_file(store, 0, points)
+    if scan.problems:
+        first = scan.problems[0]
+        more = f" and {len(scan.problems) - 1} more" if len(scan.problems) > 1 else ""
+        raise damaged(store, f"{first.what}: {first.problem}{more}", attrs.get("root"))
+
+
 def repair_store(store: Path) -> list[str]:
     """Make a damaged store usable again by dropping what is damaged; returns what was done.
 
@@ -392,7 +412,7 @@ def _rewrite_main(store: Path, scan: FileScan, keep: np.ndarray, attrs: dict) ->
         for name, (values, lengths) in counts.items():
             write_counts(f, name, values, lengths)
 
-    write_atomically(store, fill)
+    write_atomically(store, fill, store.stat().st_size)
 
 
 def _first_line(exc: BaseException) -> str:

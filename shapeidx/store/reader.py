@@ -19,7 +19,7 @@ from ..errors import StoreDamagedError, StoreError
 from ..ragged import offsets_of, take_ragged
 from ..signing.histogram import Histogram, Signature
 from ..signing.parameters import HISTOGRAMS
-from .files import batch_files
+from .files import batch_files, journal_dir, lock_path
 from .layout import (
     CONTENT_HASH,
     COUNT_DTYPE,
@@ -353,6 +353,9 @@ def open_store(path: str | os.PathLike, attempts: int = 20) -> StoreReader:
                 return StoreReader(path, main, batches, skipped)
         except FileNotFoundError:  # a batch went: a merge finished meanwhile
             pass
+        except (OSError, RuntimeError, KeyError, ValueError) as exc:  # HDF5 metadata that cannot be read
+            _close_all([main, *batches])
+            raise damaged(path, f"the main file's metadata cannot be read: {_first_line(exc)}") from None
         except BaseException:
             _close_all([main, *batches])
             raise
@@ -373,7 +376,8 @@ def _open_main(path: Path) -> _SourceFile:
     except OSError as exc:
         if not path.exists():
             raise StoreError(f"no store at {path} (run 'shapeidx build DIR' first, or give --store)") from None
-        if path.stat().st_size == 0 or _signature_missing(path):
+        was_a_store = lock_path(path).exists() or journal_dir(path).exists()
+        if path.stat().st_size == 0 or (_signature_missing(path) and not was_a_store):
             raise StoreError(f"{path} is not a shapeidx store (not an HDF5 file)") from None
         raise damaged(path, f"the main file cannot be opened: {_first_line(exc)}") from None
 

@@ -153,11 +153,12 @@ class StoreWriter:
         self.lock = StoreLock(self.path)
         self.lock.acquire(wait, on_wait, wait_timeout)
         try:
-            if repair:
-                from .check import repair_store
+            from .check import refuse_damaged, repair_store
 
+            if repair:
                 for line in repair_store(self.path):
                     self.on_warning(line)
+            refuse_damaged(self.path)  # with the lock held: no merge can change it meanwhile
             self._prepare()
         except BaseException:
             self.lock.release()
@@ -246,7 +247,7 @@ class StoreWriter:
             write_int64(f, "touched/mtime_ns", [t[2] for t in touched])
             write_paths(f, "removed/path", sorted(batch.removed))
 
-        write_atomically(folder / f"batch-{seq:010d}.h5", fill)
+        write_atomically(folder / f"batch-{seq:010d}.h5", fill, _bytes_of(columns, counts, batch))
         self.next_seq += 1
         return seq
 
@@ -261,7 +262,9 @@ class StoreWriter:
                 return
             through = max(source.seq for source in reader._sources)
             attrs = self._main_attrs(through, {"created": reader.attrs.get("created", utc_now())})
-            write_atomically(self.path, lambda f: _write_snapshot(f, reader, attrs))
+            # the merged file holds no more than the files it merges (and their checksums)
+            estimate = int(reader.size_on_disk() * 1.1)
+            write_atomically(self.path, lambda f: _write_snapshot(f, reader, attrs), estimate)
         self.merged_seq = through
         for seq, batch in batch_files(self.path):
             if seq <= through:
@@ -276,6 +279,15 @@ class StoreWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _bytes_of(columns: dict, counts: dict, batch: Batch) -> int:
+    """A generous estimate of a batch file's size."""
+    total = sum(len(str(v)) + 16 for name in ("entries/path", "entries/reason") for v in columns[name])
+    total += sum(a.nbytes for name, a in columns.items() if a.dtype != object)
+    total += sum(flat.nbytes + 8 * (len(lengths) + 1) for flat, lengths in counts.values())
+    total += sum(len(t[0]) + 40 for t in batch.touched) + sum(len(p) + 24 for p in batch.removed)
+    return 2 * total
 
 
 def _write_snapshot(f: h5py.File, reader: StoreReader, attrs: dict) -> None:
