@@ -71,6 +71,8 @@ class BuildSummary:
     def line(self) -> str:
         return f"{self.indexed} indexed, {self.unchanged} unchanged, {self.removed} removed, {self.failed} failed"
 
+    root: str = ""
+
     def to_dict(self, store: Path, dry_run: bool = False) -> dict:
         """What ``shapeidx build --json`` prints."""
         return {
@@ -82,7 +84,7 @@ class BuildSummary:
             "removed": self.removed,
             "failed": self.failed,
             "seconds": round(self.seconds, 3),
-            "store": {"path": str(store), "ok": self.store_ok, "failed": self.store_failed, "bytes": self.store_bytes},
+            "store": {"path": str(store), "root": self.root, "ok": self.store_ok, "failed": self.store_failed, "bytes": self.store_bytes},
             "failures": [{"path": path, "reason": reason} for path, reason in self.failures],
         }
 
@@ -131,7 +133,7 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     check_tree(given, root)
     store = Path(store)
     params = resolve_params(store, options)
-    summary = BuildSummary()
+    summary = BuildSummary(root=str(root))
     if options.dry_run:
         return _dry_run(root, store, params, options, reporter, summary)
     walk = walk_parts(root, options.follow_outside_links)
