@@ -9,6 +9,8 @@
 
 from __future__ import annotations
 
+import os
+import re
 import signal
 import threading
 import time
@@ -155,6 +157,7 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         try:
             for outcome in pool.run(plan.tasks):
                 if outcome is not None:
+                    _redact_outside(outcome, root)
                     _count(summary, outcome)
                     committer.add(outcome)
                     reporter.outcome(outcome)
@@ -212,6 +215,23 @@ def _dry_run(root: Path, store: Path, params: StoreParams, options, reporter, su
     summary.removed = len(plan.removed)
     reporter.planned(plan)
     return summary
+
+
+_QUOTED = re.compile(r"""'[^']*'|"[^"]*"|`[^`]*`""")
+
+
+def _redact_outside(outcome: Outcome, root: Path) -> None:
+    """A failure reason of a file outside the tree (--follow-outside-links) quotes none of its content.
+
+    Reasons quote what they found ("unexpected 'root:x:0:0:...'"); the store and the log may
+    be read by people who may not read the files a link points to.
+    """
+    if outcome.kind != "failed" or outcome.entry is None:
+        return
+    real = os.path.realpath(outcome.task.absolute)
+    if real == str(root) or real.startswith(str(root).rstrip(os.sep) + os.sep):
+        return
+    outcome.entry.reason = _QUOTED.sub("'...'", outcome.entry.reason) + " (outside the indexed folder: quotes left out)"
 
 
 def _count(summary: BuildSummary, outcome: Outcome) -> None:

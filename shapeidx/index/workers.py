@@ -72,7 +72,9 @@ def file_hash(path: str) -> str:
 
 def one_line(text: str) -> str:
     """A reason on one line, of bounded length."""
-    text = " ".join(str(text).split())
+    from ..console.text import plain_reason
+
+    text = plain_reason(text)  # no b'...' reprs, no control characters
     return text if len(text) <= _REASON_LIMIT else text[: _REASON_LIMIT - 3] + "..."
 
 
