@@ -1,64 +1,123 @@
-"""The ``shapeidx`` command: click commands only; the work is in the library."""
+"""The ``shapeidx`` command: click commands only; the work is in the library.
+
+Start-up stays fast (``--version`` and ``--help`` import click and :mod:`shapeidx.console`
+only): each command imports the library it needs inside its body.
+"""
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 
 import click
 
 from . import __version__
-from .errors import ShapeidxError
-from .system import available_cores, keep_freed_memory
-from .index.build import BuildOptions, run_build
-from .index.commit import DEFAULT_COMMIT_INTERVAL, MERGE_AFTER
-from .distance import METRICS
-from .api import load, signature as signature_of
-from .signing.parameters import DEFAULT_POINTS, DEFAULT_SEED
-from .index.progress import BuildReporter, duration
-from .ranking import query_store
-from .store import DEFAULT_STORE, STORE_ENV, describe_store, open_store, resolve_store_path
-from .index.workers import DEFAULT_TIMEOUT
+from .console import exits
+from .console.output import chosen_format, emit_json, emit_rows, format_options, quiet_broken_pipe
+from .console.params import (
+    DEFAULT_COMMIT_INTERVAL,
+    DEFAULT_POINTS,
+    DEFAULT_SEED,
+    DEFAULT_STORE,
+    DEFAULT_TIMEOUT,
+    MAX_SEED,
+    MERGE_AFTER,
+    METRICS,
+    STORE_ENV,
+    FiniteFloat,
+)
+from .console.text import plain_reason
+from .errors import printable
+
+CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
+
+
+def _error_line(exc: BaseException) -> str:
+    """One line for an error that ends the command (see :mod:`shapeidx.console.exits`)."""
+    from .errors import ShapeidxError
+
+    if isinstance(exc, ShapeidxError):
+        return f"shapeidx: error: {plain_reason(exc)}"
+    reason = exits.environment_reason(exc)
+    where = getattr(exc, "filename", None)
+    if where is None:
+        import re
+
+        match = re.search(r"filename = '([^']*)'", str(exc))
+        where = match.group(1) if match else None
+    where = f"{printable(where)}: " if where else ""
+    return f"shapeidx: error: {where}{reason}"
 
 
 class _Group(click.Group):
-    """Turns every shapeidx error into one line on stderr and exit status 1, never a traceback."""
+    """Every error becomes one line on stderr and the status of docs/cli.md, never a traceback."""
 
     def invoke(self, ctx):
+        from .errors import ShapeidxError
+
         try:
             return super().invoke(ctx)
-        except ShapeidxError as exc:
-            click.echo(f"shapeidx: error: {exc}", err=True)
-            ctx.exit(1)
         except (click.exceptions.Exit, click.ClickException, click.Abort):
             raise
+        except BrokenPipeError:  # the reader went away (| head): not an error
+            quiet_broken_pipe()
+            ctx.exit(exits.OK)
         except KeyboardInterrupt:
             click.echo("shapeidx: interrupted", err=True)
-            ctx.exit(130)
-        except Exception as exc:  # a bug: one line, unless debugging is asked for
-            if os.environ.get("SHAPEIDX_DEBUG"):
+            ctx.exit(exits.INTERRUPTED)
+        except ShapeidxError as exc:
+            click.echo(_error_line(exc), err=True)
+            ctx.exit(exits.status_of(exc))
+        except Exception as exc:
+            if exits.environment_reason(exc) is not None and not os.environ.get("SHAPEIDX_DEBUG"):
+                click.echo(_error_line(exc), err=True)
+                ctx.exit(exits.ERROR)
+            if os.environ.get("SHAPEIDX_DEBUG"):  # a bug: one line, unless debugging is asked for
                 raise
-            click.echo(f"shapeidx: internal error: {type(exc).__name__}: {exc} (set SHAPEIDX_DEBUG=1 for details)", err=True)
-            ctx.exit(2)
+            message = plain_reason(f"{type(exc).__name__}: {exc}")
+            click.echo(f"shapeidx: internal error: {message} (set SHAPEIDX_DEBUG=1 for details)", err=True)
+            ctx.exit(exits.INTERNAL)
+
+    def main(self, *args, **kwargs):
+        try:
+            return super().main(*args, **kwargs)
+        except BrokenPipeError:  # while click itself wrote (--help | head -1)
+            quiet_broken_pipe()
+            sys.exit(exits.OK)
 
 
-@click.group(cls=_Group)
-@click.version_option(__version__, prog_name="shapeidx")
-def main():
-    """Search CAD parts by shape: IN/OUT/MIXED D2 shape distributions (Ip et al. 2002)."""
+@click.group(cls=_Group, invoke_without_command=True, context_settings=CONTEXT)
+@click.version_option(__version__, "--version", "-V", prog_name="shapeidx")
+@click.pass_context
+def main(ctx):
+    """Search CAD parts by shape: IN/OUT/MIXED D2 shape distributions (Ip et al. 2002).
+
+    \b
+    Example:
+      shapeidx build parts/ --store parts.h5
+      shapeidx query bracket.stl --store parts.h5 --top 5
+
+    \b
+    Exit status: 0 ok, 1 error (bad file, unusable store, disk full), 2 usage error,
+    3 build --strict found failed files, 4 store locked by another build, 5 store damaged,
+    70 internal error (SHAPEIDX_DEBUG=1 shows the traceback), 130 interrupted.
+    Shell completion: eval "$(_SHAPEIDX_COMPLETE=bash_source shapeidx)" (zsh_source, fish_source).
+    """
+    if ctx.invoked_subcommand is None:
+        click.echo(ctx.get_help())
+        ctx.exit(exits.OK)
+    from .system import keep_freed_memory
+
     keep_freed_memory()
-
-
-def _emit_json(data) -> None:
-    click.echo(json.dumps(data, indent=2))
 
 
 points_option = click.option(
     "--points", default=DEFAULT_POINTS, show_default=True, type=click.IntRange(2, 8192), help="Surface samples."
 )
-seed_option = click.option("--seed", default=DEFAULT_SEED, show_default=True, type=int, help="Sampling seed.")
-json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+seed_option = click.option(
+    "--seed", default=DEFAULT_SEED, show_default=True, type=click.IntRange(0, MAX_SEED), help="Sampling seed (>= 0)."
+)
+json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable output (docs/cli.md).")
 
 
 def _deflection_options(defaults: bool):
@@ -83,12 +142,20 @@ def _deflection_options(defaults: bool):
     return decorate
 
 
-@main.command()
-@click.argument("file", type=click.Path(path_type=str))
+@main.command(context_settings=CONTEXT)
+@click.argument("file")
 @_deflection_options(defaults=True)
 @json_option
 def inspect(file, linear_deflection, angular_deflection, as_json):
-    """What the loader sees in FILE: size, shells, watertightness, warnings (and faceting, for STEP/IGES)."""
+    """What the loader sees in FILE: size, shells, watertightness, warnings (and the
+    faceting, for STEP and IGES: tolerances, triangles, measured chordal error).
+
+    \b
+    Example:
+      shapeidx inspect bracket.stl
+      shapeidx inspect bracket.stl --json | jq .triangles
+    """
+    from .api import load
     from .io import LoadLimits
     from .io.faceting import Faceting
 
@@ -99,10 +166,10 @@ def inspect(file, linear_deflection, angular_deflection, as_json):
 
         facts["faceting"] = faceting_report(file, faceting)
     if as_json:
-        _emit_json(facts)
+        emit_json(facts)
         return
     lo, hi = facts["bounds"]
-    click.echo(f"{file}")
+    click.echo(f"{printable(file)}")
     click.echo(f"  format      {facts['format']}, {facts['polygons']:,} polygons -> {facts['triangles']:,} triangles")
     click.echo(f"  area        {facts['area']:.6g}")
     volume = "n/a (not watertight)" if facts["volume"] is None else f"{facts['volume']:.6g}"
@@ -126,20 +193,28 @@ def inspect(file, linear_deflection, angular_deflection, as_json):
         click.echo(f"  warning     {warning}")
 
 
-@main.command()
-@click.argument("file", type=click.Path(path_type=str))
+@main.command(context_settings=CONTEXT)
+@click.argument("file")
 @points_option
 @seed_option
 @json_option
 def signature(file, points, seed, as_json):
-    """The IN/OUT/MIXED D2 signature of FILE."""
+    """The IN/OUT/MIXED D2 signature of FILE.
+
+    \b
+    Example:
+      shapeidx signature bracket.stl --points 512
+      shapeidx signature bracket.wrl --json > bracket.json
+    """
+    from .api import load, signature as signature_of
+
     solid = load(file)
     sig = signature_of(solid, points, seed)
     if as_json:
-        _emit_json({**sig.to_dict(), "mesh": solid.describe()})
+        emit_json({**sig.to_dict(), "mesh": solid.describe()})
         return
     fractions = sig.fractions
-    click.echo(f"{file}: {points} points, {sig.histograms['all'].total:,} pairs, seed {seed}")
+    click.echo(f"{printable(file)}: {points} points, {sig.histograms['all'].total:,} pairs, seed {seed}")
     click.echo("  " + "  ".join(f"{name.upper()} {100 * share:5.1f}%" for name, share in fractions.items()))
     for name, h in sig.histograms.items():
         click.echo(f"  {name:6s} mean {h.mean:10.4g}  bin {h.bin_width:10.4g}  {len(h.counts):4d} bins")
@@ -147,17 +222,28 @@ def signature(file, points, seed, as_json):
         click.echo("  note: not watertight; inside/outside judged by generalized winding numbers")
 
 
-@main.command()
-@click.argument("a", type=click.Path(path_type=str))
-@click.argument("b", type=click.Path(path_type=str))
+PAPER_LABELS = (("all", "ALL (plain D2)"), ("avg3", "AvgOf3"), ("avg4", "AvgOf4"), ("weighted", "Weighted"))
+
+
+@main.command(context_settings=CONTEXT)
+@click.argument("a")
+@click.argument("b")
 @points_option
 @seed_option
-@json_option
+@format_options
 @click.option("--sheet", type=click.Path(dir_okay=False, path_type=str), help="Also write an HTML sheet of the two parts.")
-def compare(a, b, points, seed, as_json, sheet):
-    """The paper's four distances between parts A and B (0 = same shape)."""
+def compare(a, b, points, seed, output_format, as_json, sheet):
+    """The paper's four distances (and combined) between parts A and B (0 = same shape).
+
+    \b
+    Example:
+      shapeidx compare a.wrl b.wrl
+      shapeidx compare a.stl b.stl --format csv
+    """
+    from .api import signature as signature_of
     from .distance import compare as distances_between
 
+    fmt = chosen_format(output_format, as_json)
     sig_a, sig_b = signature_of(a, points, seed), signature_of(b, points, seed)
     distances = distances_between(sig_a, sig_b)
     if sheet:
@@ -165,10 +251,13 @@ def compare(a, b, points, seed, as_json, sheet):
 
         compare_sheet(sheet, a, b, sig_a, sig_b, distances)
         click.echo(f"shapeidx: wrote {sheet}", err=True)
-    if as_json:
-        _emit_json({"a": a, "b": b, **distances, "fractions": {"a": sig_a.fractions, "b": sig_b.fractions}})
+    if fmt == "json":
+        emit_json({"a": a, "b": b, **distances, "fractions": {"a": sig_a.fractions, "b": sig_b.fractions}})
         return
-    for name, label in (("all", "ALL (plain D2)"), ("avg3", "AvgOf3"), ("avg4", "AvgOf4"), ("weighted", "Weighted")):
+    if fmt != "table":
+        emit_rows(fmt, ["metric", "distance"], [{"metric": m, "distance": d} for m, d in distances.items()])
+        return
+    for name, label in PAPER_LABELS:
         click.echo(f"{label:15s} {distances[name]:.6g}")
 
 
@@ -180,11 +269,10 @@ store_option = click.option(
     show_default=True,
     envvar=STORE_ENV,
     show_envvar=True,
-    type=click.Path(dir_okay=False, path_type=str),
     help="The signature store (HDF5 file).",
 )
 #: Exit status of ``build --strict`` when the store holds failed files.
-EXIT_FAILED_FILES = 3
+EXIT_FAILED_FILES = exits.FAILED_FILES
 
 
 def _size(n: int) -> str:
@@ -194,48 +282,69 @@ def _size(n: int) -> str:
         n /= 1000
 
 
-@main.command()
-@click.argument("directory", type=click.Path(file_okay=False, path_type=str))
+def _store_path(store):
+    from .store.check import usable_store_path
+
+    return usable_store_path(store)
+
+
+@main.command(context_settings=CONTEXT)
+@click.argument("directory")
 @store_option
 @click.option("--points", type=click.IntRange(2, 8192), help="Surface samples [default: the store's, else 1024].")
-@click.option("--seed", type=int, help="Sampling seed [default: the store's, else the fixed default].")
 @_deflection_options(defaults=False)
+@click.option("--seed", type=click.IntRange(0, MAX_SEED), help="Sampling seed, >= 0 [default: the store's, else the fixed default].")
 @click.option("--workers", "-j", type=click.IntRange(1), help="Worker processes [default: one per core].")
 @click.option("--full", is_flag=True, help="Recompute every file, changed or not.")
 @click.option("--rehash", is_flag=True, help="Hash every file, even when its size and time are unchanged.")
 @click.option("--retry-failed", is_flag=True, help="Try failed files again even if unchanged.")
-@click.option("--timeout", type=click.FloatRange(0), default=DEFAULT_TIMEOUT, show_default=True,
+@click.option("--timeout", type=FiniteFloat(0), default=DEFAULT_TIMEOUT, show_default=True,
               help="Seconds one file may take before it is recorded as failed (0: no limit).")
 @click.option("--worker-memory", type=click.FloatRange(0), metavar="GIB",
               help="Memory limit of each worker process in GiB; a file that needs more fails as out of memory "
                    "(0: no limit) [default: its share of 80% of the memory, at most 8].")
-@click.option("--commit-interval", type=click.FloatRange(0.05), default=DEFAULT_COMMIT_INTERVAL, show_default=True,
+@click.option("--commit-interval", type=FiniteFloat(0.05), default=DEFAULT_COMMIT_INTERVAL, show_default=True,
               help="Seconds between commits: the most work a crash can lose.")
 @click.option("--wait", is_flag=True, help="If another build holds the store, wait for it instead of exiting.")
+@click.option("--wait-timeout", type=FiniteFloat(0), metavar="SECONDS",
+              help=f"Wait at most this long for another build's lock (implies --wait), then exit {exits.LOCKED}.")
 @click.option("--strict", is_flag=True, help=f"Exit with status {EXIT_FAILED_FILES} if the store holds failed files.")
-@click.option("--quiet", "-q", is_flag=True, help="Print nothing but warnings and errors.")
+@click.option("--repair", is_flag=True, help="Rebuild the damaged entries of a damaged store (see shapeidx check).")
+@click.option("--follow-outside-links", is_flag=True,
+              help="Also follow symbolic links that lead out of DIRECTORY (not followed by default).")
+@click.option("--quiet", "-q", is_flag=True, help="Print only warnings, errors and files that failed for the first time.")
 @click.option("--verbose", "-v", is_flag=True, help="A line per indexed file and per commit.")
 @click.option("--dry-run", is_flag=True, help="Only say what a build would do: walk and plan, change nothing.")
 @json_option
 @click.option("--merge-after", type=click.IntRange(1), default=MERGE_AFTER, hidden=True)
 @click.pass_context
 def build(ctx, directory, store, points, seed, linear_deflection, angular_deflection, workers, full, rehash,
-          retry_failed, timeout, worker_memory, commit_interval, wait, strict, quiet, verbose, dry_run, as_json,
-          merge_after):
-    """Index every part file under DIRECTORY into the store (incremental)."""
+          retry_failed, timeout, worker_memory, commit_interval, wait, wait_timeout, strict, repair,
+          follow_outside_links, quiet, verbose, dry_run, as_json, merge_after):
+    """Index every part file under DIRECTORY into the store (incremental).
+
+    \b
+    Example:
+      shapeidx build parts/ --store parts.h5
+      shapeidx build parts/ --store parts.h5 -q --strict   # in a crontab
+    """
+    from .index.build import BuildOptions, run_build
+    from .index.progress import BuildReporter, duration
+
     options = BuildOptions(points=points, seed=seed, workers=workers or 0, full=full, rehash=rehash,
+                           retry_failed=retry_failed, timeout=timeout, wait=wait or wait_timeout is not None,
+                           wait_timeout=wait_timeout, commit_interval=commit_interval, merge_after=merge_after,
+                           dry_run=dry_run, repair=repair, follow_outside_links=follow_outside_links,
                            linear_deflection=linear_deflection, angular_deflection=angular_deflection,
-                           retry_failed=retry_failed, timeout=timeout, wait=wait,
-                           commit_interval=commit_interval, merge_after=merge_after, dry_run=dry_run,
                            worker_memory=None if worker_memory is None else int(worker_memory * (1 << 30)))
     reporter = BuildReporter(quiet=quiet, verbose=verbose)
-    store_path = resolve_store_path(store)
+    store_path = _store_path(store)
     try:
         summary = run_build(directory, store_path, options, reporter)
     finally:
         reporter.close()
     if as_json:
-        _emit_json(summary.to_dict(store_path, dry_run))
+        emit_json(summary.to_dict(store_path, dry_run))
     elif dry_run:
         click.echo(f"shapeidx build: would index {summary.planned} new or changed, {summary.unchanged} unchanged,"
                    f" remove {summary.removed} (dry run: nothing changed)")
@@ -245,42 +354,115 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
             f" store: {summary.store_ok} ok, {summary.store_failed} failed, {_size(summary.store_bytes)}"
         )
     if strict and summary.store_failed:
+        reporter.say(
+            f"exit status {EXIT_FAILED_FILES} (--strict): the store holds {summary.store_failed} failed file(s);"
+            f" 'shapeidx stats --failed --store {printable(str(store_path))}' lists them"
+        )
         ctx.exit(EXIT_FAILED_FILES)
 
 
-@main.command()
-@click.argument("file", required=False, type=click.Path(dir_okay=False, path_type=str))
+@main.command(context_settings=CONTEXT)
+@click.argument("files", nargs=-1, metavar="[FILE|DIR|-]...")
 @store_option
-@click.option("--top", "-k", default=10, show_default=True, type=click.IntRange(1), help="How many hits.")
+@click.option("--top", "-k", default=10, show_default=True, type=click.IntRange(1), help="How many hits per query.")
 @click.option("--metric", type=click.Choice(METRICS), default="weighted", show_default=True, help="The distance.")
-@click.option("--id", "entry", metavar="PATH", help="Query with an entry of the store (its path in the store).")
-@json_option
-@click.option("--sheet", type=click.Path(dir_okay=False, path_type=str),
+@click.option("--id", "entries", metavar="PATH", multiple=True,
+              help="Query with an entry of the store: its path relative to the indexed folder, or a path"
+                   " (absolute or from here) of a file inside it. May be repeated.")
+@click.option("--type", "file_type", metavar="FORMAT", help="Format of '-' (standard input): stl, obj, off, ply, vrml.")
+@click.option("--exclude-self", is_flag=True, help="Leave out the query's own entry when it is in the store.")
+@click.option("--max-distance", type=FiniteFloat(0), metavar="D", help="Leave out hits farther than D.")
+@click.option("--relative", is_flag=True, help="Print paths relative to the indexed folder (table, csv, tsv).")
+@format_options
+@click.option("--sheet", metavar="OUT.html",
               help="Also write the answer as one self-contained HTML file (thumbnails, histograms, words).")
 @click.option("--thumbnails", default=200, show_default=True, type=click.IntRange(0),
               help="With --sheet: thumbnails for the first N hits (each new one is rendered and cached).")
-def query(file, store, top, metric, entry, as_json, sheet, thumbnails):
-    """The store's parts nearest to FILE (or to --id PATH), nearest first."""
-    if (file is None) == (entry is None):
+def query(files, store, top, metric, entries, file_type, exclude_self, max_distance, relative, output_format, as_json,
+          sheet, thumbnails):
+    """The store's parts nearest to each FILE (or every part of DIR, or '-': a part on
+    standard input; or --id PATH), nearest first: one result block per query.
+
+    \b
+    Example:
+      shapeidx query bracket.stl --store parts.h5 --top 5
+      shapeidx query new-parts/ --store parts.h5 --exclude-self --format csv
+      cat part.stl | shapeidx query - --type stl --json
+      shapeidx query --id Battery/holder.wrl --max-distance 0.05
+    """
+    from .console.queries import query_inputs, result_block
+    from .errors import LoadError, ShapeidxError
+    from .ranking import query_store, resolve_entry
+    from .store import open_store
+    from .system import available_cores
+
+    fmt = chosen_format(output_format, as_json)
+    if not files and not entries:
         raise click.UsageError("give either FILE or --id PATH")
-    if sheet:
-        from .pictures.sheet import query_sheet
+    store_path = _store_path(store)
+    several = len(files) + len(entries) > 1 or any(f != "-" and os.path.isdir(f) for f in files)
+    if sheet and (several or files == ("-",)):
+        raise click.UsageError("--sheet draws one query: give one FILE or one --id PATH")
+    if sheet and (exclude_self or max_distance is not None):
+        raise click.UsageError("--sheet shows the top hits as ranked: leave out --exclude-self and --max-distance")
+    failures = 0
+    blocks = []
+    with open_store(store_path) as reader:
+        _warn_skipped(reader)
+        root = reader.attrs.get("root")
+        inputs = query_inputs(files, [resolve_entry(reader, e) for e in entries], file_type)
+        for number, item in enumerate(inputs):
+            try:
+                # a one-off query shares its ray queries among all cores
+                if sheet:  # the sheet's ranking is the answer printed too
+                    from .pictures.sheet import query_sheet
 
-        hits = query_sheet(resolve_store_path(store), sheet, file=file, entry=entry, top=top, metric=metric,
-                           thumbnails=thumbnails, threads=available_cores())
-        click.echo(f"shapeidx: wrote {sheet}", err=True)
-    else:
-        hits = query_store(resolve_store_path(store), part=file, entry=entry, top=top, metric=metric,
-                           threads=available_cores())
-    if as_json:
-        _emit_json(hits)
+                    hits = query_sheet(store_path, sheet, file=item.part, entry=item.entry, top=top, metric=metric,
+                                       thumbnails=thumbnails, threads=available_cores())
+                    click.echo(f"shapeidx: wrote {sheet}", err=True)
+                else:
+                    hits = query_store(reader, part=item.part, entry=item.entry, top=top, metric=metric,
+                                       threads=available_cores(), file_type=file_type if item.label == "-" else None,
+                                       exclude_self=exclude_self, max_distance=max_distance)
+            except (LoadError, ShapeidxError) as exc:
+                if not several:
+                    raise
+                click.echo(_error_line(exc), err=True)
+                failures += 1
+                continue
+            block = result_block(item, hits, metric, store_path, root)
+            _print_block(block, fmt, several, first=number == 0, relative=relative)
+            if fmt == "json":
+                blocks.append(block)
+    if fmt == "json":
+        emit_json(blocks if several else blocks[0])
+    if failures:
+        sys.exit(exits.ERROR)
+
+
+QUERY_COLUMNS = ["query", "rank", "distance", "path", "relative_path"]
+
+
+def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bool) -> None:
+    if fmt == "json":
         return
-    for hit in hits:
-        click.echo(f"{hit['rank']:>4}  {hit['distance']:<11.6g} {hit['path']}")
+    rows = [{"query": block["query"], **hit} for hit in block["hits"]]
+    if fmt == "jsonl":
+        emit_rows(fmt, QUERY_COLUMNS, [{**row, "metric": block["metric"]} for row in rows])
+        return
+    if relative:
+        rows = [{**row, "path": row["relative_path"]} for row in rows]
+    if fmt in ("csv", "tsv"):
+        emit_rows(fmt, QUERY_COLUMNS, rows, header=first)
+        return
+    if several:
+        click.echo(("" if first else "\n") + f"query {printable(block['query'])}")
+    for row in rows:
+        click.echo(f"{row['rank']:>4}  {row['distance']:<11.6g} {printable(row['path'])}")
 
 
-@main.command()
-@click.argument("parts", nargs=-1, type=click.Path(dir_okay=False, path_type=str))
+@main.command(context_settings=CONTEXT)
+@click.argument("parts", nargs=-1)
 @click.option("--output", "-o", required=True, type=click.Path(dir_okay=False, path_type=str),
               help="The figure: .png, .svg or .pdf.")
 @click.option("--id", "entries", multiple=True, metavar="PATH", help="An entry of --store (repeatable).")
@@ -288,10 +470,19 @@ def query(file, store, top, metric, entry, as_json, sheet, thumbnails):
 @click.option("--label", "labels", multiple=True, help="Names for the parts, in order: PARTS, then --id entries (repeatable).")
 @click.option("--title", help="A first line for the figure's title.")
 @click.option("--points", type=click.IntRange(2, 8192), help="Surface samples for PARTS [default: the store's with --id, else 1024].")
-@click.option("--seed", type=int, help="Sampling seed for PARTS [default: the store's with --id, else the fixed default].")
+@click.option("--seed", type=click.IntRange(0, MAX_SEED),
+              help="Sampling seed for PARTS [default: the store's with --id, else the fixed default].")
 def plot(parts, output, entries, store, labels, title, points, seed):
-    """The ALL, IN, OUT and MIXED histograms of PARTS (and --id entries), overlaid (the paper's Figure 3/4)."""
+    """The ALL, IN, OUT and MIXED histograms of PARTS (and --id entries), overlaid (the paper's Figure 3/4).
+
+    \b
+    Example:
+      shapeidx plot a.wrl b.wrl -o ab.png
+      shapeidx plot --id Battery/holder.wrl --id Battery/clip.wrl --store parts.h5 -o pair.pdf
+    """
+    from .api import signature as signature_of
     from .pictures.plot import check_format, labels_for, plot_signatures
+    from .store import open_store
 
     check_format(output)
     if not parts and not entries:
@@ -301,17 +492,11 @@ def plot(parts, output, entries, store, labels, title, points, seed):
     signatures = []
     if entries:
         from .pictures.similarity import signatures_of
-        from .store import STATUS_OK
 
-        with open_store(resolve_store_path(store)) as reader:
-            rows = []
-            for entry in entries:
-                i = reader.index_of(entry)
-                if i is None:
-                    raise ShapeidxError(f"no entry {entry!r} in {reader.path} (give the path relative to the indexed folder)")
-                if reader.column("entries/status")[i] != STATUS_OK:
-                    raise ShapeidxError(f"entry {entry!r} failed to index: {reader.column('entries/reason')[i]}")
-                rows.append(i)
+        from .ranking import ok_entry_row
+
+        with open_store(_store_path(store)) as reader:
+            rows = [ok_entry_row(reader, entry) for entry in entries]
             stored = signatures_of(reader, rows)
             points, seed = points or reader.params.points, reader.params.seed if seed is None else seed
     for part in parts:
@@ -323,15 +508,46 @@ def plot(parts, output, entries, store, labels, title, points, seed):
     click.echo(f"wrote {output}")
 
 
-@main.command()
+def _warn_skipped(reader) -> None:
+    for path, reason in getattr(reader, "skipped", []):
+        click.echo(f"shapeidx: warning: skipped the damaged journal batch {printable(str(path))} ({reason});"
+                   " the next build redoes its work", err=True)
+
+
+@main.command(context_settings=CONTEXT)
 @store_option
-@json_option
-def stats(store, as_json):
-    """Entries by status, parameters and size of the store."""
-    with open_store(resolve_store_path(store)) as reader:
+@click.option("--failed", "list_failed", is_flag=True, help="List every failed file with its reason.")
+@format_options
+def stats(store, list_failed, output_format, as_json):
+    """Entries by status, parameters and size of the store.
+
+    \b
+    Example:
+      shapeidx stats --store parts.h5
+      shapeidx stats --store parts.h5 --failed --format tsv
+    """
+    from .store import describe_store, open_store
+
+    fmt = chosen_format(output_format, as_json)
+    store_path = _store_path(store)
+    with open_store(store_path) as reader:
+        _warn_skipped(reader)
         facts = describe_store(reader)
-    if as_json:
-        _emit_json(facts)
+        failed = _failed_entries(reader) if list_failed else None
+    if list_failed:
+        if fmt == "json":
+            emit_json({"store": facts["store"], "root": facts["root"], "failed": failed})
+        elif fmt == "table":
+            for item in failed:
+                click.echo(f"{printable(item['path'])}: {item['reason']}")
+        else:
+            emit_rows(fmt, ["path", "relative_path", "reason"], failed)
+        return
+    if fmt == "json":
+        emit_json(facts)
+        return
+    if fmt != "table":
+        emit_rows(fmt, ["count", "reason"], facts["failure_reasons"])
         return
     p = facts["parameters"]
     click.echo(f"{facts['store']}: {_size(facts['bytes'])}, updated {facts['updated']}")
@@ -346,22 +562,32 @@ def stats(store, as_json):
         click.echo(f"  journal     {facts['journal_batches']} committed batch(es) not merged yet (a build runs or was stopped)")
     for item in facts["failure_reasons"][:5]:
         click.echo(f"  failed      {item['count']:>5}  {item['reason']}")
+    if facts["failed"]:
+        click.echo("  (shapeidx stats --failed lists every failed file)")
 
 
-@main.command()
+@main.command(context_settings=CONTEXT)
 @store_option
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on (the default: this machine only).")
 @click.option("--port", default=8765, show_default=True, type=click.IntRange(1, 65535), help="Port to listen on.")
 @click.option("--max-upload", default=64, show_default=True, type=click.IntRange(1), help="Largest part file accepted, MB.")
 def serve(store, host, port, max_upload):
-    """A local web page and JSON API over the store: query by example, compare, browse."""
+    """A local web page and JSON API over the store: query by example, compare, browse.
+
+    \b
+    Example:
+      shapeidx serve --store parts.h5                 # then open http://127.0.0.1:8765/
+      shapeidx serve --store parts.h5 --port 9000 --max-upload 200
+    """
+    from .errors import ShapeidxError
+
     try:
         import uvicorn
 
         from .web.app import StoreService, create_app
     except ImportError as exc:
         raise ShapeidxError(f"shapeidx serve needs the web extra ({exc.name} is missing): pip install 'shapeidx[web]'") from None
-    service = StoreService(resolve_store_path(store))
+    service = StoreService(_store_path(store))
     app = create_app(service, max_upload * 1024 * 1024)
     click.echo(f"shapeidx serve: {len(service.table):,} parts of {service.store} on http://{host}:{port}/ (Ctrl-C stops)")
     try:
@@ -370,47 +596,127 @@ def serve(store, host, port, max_upload):
         service.close()
 
 
-main.add_command(click.Command("info", callback=stats.callback, params=stats.params, help="Same as stats."))
+def _failed_entries(reader) -> list[dict]:
+    from .store import STATUS_FAILED
+
+    root = reader.attrs.get("root") or ""
+    status = reader.column("entries/status")
+    reasons = reader.column("entries/reason")
+    return [
+        {"path": os.path.join(root, str(p)), "relative_path": str(p), "reason": plain_reason(r)}
+        for p, r, s in zip(reader.paths, reasons, status)
+        if s == STATUS_FAILED
+    ]
+
+
+main.add_command(click.Command("info", callback=stats.callback, params=stats.params, help="Same as stats.",
+                               context_settings=CONTEXT))
+
+
+@main.command(context_settings=CONTEXT)
+@store_option
+@click.option("--files", "check_files", is_flag=True, help="Also hash every entry's file and compare with the store.")
+@format_options
+def check(store, check_files, output_format, as_json):
+    """Verify a store: structure, offsets, totals, checksums (and with --files, that every
+    entry's file still hashes the same). Exits 5 naming the first problems.
+
+    \b
+    Example:
+      shapeidx check --store parts.h5
+      shapeidx check --store parts.h5 --files --json
+    """
+    from .store.check import check_store
+
+    fmt = chosen_format(output_format, as_json)
+    report = check_store(_store_path(store), files=check_files)
+    if fmt == "json":
+        emit_json(report.to_dict())
+    elif fmt != "table":
+        emit_rows(fmt, ["file", "what", "problem"], [p.to_dict() for p in report.problems])
+    else:
+        for problem in report.problems[:20]:
+            click.echo(f"problem: {problem.line()}", err=True)
+        if len(report.problems) > 20:
+            click.echo(f"problem: ... and {len(report.problems) - 20} more (--json lists all)", err=True)
+        click.echo(report.summary())
+    if report.problems:
+        sys.exit(exits.DAMAGED)
 
 
 METRIC_LABELS = {"all": "ALL (plain D2)", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted": "Weighted", "combined": "combined"}
 
 
-@main.command()
-@click.argument("directory", type=click.Path(file_okay=False, path_type=str))
+@main.command(context_settings=CONTEXT)
+@click.argument("directory")
 @store_option
-@click.option("--metric", "metrics", multiple=True, type=click.Choice(METRICS), help="Distances to score [default: all].")
+@click.option("--metric", "metrics", multiple=True, type=click.Choice(METRICS),
+              help="A distance to score, may be repeated [default: every one]. 'all' is the paper's ALL"
+                   " distance (plain D2 of the ALL histograms), not every metric.")
 @click.option("--per-class", is_flag=True, help="Also each class's figures.")
 @click.option("--cross-validate", is_flag=True, help="Also learn the combined metric on this collection (class-wise cross-validated).")
 @click.option("--points", type=click.IntRange(2, 8192), help="Surface samples for a new store [default: 1024].")
 @click.option("--workers", "-j", type=click.IntRange(1), help="Worker processes for the build [default: one per core].")
 @click.option("--quiet", "-q", is_flag=True, help="No build progress.")
-@json_option
-def evaluate(directory, store, metrics, per_class, cross_validate, points, workers, quiet, as_json):
-    """Retrieval quality on DIRECTORY, whose sub-folders are the classes: NN, FT, ST, E, DCG."""
-    from .evaluation.evaluate import evaluate as evaluate_store
+@click.option("--follow-outside-links", is_flag=True, help="Also follow symbolic links that lead out of DIRECTORY.")
+@format_options
+def evaluate(directory, store, metrics, per_class, cross_validate, points, workers, quiet, follow_outside_links,
+             output_format, as_json):
+    """Retrieval quality on DIRECTORY, whose sub-folders are the classes: NN, FT, ST, E, DCG.
 
-    store_path = resolve_store_path(store)
+    Figures of the combined metric on the collection its weights were learned on are
+    in-sample (they flatter) and marked so; --cross-validate gives honest ones.
+
+    \b
+    Example:
+      shapeidx evaluate ../shared/data/kicad6 --store kicad6.h5
+      shapeidx evaluate labelled/ --metric weighted --metric all --format csv
+    """
+    from .evaluation.evaluate import check_labelled_tree, evaluate as evaluate_store
+    from .index.build import BuildOptions, run_build
+    from .index.progress import BuildReporter
+    from .store import open_store
+
+    fmt = chosen_format(output_format, as_json)
+    store_path = _store_path(store)
+    check_labelled_tree(directory, follow_outside_links)  # before a store appears in the working directory
     reporter = BuildReporter(quiet=quiet)
     try:
-        run_build(directory, store_path, BuildOptions(points=points, workers=workers or 0), reporter)
+        options = BuildOptions(points=points, workers=workers or 0, follow_outside_links=follow_outside_links)
+        run_build(directory, store_path, options, reporter)
     finally:
         reporter.close()
     with open_store(store_path) as reader:
         result = evaluate_store(reader, metrics or METRICS, per_class=per_class, cross_validated=cross_validate)
-    if as_json:
-        _emit_json({"collection": directory, "store": str(store_path), **result})
+    if fmt == "json":
+        emit_json({"collection": directory, "store": str(store_path), **result})
+        return
+    scores = ("nn", "ft", "st", "e", "dcg")
+    if fmt != "table":
+        rows = []
+        for name, figures in result["metrics"].items():
+            rows.append({"metric": name, "class": "", **{s: figures[s] for s in scores},
+                         "in_sample": bool(figures.get("in_sample", False))})
+            for cls, per in figures.get("per_class", {}).items():
+                rows.append({"metric": name, "class": cls, **{s: per[s] for s in scores},
+                             "in_sample": bool(figures.get("in_sample", False))})
+        emit_rows(fmt, ["metric", "class", *scores, "in_sample"], rows)
         return
     click.echo(
         f"{directory}: {result['models']} models in {result['classes']} classes, {result['points']} points"
         + (f" ({result['unlabelled']} files outside class folders left out)" if result["unlabelled"] else "")
     )
     click.echo(f"{'distance':30s} {'NN':>6s} {'FT':>6s} {'ST':>6s} {'E':>6s} {'DCG':>6s}")
-    for name, scores in result["metrics"].items():
-        label = METRIC_LABELS.get(name, name)
-        click.echo(f"{label:30s} " + " ".join(f"{scores[s]:6.3f}" for s in ("nn", "ft", "st", "e", "dcg")))
-        for cls, figures in scores.get("per_class", {}).items():
-            click.echo(f"  {cls[:28]:28s} " + " ".join(f"{figures[s]:6.3f}" for s in ("nn", "ft", "st", "e", "dcg")))
+    for name, figures in result["metrics"].items():
+        label = METRIC_LABELS.get(name, name) + (" (in-sample)" if figures.get("in_sample") else "")
+        click.echo(f"{label:30s} " + " ".join(f"{figures[s]:6.3f}" for s in scores))
+        for cls, per in figures.get("per_class", {}).items():
+            click.echo(f"  {cls[:28]:28s} " + " ".join(f"{per[s]:6.3f}" for s in scores))
+    for name, figures in result["metrics"].items():
+        if figures.get("in_sample"):
+            click.echo(f"note: {METRIC_LABELS.get(name, name)}'s weights were learned on this collection"
+                       f" ({figures['learned_on']}): its figures are in-sample and flatter it;"
+                       " --cross-validate gives out-of-sample ones")
 
 
 if __name__ == "__main__":  # pragma: no cover

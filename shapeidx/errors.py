@@ -72,3 +72,11 @@ class OutOfMemory(LoadError):
 
 class StoreError(ShapeidxError):
     """The signature store cannot be used as asked (missing, locked, other parameters, ...)."""
+
+
+class StoreLockedError(StoreError):
+    """Another build holds the store's lock (and ``--wait`` was not given, or ran out)."""
+
+
+class StoreDamagedError(StoreError):
+    """The store's files fail their checks (checksums, offsets, structure): see ``shapeidx check``."""

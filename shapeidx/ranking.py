@@ -108,6 +108,8 @@ def query_store(
     metric: str = "weighted",
     threads: int = 1,
     file_type: str | None = None,
+    exclude_self: bool = False,
+    max_distance: float | None = None,
 ) -> list[dict]:
     """Rank a store against a part, or against one of its own entries.
 
@@ -116,11 +118,16 @@ def query_store(
     store : path of the store, or an open :class:`StoreReader`
     part : a part in any form :func:`shapeidx.load` takes, or a :class:`Signature`; its
         signature is computed with the store's parameters
-    entry : a relative path already in the store (``--id``), instead of ``part``
+    entry : an entry of the store (``--id``), instead of ``part``: its path relative to the
+        store's root, or a path (absolute, or relative to the working directory) of a file
+        inside the root
     top : how many hits
     metric : one of :data:`METRICS`
     threads : threads for the query part's ray queries
     file_type : the part's format, when its name or content does not tell it
+    exclude_self : leave out the query's own entry (``entry``, or ``part`` when it is a file
+        of the store's tree)
+    max_distance : leave out hits farther than this
 
     Raises
     ------
@@ -132,13 +139,14 @@ def query_store(
     if metric not in METRICS:
         raise ValueError(f"unknown metric {metric!r}; expected one of {', '.join(METRICS)}")
     if isinstance(store, StoreReader):
-        return _query_reader(store, part, entry, top, metric, threads, file_type)
+        return _query_reader(store, part, entry, top, metric, threads, file_type, exclude_self, max_distance)
     with open_store(store) as reader:
-        return _query_reader(reader, part, entry, top, metric, threads, file_type)
+        return _query_reader(reader, part, entry, top, metric, threads, file_type, exclude_self, max_distance)
 
 
-def _query_reader(reader: StoreReader, part, entry, top, metric, threads, file_type) -> list[dict]:
-    _check_usable(reader)
+def _query_reader(reader: StoreReader, part, entry, top, metric, threads, file_type, exclude_self=False,
+                  max_distance=None) -> list[dict]:
+    check_usable(reader)
     table = SignatureTable.load(reader, METRIC_HISTOGRAMS[metric])
     if entry is not None:
         first = _entry_index(reader, table, entry)
@@ -147,7 +155,17 @@ def _query_reader(reader: StoreReader, part, entry, top, metric, threads, file_t
         signature = signature_with_params(part, reader.params, threads, file_type)
         own = entry_path_of(part, reader) if isinstance(part, (str, os.PathLike)) else None
         first = table.index_of(own) if own is not None else None
-    return top_hits(table.distances(signature, metric), table.paths, top, first)
+    distances = table.distances(signature, metric)
+    if not exclude_self and max_distance is None:
+        return top_hits(distances, table.paths, top, first)
+    keep = np.ones(len(distances), dtype=bool)
+    if exclude_self and first is not None:
+        keep[first] = False
+    if max_distance is not None:
+        keep &= distances <= max_distance
+    kept = np.flatnonzero(keep)
+    first_kept = None if first is None or not keep[first] else int(np.searchsorted(kept, first))
+    return top_hits(distances[kept], table.paths[kept], top, first_kept)
 
 
 def signature_with_params(part, params, threads: int = 1, file_type: str | None = None) -> Signature:
@@ -167,7 +185,7 @@ def signature_with_params(part, params, threads: int = 1, file_type: str | None 
     return signature_of_solid(solid, params.points, params.seed, params.bin_divisor, threads)
 
 
-def _check_usable(reader: StoreReader) -> None:
+def check_usable(reader: StoreReader) -> None:
     if reader.params.signature_version != SIGNATURE_VERSION:
         raise StoreError(
             f"store {reader.path} holds signatures of version {reader.params.signature_version}, this shapeidx"
@@ -175,11 +193,42 @@ def _check_usable(reader: StoreReader) -> None:
         )
 
 
-def _entry_index(reader: StoreReader, table: SignatureTable, entry: str) -> int:
-    i = table.index_of(entry)
-    if i is not None:
-        return i
+def resolve_entry(reader: StoreReader, entry: str | os.PathLike) -> str:
+    """The store path of ``entry``: already one, or a file path inside the store's root.
+
+    ``--id`` takes the path relative to the indexed folder (what ``query`` prints as
+    ``relative_path``) and also a path that opens from here, absolute or relative to the
+    working directory, as long as it lies inside the indexed folder.
+    """
+    text = os.fspath(entry)
+    if reader.index_of(text) is not None:
+        return text
+    inside = entry_path_of(text, reader)
+    if inside is not None and reader.index_of(inside) is not None:
+        return inside
+    return text
+
+
+def ok_entry_row(reader: StoreReader, entry: str | os.PathLike) -> int:
+    """The reader row of the ok entry ``entry`` (as :func:`resolve_entry` takes it).
+
+    Raises
+    ------
+    StoreError
+        No such entry, or the entry's file failed to index (with its reason).
+    """
+    entry = resolve_entry(reader, entry)
     j = reader.index_of(entry)
     if j is None:
-        raise StoreError(f"no entry {entry!r} in {reader.path} (give the path relative to the indexed folder)")
-    raise StoreError(f"entry {entry!r} failed to index: {reader.column('entries/reason')[j]}")
+        raise StoreError(
+            f"no entry {entry!r} in {reader.path} (give a path inside {reader.attrs.get('root')},"
+            " absolute or relative to it)"
+        )
+    if reader.column("entries/status")[j] != STATUS_OK:
+        raise StoreError(f"entry {entry!r} failed to index: {reader.column('entries/reason')[j]}")
+    return j
+
+
+def _entry_index(reader: StoreReader, table: SignatureTable, entry: str) -> int:
+    """The table position of an ok entry (``table.rows`` are the ok rows, in order)."""
+    return int(np.searchsorted(table.rows, ok_entry_row(reader, entry)))

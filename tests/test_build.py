@@ -5,6 +5,7 @@ from __future__ import annotations
 import gzip
 import os
 import pty
+import re
 import shutil
 import subprocess
 
@@ -173,7 +174,7 @@ class TestFailures:
         assert all(reason and "\n" not in reason for reason in failed.values())
         assert sum(e[0] == STATUS_OK for e in found.values()) >= 10
         assert summary_counts(result.stdout)["failed"] == len(failed)
-        assert result.stderr.count("\nfailed ") + result.stderr.startswith("failed ") == len(failed)
+        assert len(re.findall(r"^\S+ shapeidx build: failed ", result.stderr, re.M)) == len(failed)
 
     def test_strict_exit_status(self, data_dir, tmp_path):
         tree = small_kicad(data_dir, tmp_path, ["LED_SMD"])
@@ -183,10 +184,11 @@ class TestFailures:
         assert build(tree, store).exit_code == 0
         assert build(tree, store, "--strict").exit_code == 3  # still failed, though not retried
 
-    def test_the_build_itself_failing(self, tmp_path):
+    def test_the_build_itself_failing(self, data_dir, tmp_path):
         missing = cli("build", tmp_path / "nope", "--store", tmp_path / "s.h5")
         assert missing.exit_code != 0 and "nope" in missing.stderr
         (tmp_path / "t").mkdir()
+        shutil.copy(data_dir / BROKEN, tmp_path / "t" / "broken.stl")
         nowhere = cli("build", tmp_path / "t", "--store", tmp_path / "no/such/dir/s.h5")
         assert nowhere.exit_code == 1 and "no directory" in nowhere.stderr
         assert not (tmp_path / "no").exists()
@@ -202,8 +204,11 @@ class TestOutput:
         normal = build(tree, tmp_path / "b.h5")
         assert "indexed Diode_SMD/" not in normal.stderr and "failed broken.stl: " in normal.stderr
         assert "\r" not in normal.stderr  # no progress bar when not on a terminal
-        quiet = build(tree, tmp_path / "c.h5", "--quiet")
-        assert quiet.exit_code == 0 and quiet.stdout == "" and quiet.stderr == ""
+        quiet = build(tree, tmp_path / "c.h5", "--quiet")  # a file failing for the first time is news
+        assert quiet.exit_code == 0 and quiet.stdout == ""
+        assert len(quiet.stderr.splitlines()) == 1 and "shapeidx build: failed broken.stl: " in quiet.stderr
+        again = build(tree, tmp_path / "c.h5", "--quiet", "--retry-failed")  # failing again is not
+        assert again.exit_code == 0 and again.stdout == "" and again.stderr == ""
 
     def test_progress_bar_on_a_terminal(self, data_dir, tmp_path):
         tree = small_kicad(data_dir, tmp_path, ["Diode_SMD"])

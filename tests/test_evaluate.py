@@ -25,7 +25,8 @@ def collection(tmp_path_factory, data_dir):
         (root / name).symlink_to(data_dir / "kicad6" / name, target_is_directory=True)
     (root / "stray.stl").symlink_to(data_dir / "mesh-wild/trimesh-models/unit_cube.STL")
     store = tmp_path_factory.mktemp("store") / "labelled.h5"
-    result = cli("build", str(root), "--store", str(store), "--points", "256", "-q")
+    # the links lead out of the tree: followed only when asked
+    result = cli("build", str(root), "--store", str(store), "--points", "256", "-q", "--follow-outside-links")
     assert result.exit_code == 0, result.stderr
     return root, store
 
@@ -48,7 +49,7 @@ def test_scores_equal_an_independent_computation(collection):
 
 def test_cli_json_per_class_and_cross_validation(collection):
     root, store = collection
-    result = cli("evaluate", str(root), "--store", str(store), "--json", "--per-class", "--cross-validate", "-q")
+    result = cli("evaluate", str(root), "--store", str(store), "--json", "--per-class", "--cross-validate", "-q", "--follow-outside-links")
     assert result.exit_code == 0, result.stderr
     data = json.loads(result.stdout)
     assert set(data["metrics"]) == set(METRICS) | {"combined (cross-validated)"}
@@ -60,7 +61,7 @@ def test_cli_json_per_class_and_cross_validation(collection):
 
 def test_cli_table(collection):
     root, store = collection
-    result = cli("evaluate", str(root), "--store", str(store), "--metric", "weighted", "-q")
+    result = cli("evaluate", str(root), "--store", str(store), "--metric", "weighted", "-q", "--follow-outside-links")
     assert result.exit_code == 0 and "Weighted" in result.stdout and "40 models in 4 classes" in result.stdout
 
 

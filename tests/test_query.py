@@ -87,26 +87,31 @@ class TestQueryCommand:
     def test_a_file_in_the_store_is_rank_one(self, kicad_store):
         tree, store = kicad_store
         for part in sorted(tree.rglob("*.wrl"))[::7]:
-            hits = cli_json("query", part, "--store", store, "--top", "5")
-            assert hits[0]["path"] == part.relative_to(tree).as_posix()
+            answer = cli_json("query", part, "--store", store, "--top", "5")
+            assert answer["query"] == str(part) and answer["metric"] == "weighted"
+            assert answer["root"] == str(tree.resolve()) and answer["store"] == str(store.resolve())
+            hits = answer["hits"]
+            assert hits[0]["relative_path"] == part.relative_to(tree).as_posix()
+            assert hits[0]["path"] == str(tree.resolve() / hits[0]["relative_path"])
             assert hits[0]["distance"] == 0.0
             assert [h["rank"] for h in hits] == [1, 2, 3, 4, 5]
-            assert all(set(h) == {"rank", "path", "distance"} for h in hits)
+            assert all(set(h) == {"rank", "path", "relative_path", "distance"} for h in hits)
             assert [h["distance"] for h in hits] == sorted(h["distance"] for h in hits)
 
     def test_a_copy_outside_the_tree_finds_the_original(self, kicad_store, tmp_path):
         tree, store = kicad_store
         original = sorted(tree.rglob("*.wrl"))[3]
         copy = copy_tree(original.parent, tmp_path / "elsewhere", [original.name]) / original.name
-        hits = cli_json("query", copy, "--store", store, "--top", "1")
-        assert hits == [{"rank": 1, "path": original.relative_to(tree).as_posix(), "distance": 0.0}]
+        hits = cli_json("query", copy, "--store", store, "--top", "1")["hits"]
+        relative = original.relative_to(tree).as_posix()
+        assert hits == [{"rank": 1, "path": str(tree.resolve() / relative), "relative_path": relative, "distance": 0.0}]
 
     def test_id_and_metrics(self, kicad_store):
         tree, store = kicad_store
         entry = "Diode_SMD/" + sorted(p.name for p in (tree / "Diode_SMD").iterdir())[4]
         for metric in METRICS:
-            hits = cli_json("query", "--id", entry, "--store", store, "--top", "30", "--metric", metric)
-            assert hits[0]["path"] == entry and len(hits) == 30
+            hits = cli_json("query", "--id", entry, "--store", store, "--top", "30", "--metric", metric)["hits"]
+            assert hits[0]["relative_path"] == entry and len(hits) == 30
             assert [h["distance"] for h in hits] == sorted(h["distance"] for h in hits)
         weighted = cli_json("query", "--id", entry, "--store", store, "--top", "30")
         assert weighted == cli_json("query", "--id", entry, "--store", store, "--top", "30", "--metric", "weighted")
@@ -119,7 +124,9 @@ class TestQueryCommand:
         lines = result.stdout.splitlines()
         assert len(lines) == 3
         rank, distance, path = lines[0].split()
-        assert (rank, float(distance), path) == ("1", 0.0, part.relative_to(tree).as_posix())
+        assert (rank, float(distance), path) == ("1", 0.0, str(part.resolve()))
+        relative = cli("query", part, "--store", store, "--top", "1", "--relative").stdout.split()
+        assert relative == ["1", "0", part.relative_to(tree).as_posix()]
 
     def test_the_store_comes_from_the_environment(self, kicad_store):
         tree, store = kicad_store
@@ -131,7 +138,6 @@ class TestQueryCommand:
         tree, store = kicad_store
         cases = [
             (("query", "--id", "nope.wrl", "--store", store), "no entry 'nope.wrl'"),
-            (("query", tree / "Diode_SMD", "--store", store), "is a directory"),
             (("query", data_dir / "mesh-wild/trimesh-models/empty.stl", "--store", store), "empty.stl"),
             (("query", "--id", "x", "--store", tmp_path / "none.h5"), "no store at"),
             (("stats", "--store", tmp_path / "none.h5"), "no store at"),
@@ -167,7 +173,7 @@ def test_json_distances_are_compare_values(kicad_store):
     tree, store = kicad_store
     parts = sorted(tree.rglob("*.wrl"))
     query, others = parts[0], parts[1:6]
-    hits = {h["path"]: h["distance"] for h in cli_json("query", query, "--store", store, "--top", "30")}
+    hits = {h["relative_path"]: h["distance"] for h in cli_json("query", query, "--store", store, "--top", "30")["hits"]}
     for other in others:
         direct = json.loads(cli("compare", query, other, "--points", FAST_POINTS, "--json").stdout)
         assert hits[other.relative_to(tree).as_posix()] == direct["weighted"]

@@ -237,7 +237,7 @@ class TestRefusals:
         with pytest.raises(StoreError, match="no store at"):
             open_store(tmp_path / "none.h5")
         (tmp_path / "text.h5").write_text("not hdf5")
-        with pytest.raises(StoreError, match="cannot open the store"):
+        with pytest.raises(StoreError, match="is not a shapeidx store"):
             open_store(tmp_path / "text.h5")
         with h5py.File(tmp_path / "other.h5", "w") as f:
             f["x"] = 1

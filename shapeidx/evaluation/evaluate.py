@@ -31,6 +31,48 @@ class LabelledFeatures:
     unlabelled: int  # ok entries outside any class folder, left out
 
 
+def check_labelled_tree(directory, follow_outside_links: bool = False) -> None:
+    """Refuse, before any store is built, a folder that is not a labelled collection.
+
+    A labelled collection has sub-folders (the classes) of which at least one holds two part
+    files; a folder of loose files would otherwise cost a whole build and leave a store in
+    the working directory before being refused.
+    """
+    from pathlib import Path
+
+    from ..index.build import check_tree
+    from ..index.walk import walk_parts
+
+    root = Path(directory).resolve()
+    check_tree(directory, root)
+    sizes = Counter(class_of(f.path) for f in walk_parts(root, follow_outside_links).files)
+    unlabelled = sizes.pop(None, 0)
+    if not any(size > 1 for size in sizes.values()):
+        raise ShapeidxError(
+            f"{directory}: not a labelled collection: {sum(sizes.values())} part file(s) in {len(sizes)} class"
+            f" folder(s), {unlabelled} outside any; evaluate needs sub-folders (the classes) that hold at least"
+            " two part files each (nothing was built)"
+        )
+
+
+def in_sample(reader: StoreReader, models: int, classes: int) -> dict | None:
+    """``{"learned_on": name}`` when the combined metric's weights were learned on this collection.
+
+    Judged by the indexed folder's name, or its size (models and classes) equal to the
+    training collection's: figures measured on it are in-sample and flatter the metric.
+    """
+    from pathlib import PurePath
+
+    from ..distance import combined_weights
+
+    trained = combined_weights().get("trained_on", {})
+    name = trained.get("collection")
+    root = PurePath(str(reader.attrs.get("root", ""))).name
+    if name and (root == name or (trained.get("models"), trained.get("classes")) == (models, classes)):
+        return {"learned_on": name}
+    return None
+
+
 def class_of(path: str) -> str | None:
     """The class of a store path: its first folder (None for a file at the top)."""
     head, sep, _ = path.partition("/")
@@ -112,6 +154,11 @@ def evaluate(reader: StoreReader, metrics=METRICS, per_class: bool = False, cros
         if per_class:
             entry["per_class"] = per_class_scores(scores, data.labels)
         result["metrics"][name] = entry
+    if "combined" in result["metrics"]:
+        learned = in_sample(reader, result["models"], result["classes"])
+        result["metrics"]["combined"]["in_sample"] = learned is not None
+        if learned:
+            result["metrics"]["combined"].update(learned)
     if cross_validated:
         result["metrics"]["combined (cross-validated)"] = cross_validate(data.features, data.labels)
     result["queries"] = int(retrieval_scores(matrices[metrics[0]], data.labels)["queries"]) if metrics else 0

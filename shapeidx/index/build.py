@@ -9,6 +9,8 @@
 
 from __future__ import annotations
 
+import os
+import re
 import signal
 import threading
 import time
@@ -17,8 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ShapeidxError
+
 from ..io.faceting import Faceting
+from ..errors import ShapeidxError, StoreDamagedError
 from ..signing.parameters import BIN_DIVISOR, DEFAULT_POINTS, DEFAULT_SEED, SIGNATURE_VERSION
 from ..store import STATUS_FAILED, STATUS_OK, StoreParams, StoreWriter, check_params, check_root, open_store
 from ..system import available_cores
@@ -47,6 +50,12 @@ class BuildOptions:
     worker_memory: int | None = None  # bytes per worker; None: workers.default_memory_limit, 0: none
     #: Only plan: walk the tree and compare it with the store, change nothing.
     dry_run: bool = False
+    #: With ``wait``: the longest wait for another build's lock, seconds (None: no limit).
+    wait_timeout: float | None = None
+    #: Drop the damaged entries of a damaged store first (their files are indexed again).
+    repair: bool = False
+    #: Also follow symbolic links that lead out of the tree.
+    follow_outside_links: bool = False
 
 
 @dataclass
@@ -69,6 +78,8 @@ class BuildSummary:
     def line(self) -> str:
         return f"{self.indexed} indexed, {self.unchanged} unchanged, {self.removed} removed, {self.failed} failed"
 
+    root: str = ""
+
     def to_dict(self, store: Path, dry_run: bool = False) -> dict:
         """What ``shapeidx build --json`` prints."""
         return {
@@ -80,7 +91,7 @@ class BuildSummary:
             "removed": self.removed,
             "failed": self.failed,
             "seconds": round(self.seconds, 3),
-            "store": {"path": str(store), "ok": self.store_ok, "failed": self.store_failed, "bytes": self.store_bytes},
+            "store": {"path": str(store), "root": self.root, "ok": self.store_ok, "failed": self.store_failed, "bytes": self.store_bytes},
             "failures": [{"path": path, "reason": reason} for path, reason in self.failures],
         }
 
@@ -89,8 +100,13 @@ def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
     """The build's parameters: those asked, else the existing store's, else the defaults."""
     existing = None
     if store.exists():
-        with open_store(store) as reader:
-            existing = reader.params
+        try:
+            with open_store(store) as reader:
+                existing = reader.params
+        except StoreDamagedError:
+            if not options.repair:
+                raise
+            existing = _params_of_damaged(store)
     points = options.points or (existing.points if existing else DEFAULT_POINTS)
     seed = options.seed if options.seed is not None else (existing.seed if existing else DEFAULT_SEED)
     faceting = existing.faceting if existing else Faceting()
@@ -98,6 +114,17 @@ def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
     angular = options.angular_deflection or faceting.angular_deflection
     return StoreParams(points=points, seed=seed, bin_divisor=BIN_DIVISOR, signature_version=SIGNATURE_VERSION,
                        linear_deflection=linear, angular_deflection=angular)
+
+
+def _params_of_damaged(store: Path) -> StoreParams | None:
+    """The parameters a damaged store was built with, if its attributes can still be read."""
+    import h5py
+
+    try:
+        with h5py.File(store, "r") as f:
+            return StoreParams.from_attrs(f.attrs)
+    except (OSError, KeyError, ValueError):
+        return None
 
 
 def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
@@ -112,16 +139,20 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         On Ctrl-C or SIGTERM, after committing what was done.
     """
     started = time.monotonic()
+    given = root
     root = Path(root).resolve()
-    if not root.is_dir():
-        raise ShapeidxError(f"{root}: no such directory")
+    check_tree(given, root)
     store = Path(store)
     params = resolve_params(store, options)
-    summary = BuildSummary()
+    summary = BuildSummary(root=str(root))
     if options.dry_run:
         return _dry_run(root, store, params, options, reporter, summary)
-    with _sigterm_as_interrupt(), StoreWriter(store, params, root, options.wait, reporter.waiting) as writer:
-        walk = walk_parts(root)
+    walk = walk_parts(root, options.follow_outside_links)
+    _refuse_empty(given, walk)
+    with _sigterm_as_interrupt(), StoreWriter(store, params, root, options.wait, reporter.waiting,
+                                              options.wait_timeout, options.repair, reporter.warning) as writer:
+        if options.wait:  # walk again: the tree may have changed while another build held the lock
+            walk = walk_parts(root, options.follow_outside_links)
         for warning in walk.warnings:
             reporter.warning(warning)
         with open_store(store) as reader:
@@ -135,6 +166,7 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         try:
             for outcome in pool.run(plan.tasks):
                 if outcome is not None:
+                    _redact_outside(outcome, root)
                     _count(summary, outcome)
                     committer.add(outcome)
                     reporter.outcome(outcome)
@@ -150,9 +182,34 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     return summary
 
 
+def check_tree(given, root: Path) -> None:
+    """Refuse, in one line, a tree that is missing, not a directory, or cannot be listed."""
+    import os
+
+    if not root.exists():
+        raise ShapeidxError(f"{given}: no such directory")
+    if not root.is_dir():
+        raise ShapeidxError(f"{given}: not a directory (give the folder of the part files)")
+    try:
+        os.scandir(root).close()
+    except OSError as exc:
+        raise ShapeidxError(f"{given}: cannot list the directory: {exc.strerror or exc}") from None
+
+
+def _refuse_empty(given, walk) -> None:
+    """A tree without a single part file is a mistake (an unmounted share would empty the store)."""
+    if not walk.files and not walk.unlisted:
+        from ..io import suffixes
+
+        raise ShapeidxError(
+            f"{given}: no part files in this directory tree (looked for {' '.join(suffixes())}, also gzipped);"
+            " nothing was indexed or changed"
+        )
+
+
 def _dry_run(root: Path, store: Path, params: StoreParams, options, reporter, summary: BuildSummary) -> BuildSummary:
     """What a build would do, without the lock and without writing anything."""
-    walk = walk_parts(root)
+    walk = walk_parts(root, options.follow_outside_links)
     for warning in walk.warnings:
         reporter.warning(warning)
     if store.exists():
@@ -167,6 +224,23 @@ def _dry_run(root: Path, store: Path, params: StoreParams, options, reporter, su
     summary.removed = len(plan.removed)
     reporter.planned(plan)
     return summary
+
+
+_QUOTED = re.compile(r"""'[^']*'|"[^"]*"|`[^`]*`""")
+
+
+def _redact_outside(outcome: Outcome, root: Path) -> None:
+    """A failure reason of a file outside the tree (--follow-outside-links) quotes none of its content.
+
+    Reasons quote what they found ("unexpected 'root:x:0:0:...'"); the store and the log may
+    be read by people who may not read the files a link points to.
+    """
+    if outcome.kind != "failed" or outcome.entry is None:
+        return
+    real = os.path.realpath(outcome.task.absolute)
+    if real == str(root) or real.startswith(str(root).rstrip(os.sep) + os.sep):
+        return
+    outcome.entry.reason = _QUOTED.sub("'...'", outcome.entry.reason) + " (outside the indexed folder: quotes left out)"
 
 
 def _count(summary: BuildSummary, outcome: Outcome) -> None:

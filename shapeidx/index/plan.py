@@ -8,7 +8,7 @@ until they change (or ``retry_failed``, or a new shapeidx version).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from .. import __version__
 from ..store import STATUS_FAILED
@@ -24,6 +24,8 @@ class Plan:
     unchanged: int
     removed: list
     found: int
+    #: Paths of the tasks whose entries had failed (retried): failing again is not news.
+    failed_before: set = field(default_factory=set)
 
 
 def make_plan(walk: Walk, reader, options) -> Plan:
@@ -37,9 +39,11 @@ def make_plan(walk: Walk, reader, options) -> Plan:
     size, mtime = reader.column("entries/size"), reader.column("entries/mtime_ns")
     hashes, status = reader.column("entries/hash"), reader.column("entries/status")
     retry = options.retry_failed or reader.attrs.get("shapeidx_version") != __version__
-    tasks, unchanged = [], 0
+    tasks, unchanged, failed_before = [], 0, set()
     for f in walk.files:
         i = index.pop(f.path, None)
+        if i is not None and status[i] == STATUS_FAILED and size[i] == f.size and mtime[i] == f.mtime_ns:
+            failed_before.add(f.path)  # retried unchanged (--retry-failed, --full, a new version)
         if i is None or options.full:
             tasks.append(Task(f.path, f.absolute, in_store=i is not None))
             continue
@@ -53,8 +57,8 @@ def make_plan(walk: Walk, reader, options) -> Plan:
         else:  # times changed (or --rehash): same size may still be the same content
             tasks.append(Task(f.path, f.absolute, known if size[i] == f.size else None, in_store=True))
     removed = [p for p in index if not _under_any(p, walk.unlisted)]
-    return Plan(tasks, unchanged, sorted(removed), len(walk.files))
+    return Plan(tasks, unchanged, sorted(removed), len(walk.files), failed_before)
 
 
 def _under_any(path: str, folders: list) -> bool:
-    return any(folder in ("", ".") or path.startswith(folder.rstrip("/") + "/") for folder in folders)
+    return any(folder in ("", ".", path) or path.startswith(folder.rstrip("/") + "/") for folder in folders)

@@ -2,8 +2,15 @@
 
 * On a terminal: a progress bar with the rate and the time left.
 * Elsewhere (cron, a log file): plain lines, a progress line every :data:`LOG_EVERY` seconds.
-* Either way: each failed file on one line (``failed PATH: reason``), unless ``quiet``;
-  ``verbose`` adds a line per indexed file and per commit.
+* Either way: each failed file on one line (``failed PATH: reason``); ``quiet`` keeps only
+  the files that failed for the first time (a file that failed before and still fails is
+  not news); ``verbose`` adds a line per indexed file and per commit.
+
+Every line starts with ``shapeidx build:``; elsewhere than on a terminal it is preceded by a
+timestamp, so that a log of nightly runs can be read back. File names are printed with their
+control characters escaped (a newline in a name cannot forge a line) and reasons without
+Python's byte reprs. scripts/kill_build.py finds ``committed batch N (M records)`` and
+``indexed PATH (1.2s)`` anywhere in a line: keep those texts.
 """
 
 from __future__ import annotations
@@ -13,6 +20,7 @@ import time
 
 import click
 
+from ..console.text import plain_reason, timestamp
 from ..errors import printable
 
 #: Seconds between progress lines when stderr is not a terminal.
@@ -40,6 +48,8 @@ class BuildReporter:
     """
 
     def __init__(self, quiet: bool = False, verbose: bool = False, terminal: bool | None = None):
+        #: Paths that had failed before this build: their failing again is not news under ``quiet``.
+        self.failed_before: set = set()
         self.quiet = quiet
         self.verbose = verbose and not quiet
         self.terminal = sys.stderr.isatty() if terminal is None else terminal
@@ -48,9 +58,18 @@ class BuildReporter:
         self.started = self.last_line = time.monotonic()
 
     def _say(self, text: str) -> None:
+        """One line on stderr: prefixed, and timestamped when not on a terminal."""
+        if not text.startswith("shapeidx build: "):
+            text = "shapeidx build: " + text
         if self.bar is not None:
             text = "\r\033[K" + text  # over the bar, which redraws on its next step
+        elif not self.terminal:
+            text = f"{timestamp()} {text}"
         click.echo(text, err=True)
+
+    def say(self, text: str) -> None:
+        """A line the user must see, even under ``quiet`` (e.g. why --strict fails the run)."""
+        self._say(text)
 
     def waiting(self, holder: str) -> None:
         if not self.quiet:
@@ -60,6 +79,7 @@ class BuildReporter:
         self._say(f"shapeidx build: warning: {text}")
 
     def planned(self, plan) -> None:
+        self.failed_before = set(getattr(plan, "failed_before", ()))
         self.total = len(plan.tasks)
         self.started = self.last_line = time.monotonic()
         if self.quiet:
@@ -83,8 +103,8 @@ class BuildReporter:
         self.done += 1
         if outcome.kind == "failed":
             self.failed += 1
-            if not self.quiet:
-                self._say(f"failed {printable(outcome.task.path)}: {printable(outcome.entry.reason)}")
+            if not self.quiet or outcome.task.path not in self.failed_before:
+                self._say(f"failed {printable(outcome.task.path)}: {plain_reason(outcome.entry.reason)}")
         elif self.verbose and outcome.kind == "indexed":
             self._say(f"indexed {printable(outcome.task.path)} ({outcome.seconds:.1f}s)")
         if self.bar is not None:

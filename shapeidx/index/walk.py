@@ -1,8 +1,10 @@
 """Finding the part files of a tree.
 
-Walking follows symbolic links but enters each real directory once (no loops, no file
-indexed twice through two links), skips hidden folders and files, and keeps the files
-:func:`shapeidx.io.format_of` knows (also gzipped).
+Walking follows symbolic links that stay inside the tree but enters each real directory
+once (no loops, no file indexed twice through two links), skips hidden folders and files,
+and keeps the files :func:`shapeidx.io.format_of` knows (also gzipped). A link that leads out
+of the tree (to ``/etc/passwd``, to another share) is not followed unless asked
+(``follow_outside_links``): a build reads only the tree it was given.
 """
 
 from __future__ import annotations
@@ -27,18 +29,20 @@ class Walk:
     """What :func:`walk_parts` found: part files, and what it could not look at."""
 
     files: list = field(default_factory=list)
-    #: Relative folders that could not be listed: their entries must not be taken as removed.
+    #: Relative folders that could not be listed, and links not followed: their entries must
+    #: not be taken as removed.
     unlisted: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
 
 
-def walk_parts(root: Path) -> Walk:
+def walk_parts(root: Path, follow_outside_links: bool = False) -> Walk:
     """Every part file under ``root`` (see the module docstring for the rules), sorted by path.
 
     Real folders are walked before symbolically linked ones, so that a file reachable both
     ways is indexed under its real path; each real folder is entered once.
     """
     found = Walk()
+    real_root = os.path.realpath(root)
     seen: set = set()
     folders, linked = [Path(root)], []
     while folders or linked:
@@ -57,12 +61,31 @@ def walk_parts(root: Path) -> Walk:
         for child in children:
             if child.name.startswith("."):
                 continue
+            if not follow_outside_links and child.is_symlink() and not _inside(child.path, real_root):
+                if _is_folder(child) or format_of(child.name) is not None:
+                    rel = Path(child.path).relative_to(root).as_posix()
+                    found.unlisted.append(rel)  # not looked at: its entries, if any, are not removed
+                    found.warnings.append(f"skipped {_printable(rel)}: a symbolic link out of the indexed folder"
+                                          " (not followed; --follow-outside-links follows it)")
+                continue
             if _is_folder(child):
                 (linked if child.is_symlink() else folders).append(Path(child.path))
             elif format_of(child.name) is not None:
                 _add_file(found, root, Path(child.path))
     found.files.sort(key=lambda f: f.path)
     return found
+
+
+def _inside(path: str, real_root: str) -> bool:
+    """Whether ``path``, with every link resolved, lies in ``real_root``."""
+    real = os.path.realpath(path)
+    return real == real_root or real.startswith(real_root.rstrip(os.sep) + os.sep)
+
+
+def _printable(name: str) -> str:
+    from ..console.text import printable
+
+    return printable(name)
 
 
 def _is_folder(entry: os.DirEntry) -> bool:

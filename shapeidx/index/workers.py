@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import wait
 from pathlib import Path
 
-from ..errors import LoadError, OutOfMemory, ShapeidxError, printable
+from ..errors import LoadError, OutOfMemory, ShapeidxError
 from ..store import Entry, StoreParams
 
 #: Default per-file time limit, seconds: ample for a part of millions of triangles at 1024
@@ -85,8 +85,10 @@ def file_hash(path: str) -> str:
 
 
 def one_line(text: str) -> str:
-    """A reason on one line, of bounded length, without control characters."""
-    text = printable(" ".join(str(text).split()))
+    """A reason on one line, of bounded length."""
+    from ..console.text import plain_reason
+
+    text = plain_reason(text)  # no b'...' reprs, no control characters
     return text if len(text) <= _REASON_LIMIT else text[: _REASON_LIMIT - 3] + "..."
 
 

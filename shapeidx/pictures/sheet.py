@@ -288,9 +288,8 @@ def query_sheet(
     from ..errors import StoreError
     from ..api import load
     from ..io import LoadLimits
-    from ..signing.parameters import SIGNATURE_VERSION
     from ..signing.pipeline import signature_of_solid
-    from ..ranking import SignatureTable, entry_path_of, top_hits
+    from ..ranking import SignatureTable, check_usable, entry_path_of, ok_entry_row, resolve_entry, top_hits
     from ..store import open_store
     from .similarity import SimilarityScale, signatures_of
     from .thumbcache import StoreThumbnails, ThumbnailCache, cache_dir_of_store
@@ -299,18 +298,12 @@ def query_sheet(
     if not Path(output).absolute().parent.is_dir():
         raise StoreError(f"{output}: no folder {Path(output).absolute().parent} to write the sheet in")
     with open_store(store) as reader:
-        if reader.params.signature_version != SIGNATURE_VERSION:
-            raise StoreError(f"store {store} holds signatures of version {reader.params.signature_version}, this"
-                             f" shapeidx makes version {SIGNATURE_VERSION}: rebuild it")
+        check_usable(reader)
         table = SignatureTable.load(reader)
         thumbs = StoreThumbnails(reader)
         if entry is not None:
-            first = table.index_of(entry)
-            if first is None:
-                j = reader.index_of(entry)
-                if j is None:
-                    raise StoreError(f"no entry {entry!r} in {store} (give the path relative to the indexed folder)")
-                raise StoreError(f"entry {entry!r} failed to index: {reader.column('entries/reason')[j]}")
+            entry = resolve_entry(reader, entry)
+            first = int(np.searchsorted(table.rows, ok_entry_row(reader, entry)))
             signature = signatures_of(reader, table.rows[[first]])[0]
             png, note = _picture_of(lambda: thumbs.png(entry), entry)
             query = SheetPart(entry, thumbs.file_of(entry), signature, png, note)

@@ -11,6 +11,7 @@ name, flushed to disk, and renamed into place (atomic on POSIX).
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 from pathlib import Path
@@ -20,22 +21,104 @@ import h5py
 _BATCH_NAME = re.compile(r"^batch-(\d{10})\.h5$")
 
 
-def write_atomically(final: Path, fill) -> None:
+#: Bytes reserved beyond a write's estimate (HDF5's metadata, chunk indexes).
+RESERVE_MARGIN = 1 << 20
+
+
+def write_atomically(final: Path, fill, estimate: int = 0) -> None:
     """Write an HDF5 file under a temporary name, flush it to disk, rename it to ``final``.
 
     ``fill(h5file)`` writes the content. A reader sees the old file or the new one, never
-    a partial one, whenever this process is killed.
+    a partial one, whenever this process is killed. ``estimate`` (bytes the file will take
+    at most) is reserved on the disk first: a full disk, a quota or ``ulimit -f`` is then
+    refused in one line before HDF5 writes anything (HDF5 copes badly with a write that
+    fails half-way).
     """
     tmp = final.with_name(f"{final.name}.tmp-{os.getpid()}")
+    reserve_space(final, estimate + RESERVE_MARGIN)
     try:
         with h5py.File(tmp, "w", libver="latest") as f:
-            fill(f)
+            try:
+                fill(f)
+            except BaseException as exc:
+                _release(exc, f)
+                raise
         _fsync_path(tmp)
         os.replace(tmp, final)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
+    except BaseException as exc:
+        _release(exc, None)
+        _unlink_quietly(tmp)
+        reason = _environment_reason(exc)
+        if reason is not None:  # disk full, read-only, quota: the old files are untouched
+            from ..errors import StoreError
+
+            raise StoreError(f"cannot write {final}: {reason} (nothing was changed: the store is as it was)") from None
         raise
     _fsync_path(final.parent)
+
+
+def reserve_space(final: Path, nbytes: int) -> None:
+    """Make sure ``nbytes`` can be written next to ``final``: allocate them in a scratch file, free them.
+
+    Raises
+    ------
+    StoreError
+        The disk (or quota, or the file size limit) has no room: nothing was written.
+    """
+    scratch = final.with_name(f"{final.name}.reserve-{os.getpid()}")
+    try:
+        fd = os.open(scratch, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        try:
+            os.posix_fallocate(fd, 0, int(nbytes))
+        finally:
+            os.close(fd)
+    except OSError as exc:
+        reason = _environment_reason(exc)
+        if reason is None and exc.errno not in (errno.EOPNOTSUPP, errno.EINVAL):
+            raise
+        if reason is not None:
+            from ..errors import StoreError
+
+            _unlink_quietly(scratch)
+            raise StoreError(f"cannot write {final}: {reason} (needs about {nbytes / 1e6:.1f} MB;"
+                             " nothing was changed: the store is as it was)") from None
+    finally:
+        _unlink_quietly(scratch)
+
+
+def _release(exc: BaseException, f) -> None:
+    """Let go of every HDF5 object of a write that failed (a full disk), now.
+
+    The frames of the traceback keep datasets alive; released later, each would try to
+    flush to the full disk again, print "Exception ignored" tracebacks and, at exit, crash
+    HDF5. Clearing the frames and closing the file here ends the write cleanly.
+    """
+    import gc
+    import traceback
+
+    try:
+        traceback.clear_frames(exc.__traceback__)
+    except Exception:
+        pass
+    if f is not None:
+        try:
+            f.close()
+        except Exception:
+            pass
+    gc.collect()
+
+
+def _unlink_quietly(path: Path) -> None:
+    try:
+        path.unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
+def _environment_reason(exc: BaseException) -> str | None:
+    from ..oserrors import environment_reason
+
+    return environment_reason(exc)
 
 
 def _fsync_path(path: Path) -> None:

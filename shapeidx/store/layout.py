@@ -49,6 +49,32 @@ for _name in HISTOGRAMS:
 COUNT_DTYPE = np.uint32
 #: Catalog rows copied per step of a merge: bounds its memory whatever the store's size.
 MERGE_ROWS = 65_536
+#: Every dataset is written in chunks, each with HDF5's Fletcher-32 checksum, so that a flipped
+#: byte is found when it is read; a damaged chunk costs only the entries it holds (--repair).
+CHUNK_ROWS = 1024
+CHUNK_COUNTS = 16_384
+#: Attribute of every variable-length string dataset: SHA-256 of its values, each followed by
+#: NUL (HDF5 filters no variable-length data, so these datasets have no Fletcher-32).
+CONTENT_HASH = "content_sha256"
+
+
+def checked(shape, counts: bool = False) -> dict:
+    """``create_dataset`` options for a checksummed (Fletcher-32) dataset of ``shape``."""
+    shape = tuple(int(n) for n in shape)
+    if not shape or shape[0] == 0:
+        return {}  # nothing to protect; HDF5 cannot chunk an empty fixed-size dataset
+    rows = min(shape[0], CHUNK_COUNTS if counts else CHUNK_ROWS)
+    return {"chunks": (rows,) + shape[1:], "fletcher32": True}
+
+
+def strings_hash(values) -> str:
+    """The :data:`CONTENT_HASH` of a string column."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for value in values:
+        digest.update(str(value).encode("utf-8", "surrogatepass") + b"\0")
+    return digest.hexdigest()
 
 
 @dataclass(frozen=True)
@@ -192,14 +218,27 @@ def write_columns(f: h5py.File, columns: dict) -> None:
     """Write every per-entry column (dataset name -> array) with its file dtype."""
     for name, (_, file_dtype) in ENTRY_COLUMNS.items():
         data = columns[name]
-        f.create_dataset(name, data=data, dtype=file_dtype)
+        # HDF5 filters no variable-length data: strings are covered by their content hash
+        options = {} if file_dtype is _STR else checked(np.shape(data))
+        dataset = f.create_dataset(name, data=data, dtype=file_dtype, **options)
+        if file_dtype is _STR:
+            dataset.attrs[CONTENT_HASH] = strings_hash(data)
 
 
 def write_counts(f: h5py.File, name: str, counts: np.ndarray, lengths: np.ndarray) -> None:
     """Write one histogram's counts as CSR: ``counts`` and ``offsets``."""
-    f.create_dataset(f"histograms/{name}/offsets", data=offsets_of(lengths))
-    f.create_dataset(f"histograms/{name}/counts", data=_as_counts(counts), dtype=COUNT_DTYPE)
+    offsets = offsets_of(lengths)
+    f.create_dataset(f"histograms/{name}/offsets", data=offsets, **checked(offsets.shape))
+    counts = _as_counts(counts)
+    f.create_dataset(f"histograms/{name}/counts", data=counts, dtype=COUNT_DTYPE, **checked(counts.shape, counts=True))
 
 
 def write_paths(f: h5py.File, name: str, paths) -> None:
-    f.create_dataset(name, data=object_array(list(paths)), dtype=_STR)
+    values = object_array(list(paths))
+    dataset = f.create_dataset(name, data=values, dtype=_STR)
+    dataset.attrs[CONTENT_HASH] = strings_hash(values)
+
+
+def write_int64(f: h5py.File, name: str, values) -> None:
+    values = np.asarray(values, dtype=np.int64)
+    f.create_dataset(name, data=values, **checked(values.shape))

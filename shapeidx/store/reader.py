@@ -15,35 +15,119 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from ..errors import StoreError
+from ..errors import StoreDamagedError, StoreError
 from ..ragged import offsets_of, take_ragged
 from ..signing.histogram import Histogram, Signature
 from ..signing.parameters import HISTOGRAMS
-from .files import batch_files
-from .layout import COUNT_DTYPE, DEFAULT_STORE, ENTRY_COLUMNS, SCHEMA_VERSION, STORE_ENV, StoreParams, object_array, as_text
+from .files import batch_files, journal_dir, lock_path
+from .layout import (
+    CONTENT_HASH,
+    COUNT_DTYPE,
+    DEFAULT_STORE,
+    ENTRY_COLUMNS,
+    SCHEMA_VERSION,
+    STORE_ENV,
+    StoreParams,
+    as_text,
+    object_array,
+    strings_hash,
+)
+
+
+def damaged(store: Path, what: str, root: str | None = None) -> StoreDamagedError:
+    """The one-line error of a damaged store: what is wrong, and how to recover."""
+    folder = root or "DIR"
+    return StoreDamagedError(
+        f"the store {store} is damaged ({what}): 'shapeidx build {folder} --store {store} --repair' rebuilds the"
+        f" damaged entries (or delete the store and build again); 'shapeidx check --store {store}' lists every problem"
+    )
 
 
 class _SourceFile:
-    """One store file (main or batch) opened for reading, columns read on demand."""
+    """One store file (main or batch) opened for reading, columns read on demand.
 
-    def __init__(self, path: Path, seq: int):
+    Every read is checked: a dataset whose checksum (Fletcher-32, or the content hash of a
+    string column) fails, offsets out of bounds, columns of unequal length all raise
+    :class:`StoreDamagedError` before any of it is used.
+    """
+
+    def __init__(self, path: Path, seq: int, store: Path | None = None):
         self.path = path
         self.seq = seq
+        self.store = store or path
         self.file = h5py.File(path, "r")
         self._columns: dict = {}
         self._offsets: dict = {}
 
+    def damaged(self, what: str) -> StoreDamagedError:
+        where = "" if self.path == self.store else f" of {self.path.name}"
+        root = self.file.attrs.get("root") if self.path == self.store else None
+        return damaged(self.store, what + where, as_text(root) if root is not None else None)
+
+    def dataset(self, name: str) -> h5py.Dataset:
+        try:
+            return self.file[name]
+        except KeyError:
+            raise self.damaged(f"{name} is missing") from None
+        except (OSError, RuntimeError, ValueError) as exc:
+            raise self.damaged(f"{name} cannot be opened: {_first_line(exc)}") from None
+
+    def _read(self, name: str, dtype, selection=()):
+        dataset = self.dataset(name)
+        try:
+            if dtype is object:
+                values = dataset.asstr()[()] if dataset.shape[0] else object_array([])
+                if CONTENT_HASH in dataset.attrs and strings_hash(values) != as_text(dataset.attrs[CONTENT_HASH]):
+                    raise self.damaged(f"{name} fails its content checksum")
+                return values
+            return dataset[selection] if selection != () else dataset[()]
+        except StoreDamagedError:
+            raise
+        except (OSError, RuntimeError, ValueError, UnicodeDecodeError) as exc:
+            raise self.damaged(f"{name} cannot be read: {_first_line(exc)}") from None
+
     def __len__(self) -> int:
-        return int(self.file["entries/size"].shape[0])
+        return int(self.dataset("entries/size").shape[0])
+
+    def check_shapes(self) -> None:
+        """Every column holds one row per entry (cheap: shapes only)."""
+        n = len(self)
+        for name in ENTRY_COLUMNS:
+            shape = self.dataset(name).shape
+            if not shape or shape[0] != n:
+                raise self.damaged(f"{name} has {shape[0] if shape else 0} rows, not {n}")
+        for name in HISTOGRAMS:
+            shape = self.dataset(f"histograms/{name}/offsets").shape
+            if shape != (n + 1,):
+                raise self.damaged(f"histograms/{name}/offsets has {shape[0] if shape else 0} values, not {n + 1}")
+
+    def verify_all(self) -> None:
+        """Read and check every dataset (a journal batch is small: done when it is opened)."""
+        self.check_shapes()
+        for name in ENTRY_COLUMNS:
+            self.column(name)
+        for name in HISTOGRAMS:
+            self.counts_of(name, np.arange(len(self)))
+        for group in ("touched", "removed"):
+            self.paths_of(group)
+        if "touched" in self.file:
+            for name in ("touched/size", "touched/mtime_ns"):
+                self._read(name, np.int64)
 
     def column(self, name: str) -> np.ndarray:
         if name not in self._columns:
-            self._columns[name] = _read(self.file[name], ENTRY_COLUMNS[name][0])
+            self._columns[name] = self._read(name, ENTRY_COLUMNS[name][0])
         return self._columns[name]
 
     def offsets(self, name: str) -> np.ndarray:
         if name not in self._offsets:
-            self._offsets[name] = self.file[f"histograms/{name}/offsets"][()]
+            key = f"histograms/{name}/offsets"
+            offsets = self._read(key, np.int64)
+            total = self.dataset(f"histograms/{name}/counts").shape[0]
+            if (offsets.shape != (len(self) + 1,) or (len(offsets) and offsets[0] != 0)
+                    or np.any(np.diff(offsets) < 0) or (len(offsets) and offsets[-1] != total)):
+                raise self.damaged(f"{key} are out of bounds (the counts hold {total} values)")
+            self._offsets[name] = offsets
         return self._offsets[name]
 
     def counts_of(self, name: str, rows: np.ndarray):
@@ -51,23 +135,24 @@ class _SourceFile:
         offsets = self.offsets(name)
         if len(rows) == 0:
             return np.zeros(0, dtype=COUNT_DTYPE), np.zeros(0, dtype=np.int64)
+        if rows[0] < 0 or rows[-1] + 1 >= len(offsets):
+            raise IndexError(f"rows {rows[0]}..{rows[-1]} of a file of {len(offsets) - 1} entries")
         lo, hi = int(offsets[rows[0]]), int(offsets[rows[-1] + 1])
-        span = self.file[f"histograms/{name}/counts"][lo:hi]
+        span = self._read(f"histograms/{name}/counts", COUNT_DTYPE, np.s_[lo:hi])
         return take_ragged(span, offsets, rows, base=lo)
 
     def paths_of(self, group: str) -> np.ndarray:
         if group not in self.file:
             return object_array([])
-        return _read(self.file[f"{group}/path"], object)
+        return self._read(f"{group}/path", object)
 
     def close(self) -> None:
         self.file.close()
 
 
-def _read(dataset: h5py.Dataset, dtype) -> np.ndarray:
-    if dtype is object:
-        return dataset.asstr()[()] if dataset.shape[0] else object_array([])
-    return dataset[()]
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0][:200] if text else type(exc).__name__
 
 
 class StoreReader:
@@ -84,10 +169,14 @@ class StoreReader:
     params : StoreParams
     journal : int
         Batches applied on top of the main file.
+    skipped : list of (Path, str)
+        Damaged journal batches left out of the view, with why (the next build drops them
+        and redoes their work).
     """
 
-    def __init__(self, path: Path, main: _SourceFile, batches: list[_SourceFile]):
+    def __init__(self, path: Path, main: _SourceFile, batches: list[_SourceFile], skipped=()):
         self.path = path
+        self.skipped = list(skipped)
         self.attrs = {k: (as_text(v) if isinstance(v, (bytes, str)) else v) for k, v in main.file.attrs.items()}
         self.params = StoreParams.from_attrs(self.attrs)
         self.journal = len(batches)
@@ -211,7 +300,13 @@ class StoreReader:
 
     def size_on_disk(self) -> int:
         """Bytes of the main file and the journal."""
-        return sum(s.path.stat().st_size for s in self._sources if s.path.exists())
+        total = 0
+        for source in self._sources:
+            try:
+                total += source.path.stat().st_size
+            except FileNotFoundError:  # a batch a merge removed meanwhile
+                pass
+        return total
 
     def close(self) -> None:
         for source in self._sources:
@@ -239,29 +334,84 @@ def open_store(path: str | os.PathLike, attempts: int = 20) -> StoreReader:
     """
     path = Path(path)
     for _ in range(attempts):
-        try:
-            main = _SourceFile(path, 0)
-        except FileNotFoundError:
-            raise StoreError(f"no store at {path} (run 'shapeidx build DIR' first, or give --store)") from None
-        except OSError as exc:
-            raise StoreError(f"{path}: cannot open the store ({exc})") from None
-        batches = []
+        main = _open_main(path)
+        batches, skipped = [], []
         try:
             _check_schema(path, main.file.attrs)
+            main.check_shapes()
             merged = int(main.file.attrs["journal_seq"])
             for seq, batch in batch_files(path):
                 if seq > merged:
-                    batches.append(_SourceFile(batch, seq))
+                    opened, reason = _open_batch(path, batch, seq)
+                    if opened is not None:
+                        batches.append(opened)
+                    elif reason is not None:
+                        skipped.append((batch, reason))
+                    else:
+                        raise FileNotFoundError(batch)  # it vanished: a merge finished meanwhile
             if _same_file(path, main):  # no merge replaced the main file while the batches were listed
-                return StoreReader(path, main, batches)
+                return StoreReader(path, main, batches, skipped)
         except FileNotFoundError:  # a batch went: a merge finished meanwhile
             pass
+        except (OSError, RuntimeError, KeyError, ValueError) as exc:  # HDF5 metadata that cannot be read
+            _close_all([main, *batches])
+            raise damaged(path, f"the main file's metadata cannot be read: {_first_line(exc)}") from None
         except BaseException:
             _close_all([main, *batches])
             raise
         _close_all([main, *batches])
         time.sleep(0.02)
     raise StoreError(f"{path}: the store kept changing while being opened; try again")
+
+
+def _open_main(path: Path) -> _SourceFile:
+    if path.is_dir():
+        raise StoreError(f"{path} is a directory, not a store (give the store's file with --store)")
+    try:
+        return _SourceFile(path, 0)
+    except FileNotFoundError:
+        raise StoreError(f"no store at {path} (run 'shapeidx build DIR' first, or give --store)") from None
+    except PermissionError:
+        raise StoreError(f"{path}: cannot open the store: permission denied") from None
+    except OSError as exc:
+        if not path.exists():
+            raise StoreError(f"no store at {path} (run 'shapeidx build DIR' first, or give --store)") from None
+        was_a_store = lock_path(path).exists() or journal_dir(path).exists()
+        if path.stat().st_size == 0 or (_signature_missing(path) and not was_a_store):
+            raise StoreError(f"{path} is not a shapeidx store (not an HDF5 file)") from None
+        raise damaged(path, f"the main file cannot be opened: {_first_line(exc)}") from None
+
+
+def _signature_missing(path: Path) -> bool:
+    """Whether the file lacks HDF5's signature at offset 0 (another kind of file, not a damaged store)."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(8) != b"\x89HDF\r\n\x1a\n"
+    except OSError:
+        return False
+
+
+def _open_batch(store: Path, batch: Path, seq: int):
+    """(source, None) for a sound batch; (None, reason) for a damaged one; (None, None) if it vanished.
+
+    h5py reports a file that vanished between listing and opening as a plain OSError, not
+    FileNotFoundError: whether it still exists tells a race with a merge from damage.
+    """
+    try:
+        source = _SourceFile(batch, seq, store)
+    except OSError as exc:
+        if not batch.exists():
+            return None, None
+        return None, f"cannot be opened: {_first_line(exc)}"
+    try:
+        source.verify_all()
+    except StoreDamagedError as exc:
+        source.close()
+        if not batch.exists():
+            return None, None
+        text = str(exc)
+        return None, text[text.index("(") + 1 : text.index(" of batch-")] if " of batch-" in text else "damaged"
+    return source, None
 
 
 def _same_file(path: Path, source: _SourceFile) -> bool:

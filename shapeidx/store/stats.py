@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..signing.parameters import HISTOGRAMS
 from .layout import STATUS_FAILED, STATUS_OK
 from .reader import StoreReader
 
 
 def describe_store(reader: StoreReader) -> dict:
     """What ``shapeidx stats`` shows: counts by status, parameters, versions, size on disk."""
+    for source in reader._sources:  # offsets out of bounds say "damaged" here, not later in a query
+        for name in HISTOGRAMS:
+            source.offsets(name)
     status = reader.column("entries/status")
     reasons = reader.column("entries/reason")[status == STATUS_FAILED]
     common, counts = np.unique(reasons.astype(str), return_counts=True) if len(reasons) else ([], [])

@@ -19,7 +19,7 @@ import h5py
 import numpy as np
 
 from .. import __version__
-from ..errors import StoreError
+from ..errors import StoreError, StoreLockedError
 from ..ragged import offsets_of
 from ..signing.parameters import HISTOGRAMS
 from .files import batch_files, glob_escape, journal_dir, lock_path, remove_if_empty, write_atomically
@@ -34,6 +34,8 @@ from .layout import (
     write_columns,
     write_counts,
     write_paths,
+    write_int64,
+    checked,
 )
 from .reader import StoreReader, check_params, check_root, open_store
 
@@ -49,22 +51,32 @@ class StoreLock:
         self.path = lock_path(store)
         self.fd: int | None = None
 
-    def acquire(self, wait: bool = False, on_wait=None) -> None:
-        """Take the lock, or raise :class:`StoreError` naming the holder (``wait``: block)."""
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+    def acquire(self, wait: bool = False, on_wait=None, timeout: float | None = None) -> None:
+        """Take the lock, or raise :class:`StoreLockedError` naming the holder.
+
+        ``wait``: wait for the holder, for at most ``timeout`` seconds (None: as long as it takes).
+        """
+        try:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise StoreError(f"cannot create the lock file {self.path}: {exc.strerror or exc}") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             holder = _holder(fd)
+            name = self.path.name[: -len(".lock")]
             if not wait:
                 os.close(fd)
-                raise StoreError(
-                    f"another build is writing {self.path.name[: -len('.lock')]} ({holder}); "
-                    "try again later, or pass --wait"
+                raise StoreLockedError(
+                    f"another build is writing {name} ({holder}); try again later, or pass --wait"
                 ) from None
             if on_wait:
                 on_wait(holder)
-            fcntl.flock(fd, fcntl.LOCK_EX)
+            if not _wait_for_lock(fd, timeout):
+                os.close(fd)
+                raise StoreLockedError(
+                    f"another build is still writing {name} after waiting {timeout:g} s ({holder})"
+                ) from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"pid {os.getpid()} on {socket.gethostname()}, since {utc_now()}\n".encode(), 0)
         self.fd = fd
@@ -75,6 +87,22 @@ class StoreLock:
             fcntl.flock(self.fd, fcntl.LOCK_UN)
             os.close(self.fd)
             self.fd = None
+
+
+def _wait_for_lock(fd: int, timeout: float | None) -> bool:
+    """Block until the lock is ours (True), or ``timeout`` seconds pass (False)."""
+    if timeout is None:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        return True
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except BlockingIOError:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(min(0.1, max(0.0, deadline - time.monotonic())))
 
 
 def _holder(fd: int, patience: float = 0.5) -> str:
@@ -114,15 +142,23 @@ class StoreWriter:
         Wait for another build's lock instead of refusing at once.
     """
 
-    def __init__(self, path: Path, params: StoreParams, root: Path, wait: bool = False, on_wait=None):
+    def __init__(self, path: Path, params: StoreParams, root: Path, wait: bool = False, on_wait=None,
+                 wait_timeout: float | None = None, repair: bool = False, on_warning=None):
         self.path = Path(path)
         self.params = params
         self.root = str(root)
+        self.on_warning = on_warning or (lambda text: None)
         if not self.path.parent.is_dir():
             raise StoreError(f"cannot create the store {self.path}: no directory {self.path.parent}")
         self.lock = StoreLock(self.path)
-        self.lock.acquire(wait, on_wait)
+        self.lock.acquire(wait, on_wait, wait_timeout)
         try:
+            from .check import refuse_damaged, repair_store
+
+            if repair:
+                for line in repair_store(self.path):
+                    self.on_warning(line)
+            refuse_damaged(self.path)  # with the lock held: no merge can change it meanwhile
             self._prepare()
         except BaseException:
             self.lock.release()
@@ -136,6 +172,10 @@ class StoreWriter:
             check_params(reader, self.params)
             check_root(reader, self.root)
             self.merged_seq = int(reader.attrs["journal_seq"])
+            skipped = reader.skipped
+        for batch, reason in skipped:  # its work is redone: its files differ from their entries
+            self.on_warning(f"dropped the damaged journal batch {batch.name} ({reason}); its files are indexed again")
+            batch.unlink(missing_ok=True)
         self.next_seq = max([self.merged_seq] + [seq for seq, _ in batch_files(self.path)]) + 1
 
     def _remove_leftovers(self) -> None:
@@ -147,8 +187,11 @@ class StoreWriter:
             for tmp in folder.glob("*.tmp-*"):
                 tmp.unlink(missing_ok=True)
         if self.path.exists():
-            with h5py.File(self.path, "r") as f:
-                merged = int(f.attrs["journal_seq"]) if "journal_seq" in f.attrs else 0
+            try:
+                with h5py.File(self.path, "r") as f:
+                    merged = int(f.attrs["journal_seq"]) if "journal_seq" in f.attrs else 0
+            except OSError:
+                return  # a damaged main file: open_store says so next, in one line
             for seq, batch in batch_files(self.path):
                 if seq <= merged:
                     batch.unlink(missing_ok=True)
@@ -185,7 +228,11 @@ class StoreWriter:
     def commit(self, batch: Batch) -> int:
         """Write ``batch`` to the journal (atomically); return its sequence number."""
         folder = journal_dir(self.path)
-        folder.mkdir(exist_ok=True)
+        try:
+            folder.mkdir(exist_ok=True)
+        except OSError as exc:
+            raise StoreError(f"cannot create the journal folder {folder}: {exc.strerror or exc}"
+                             " (nothing was changed: the store is as it was)") from None
         seq = self.next_seq
         columns, counts = entries_to_columns(batch.entries)
         touched = sorted(batch.touched)
@@ -196,11 +243,11 @@ class StoreWriter:
             for name, (flat, lengths) in counts.items():
                 write_counts(f, name, flat, lengths)
             write_paths(f, "touched/path", [t[0] for t in touched])
-            f.create_dataset("touched/size", data=np.array([t[1] for t in touched], dtype=np.int64))
-            f.create_dataset("touched/mtime_ns", data=np.array([t[2] for t in touched], dtype=np.int64))
+            write_int64(f, "touched/size", [t[1] for t in touched])
+            write_int64(f, "touched/mtime_ns", [t[2] for t in touched])
             write_paths(f, "removed/path", sorted(batch.removed))
 
-        write_atomically(folder / f"batch-{seq:010d}.h5", fill)
+        write_atomically(folder / f"batch-{seq:010d}.h5", fill, _bytes_of(columns, counts, batch))
         self.next_seq += 1
         return seq
 
@@ -215,7 +262,9 @@ class StoreWriter:
                 return
             through = max(source.seq for source in reader._sources)
             attrs = self._main_attrs(through, {"created": reader.attrs.get("created", utc_now())})
-            write_atomically(self.path, lambda f: _write_snapshot(f, reader, attrs))
+            # the merged file holds no more than the files it merges (and their checksums)
+            estimate = int(reader.size_on_disk() * 1.1)
+            write_atomically(self.path, lambda f: _write_snapshot(f, reader, attrs), estimate)
         self.merged_seq = through
         for seq, batch in batch_files(self.path):
             if seq <= through:
@@ -232,6 +281,15 @@ class StoreWriter:
         self.close()
 
 
+def _bytes_of(columns: dict, counts: dict, batch: Batch) -> int:
+    """A generous estimate of a batch file's size."""
+    total = sum(len(str(v)) + 16 for name in ("entries/path", "entries/reason") for v in columns[name])
+    total += sum(a.nbytes for name, a in columns.items() if a.dtype != object)
+    total += sum(flat.nbytes + 8 * (len(lengths) + 1) for flat, lengths in counts.values())
+    total += sum(len(t[0]) + 40 for t in batch.touched) + sum(len(p) + 24 for p in batch.removed)
+    return 2 * total
+
+
 def _write_snapshot(f: h5py.File, reader: StoreReader, attrs: dict) -> None:
     """Every live entry of ``reader`` into ``f``; histogram counts copied in bounded steps."""
     f.attrs.update(attrs)
@@ -242,8 +300,9 @@ def _write_snapshot(f: h5py.File, reader: StoreReader, attrs: dict) -> None:
             mine = reader.source == source_index
             lengths[mine] = np.diff(source.offsets(name))[reader.row[mine]]
         offsets = offsets_of(lengths)
-        f.create_dataset(f"histograms/{name}/offsets", data=offsets)
-        counts = f.create_dataset(f"histograms/{name}/counts", shape=(int(offsets[-1]),), dtype=COUNT_DTYPE)
+        f.create_dataset(f"histograms/{name}/offsets", data=offsets, **checked(offsets.shape))
+        total = (int(offsets[-1]),)
+        counts = f.create_dataset(f"histograms/{name}/counts", shape=total, dtype=COUNT_DTYPE, **checked(total, counts=True))
         for start in range(0, len(reader), MERGE_ROWS):
             rows = np.arange(start, min(start + MERGE_ROWS, len(reader)))
             flat, _ = reader.counts(name, rows)
