@@ -104,6 +104,8 @@ def read_step(path, data: bytes | None = None, limits: LoadLimits | None = None)
     read = read_shape(Path(path), data, limits)
     tessellate(read.shape, faceting, Path(path))
     vertices, triangles, failed, total = triangles_of(read.shape)
+    if total == 0:
+        raise LoadError(path, "has no faces (no surface geometry: points, curves or empty shapes only)")
     if len(triangles) == 0:
         raise LoadError(path, f"OpenCASCADE could not tessellate any of its {total} faces")
     warnings = []
@@ -162,6 +164,8 @@ def read_shape(path: Path, data: bytes | None, limits: LoadLimits) -> _Read:
         raise LoadError(path, "not a STEP or IGES file (a STEP file starts with 'ISO-10303-21;', IGES has 80-column records)")
     if kind == "step" and not _STEP_END.search(data[-_TAIL:]):
         raise LoadError(path, "truncated STEP file (it does not end with 'END-ISO-10303-21;')")
+    if kind == "iges":
+        _check_iges_sections(path, data)
     _quiet_opencascade()
     # OpenCASCADE reads from a file name: gzip-compressed or in-memory content goes through
     # a private temporary copy (also spares OCCT unusual characters in the real name)
@@ -170,6 +174,71 @@ def read_shape(path: Path, data: bytes | None, limits: LoadLimits) -> _Read:
         with open(copy, "wb") as f:
             f.write(data)
         return _transfer(path, copy, kind)
+
+
+_IGES_ORDER = {b"S": 0, b"G": 1, b"D": 2, b"P": 3, b"T": 4}
+#: A Global section starts with its parameter delimiter: the default ',' or a Hollerith '1H.'
+_IGES_GLOBAL_START = re.compile(rb"^\s*(,|1H.)")
+
+
+def _check_iges_sections(path: Path, data: bytes) -> None:
+    """Refuse IGES that OpenCASCADE would misread or crash on, before it sees the file.
+
+    Sections must be present and in order (S, G, D, P, T): a file cut short would otherwise be
+    read as if it were whole. The Global section is walked field by field: OpenCASCADE 8's
+    IGES reader dies (segmentation fault) on a Global section that does not start with its
+    delimiters, or whose Hollerith string (``nH...``) claims more characters than are left.
+    """
+    letters, global_body = [], []
+    for line in data.splitlines():
+        if len(line) < 73 or line[72:73] not in _IGES_ORDER:
+            continue
+        letter = line[72:73]
+        if letter == b"G":
+            global_body.append(line[:72])
+        if not letters or letters[-1] != letter:
+            letters.append(letter)
+    order = [_IGES_ORDER[x] for x in letters]
+    if b"T" not in letters:
+        raise LoadError(path, "truncated IGES file (no Terminate section)")
+    if order != sorted(order) or b"G" not in letters or len(set(letters)) != len(letters):
+        raise LoadError(path, "not a valid IGES file (its Start, Global, Directory, Parameter and Terminate sections are missing or out of order)")
+    problem = _global_section_problem(b"".join(global_body))
+    if problem:
+        raise LoadError(path, f"not a valid IGES file (Global section: {problem})")
+
+
+_HOLLERITH = re.compile(rb"\s*(\d+)H")
+
+
+def _global_section_problem(text: bytes) -> str | None:
+    """What is wrong with an IGES Global section's fields, or None (Hollerith strings checked)."""
+    if not _IGES_GLOBAL_START.match(text):
+        return "it does not start with its delimiters"
+    delimiter, end = b",", b";"
+    i, field = 0, 0
+    while i < len(text):
+        if field < 2 and text[i:i + 2] == b"1H" and i + 2 < len(text):
+            if field == 0:
+                delimiter = text[i + 2:i + 3]
+            else:
+                end = text[i + 2:i + 3]
+            i += 3
+        else:
+            match = _HOLLERITH.match(text, i)
+            if match:
+                length = int(match.group(1))
+                i = match.end() + length
+                if i > len(text):
+                    return f"a {length}-character string runs past the end of the section"
+            # the rest of the field (a number, or what follows a string: OCCT is lenient there)
+            while i < len(text) and text[i:i + 1] not in (delimiter, end):
+                i += 1
+        if text[i:i + 1] == end:
+            return None
+        i += 1
+        field += 1
+    return "it has no record delimiter (cut short?)"
 
 
 def _transfer(path: Path, copy: str, kind: str) -> _Read:
