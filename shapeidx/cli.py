@@ -202,13 +202,16 @@ def build(ctx, directory, store, points, seed, workers, full, rehash, retry_fail
 @click.option("--top", "-k", default=10, show_default=True, type=click.IntRange(1), help="How many hits.")
 @click.option("--metric", type=click.Choice(METRICS), default="weighted", show_default=True, help="The distance.")
 @click.option("--id", "entry", metavar="PATH", help="Query with an entry of the store (its path in the store).")
+@click.option("--scale", type=click.Choice(("invariant", "sensitive")), default="invariant", show_default=True,
+              help="sensitive: leave out parts whose size differs by more than a factor 2.")
 @json_option
-def query(file, store, top, metric, entry, as_json):
+def query(file, store, top, metric, entry, scale, as_json):
     """The store's parts nearest to FILE (or to --id PATH), nearest first."""
     if (file is None) == (entry is None):
         raise click.UsageError("give either FILE or --id PATH")
     # a one-off query shares its ray queries among all cores
-    hits = query_store(resolve_store_path(store), part=file, entry=entry, top=top, metric=metric, threads=available_cores())
+    hits = query_store(resolve_store_path(store), part=file, entry=entry, top=top, metric=metric, threads=available_cores(),
+                       scale=scale)
     if as_json:
         _emit_json(hits)
         return
@@ -280,6 +283,145 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
         click.echo(f"{label:30s} " + " ".join(f"{scores[s]:6.3f}" for s in ("nn", "ft", "st", "e", "dcg")))
         for cls, figures in scores.get("per_class", {}).items():
             click.echo(f"  {cls[:28]:28s} " + " ".join(f"{figures[s]:6.3f}" for s in ("nn", "ft", "st", "e", "dcg")))
+
+
+# --------------------------------------------------------------------------- families (classify, cluster, duplicates)
+
+scale_option = click.option(
+    "--scale", type=click.Choice(("invariant", "sensitive")), default="invariant", show_default=True,
+    help="invariant: the paper's (size does not count); sensitive: parts whose sizes differ by more than"
+         " a factor 2 are kept apart.")
+
+
+def _family_table(store):
+    """The store's ok entries for pair work, with one line on stderr for an old store's missing columns."""
+    from .families.table import FamilyTable
+
+    with open_store(resolve_store_path(store)) as reader:
+        table = FamilyTable.load(reader)
+    if table.missing_columns:
+        click.echo(f"shapeidx: warning: {resolve_store_path(store)} predates the size and handedness columns"
+                   f" ({', '.join(table.missing_columns)}): sizes and mirroring unknown for its older entries;"
+                   " rebuild with 'shapeidx build DIR --full' to fill them", err=True)
+    return table
+
+
+def _empty_store_error(store):
+    return ShapeidxError(f"store {resolve_store_path(store)} has no indexed entries (run 'shapeidx build DIR' first)")
+
+
+@main.command()
+@click.argument("parts", nargs=-1, required=True, type=click.Path(path_type=str))
+@store_option
+@click.option("--k", "-k", "k", default=None, type=click.IntRange(1), help="Voters [default: 3, measured on kicad6].")
+@click.option("--metric", type=click.Choice(METRICS), default="combined", show_default=True, help="The distance.")
+@click.option("--label-depth", default=1, show_default=True, type=click.IntRange(1),
+              help="An entry's label is its first N folders.")
+@click.option("--labels", "labels_file", type=click.Path(dir_okay=False, path_type=str),
+              help="CSV of path,label (paths as in the store) instead of folders.")
+@scale_option
+@json_option
+def classify(parts, store, k, metric, label_depth, labels_file, scale, as_json):
+    """The category of each PART (a file, or a path of the store) by its nearest labelled entries."""
+    from .families.classify import DEFAULT_K, classify_parts
+    from .families.labels import labels_from_csv, labels_from_paths
+
+    with open_store(resolve_store_path(store)) as reader:
+        if (reader.column("entries/status") == 0).sum() == 0:
+            raise _empty_store_error(store)
+        if labels_file:
+            labels, unknown = labels_from_csv(labels_file, reader.paths)
+            if unknown:
+                click.echo(f"shapeidx: warning: {labels_file}: {len(unknown)} path(s) not in the store, ignored"
+                           f" (first: {unknown[0]!r})", err=True)
+        else:
+            labels = labels_from_paths(reader.paths, label_depth)
+        results = classify_parts(reader, list(parts), labels, k or DEFAULT_K, metric, scale, available_cores())
+    if as_json:
+        _emit_json(results)
+        return
+    for r in results:
+        label = r["label"] if r["label"] is not None else "(no voter)"
+        click.echo(f"{r['path']}: {label} (confidence {r['confidence']:.2f})")
+        for nb in r["neighbours"]:
+            click.echo(f"    {nb['distance']:<11.6g} {nb['label']:24s} {nb['path']}")
+
+
+@main.command()
+@store_option
+@click.option("--clusters", type=click.IntRange(1), help="How many clusters [default: one per ten entries].")
+@click.option("--threshold", type=click.FloatRange(0), help="Cut the tree at this height instead.")
+@click.option("--metric", type=click.Choice(METRICS), default="combined", show_default=True, help="The distance.")
+@scale_option
+@click.option("--csv", "as_csv", is_flag=True, help="Rows of path,cluster,distance.")
+@click.option("--plot", type=click.Path(dir_okay=False, path_type=str), help="Write a picture of the clusters (PNG).")
+@json_option
+def cluster(store, clusters, threshold, metric, scale, as_csv, plot, as_json):
+    """Group the whole store into families of similar parts."""
+    from .families.cluster import cluster_store
+
+    table = _family_table(store)
+    if len(table) == 0:
+        raise _empty_store_error(store)
+    result = cluster_store(table, metric, clusters, threshold, scale, threads=available_cores())
+    rows = [{"path": str(p), "cluster": int(c), "distance": float(d)}
+            for p, c, d in sorted(zip(result["paths"], result["clusters"], result["distances"]), key=lambda r: (r[1], r[2], r[0]))]
+    if plot:
+        from .families.plot import plot_clusters
+
+        plot_clusters(table, result, plot, metric)
+    if as_json:
+        _emit_json(rows)
+    elif as_csv:
+        _emit_csv(["path", "cluster", "distance"], ([r["path"], r["cluster"], f"{r['distance']:.6g}"] for r in rows))
+    else:
+        click.echo(f"{len(rows)} entries in {result['count']} clusters ({metric}, {result['road']})")
+        for r in rows:
+            click.echo(f"{r['cluster']:>6}  {r['distance']:<11.6g} {r['path']}")
+
+
+def _emit_csv(header, rows) -> None:
+    import csv
+
+    writer = csv.writer(sys.stdout, lineterminator="\n")
+    writer.writerow(header)
+    writer.writerows(rows)
+
+
+@main.command()
+@store_option
+@click.option("--metric", type=click.Choice(METRICS), default="combined", show_default=True, help="The distance.")
+@scale_option
+@click.option("--csv", "as_csv", is_flag=True, help="One row per pair.")
+@json_option
+def duplicates(store, metric, scale, as_csv, as_json):
+    """Groups of entries that are the same part: identical file, same geometry, near duplicate.
+
+    Only reports: nothing is deleted or moved.
+    """
+    from .families.duplicates import find_duplicates
+
+    table = _family_table(store)
+    if len(table) == 0:
+        raise _empty_store_error(store)
+    groups = find_duplicates(table, metric, scale, threads=available_cores())
+    if as_json:
+        _emit_json(groups)
+        return
+    if as_csv:
+        _emit_csv(["group", "a", "b", "tier", "distance", "size_ratio", "mirrored"],
+                  ([g, p["a"], p["b"], p["tier"], f"{p['distance']:.6g}",
+                    "" if p["size_ratio"] is None else f"{p['size_ratio']:.6g}", str(p["mirrored"]).lower()]
+                   for g, group in enumerate(groups, start=1) for p in group["pairs"]))
+        return
+    pairs = sum(len(g["pairs"]) for g in groups)
+    click.echo(f"{len(groups)} group(s) of duplicates, {pairs} pair(s), among {len(table)} entries")
+    for g, group in enumerate(groups, start=1):
+        click.echo(f"group {g}: {len(group['members'])} parts")
+        for p in group["pairs"]:
+            ratio = "size ?" if p["size_ratio"] is None else f"size x{p['size_ratio']:.4g}"
+            mirror = ", mirrored" if p["mirrored"] else ""
+            click.echo(f"  {p['tier']:9s} {p['distance']:<10.4g} {ratio}{mirror}  {p['a']}  {p['b']}")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -108,6 +108,7 @@ def query_store(
     metric: str = "weighted",
     threads: int = 1,
     file_type: str | None = None,
+    scale: str = "invariant",
 ) -> list[dict]:
     """Rank a store against a part, or against one of its own entries.
 
@@ -121,6 +122,8 @@ def query_store(
     metric : one of :data:`METRICS`
     threads : threads for the query part's ray queries
     file_type : the part's format, when its name or content does not tell it
+    scale : "invariant" (the paper's) or "sensitive": entries whose size differs from the
+        part's by more than :data:`shapeidx.families.scale.SIZE_BAND` are left out
 
     Raises
     ------
@@ -132,12 +135,12 @@ def query_store(
     if metric not in METRICS:
         raise ValueError(f"unknown metric {metric!r}; expected one of {', '.join(METRICS)}")
     if isinstance(store, StoreReader):
-        return _query_reader(store, part, entry, top, metric, threads, file_type)
+        return _query_reader(store, part, entry, top, metric, threads, file_type, scale)
     with open_store(store) as reader:
-        return _query_reader(reader, part, entry, top, metric, threads, file_type)
+        return _query_reader(reader, part, entry, top, metric, threads, file_type, scale)
 
 
-def _query_reader(reader: StoreReader, part, entry, top, metric, threads, file_type) -> list[dict]:
+def _query_reader(reader: StoreReader, part, entry, top, metric, threads, file_type, scale="invariant") -> list[dict]:
     _check_usable(reader)
     table = SignatureTable.load(reader, METRIC_HISTOGRAMS[metric])
     if entry is not None:
@@ -147,7 +150,13 @@ def _query_reader(reader: StoreReader, part, entry, top, metric, threads, file_t
         signature = signature_with_params(part, reader.params, threads, file_type)
         own = entry_path_of(part, reader) if isinstance(part, (str, os.PathLike)) else None
         first = table.index_of(own) if own is not None else None
-    return top_hits(table.distances(signature, metric), table.paths, top, first)
+    distances = table.distances(signature, metric)
+    if scale != "invariant":
+        from .families.scale import apply_scale
+
+        distances = apply_scale(distances, signature.histograms["all"].mean, table.means[:, 0], scale)
+        top = min(top, int(np.isfinite(distances).sum()))
+    return top_hits(distances, table.paths, top, first)
 
 
 def signature_with_params(part, params, threads: int = 1, file_type: str | None = None) -> Signature:
