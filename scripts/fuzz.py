@@ -25,7 +25,7 @@ else as compressed bytes.
 
 Each case runs in a worker process (``spawn``) with a memory limit (``RLIMIT_DATA``,
 ``--memory``) and a time limit (``--timeout``): :func:`shapeidx.io.load`, then
-:func:`shapeidx.solid.make_solid` (and with ``--signature`` the whole signature). A case ends
+:func:`shapeidx.signing.solid.make_solid` (and with ``--signature`` the whole signature). A case ends
 as one of
 
 ``mesh``        a usable part: finite vertices, indices in range, positive finite area

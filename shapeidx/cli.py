@@ -372,14 +372,16 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
 @click.option("--type", "file_type", metavar="FORMAT", help="Format of '-' (standard input): stl, obj, off, ply, vrml.")
 @click.option("--exclude-self", is_flag=True, help="Leave out the query's own entry when it is in the store.")
 @click.option("--max-distance", type=FiniteFloat(0), metavar="D", help="Leave out hits farther than D.")
+@click.option("--scale", type=click.Choice(("invariant", "sensitive")), default="invariant", show_default=True,
+              help="sensitive: leave out parts whose size differs by more than a factor 2 (docs/families.md).")
 @click.option("--relative", is_flag=True, help="Print paths relative to the indexed folder (table, csv, tsv).")
 @format_options
 @click.option("--sheet", metavar="OUT.html",
               help="Also write the answer as one self-contained HTML file (thumbnails, histograms, words).")
 @click.option("--thumbnails", default=200, show_default=True, type=click.IntRange(0),
               help="With --sheet: thumbnails for the first N hits (each new one is rendered and cached).")
-def query(files, store, top, metric, entries, file_type, exclude_self, max_distance, relative, output_format, as_json,
-          sheet, thumbnails):
+def query(files, store, top, metric, entries, file_type, exclude_self, max_distance, scale, relative, output_format,
+          as_json, sheet, thumbnails):
     """The store's parts nearest to each FILE (or every part of DIR, or '-': a part on
     standard input; or --id PATH), nearest first: one result block per query.
 
@@ -403,8 +405,8 @@ def query(files, store, top, metric, entries, file_type, exclude_self, max_dista
     several = len(files) + len(entries) > 1 or any(f != "-" and os.path.isdir(f) for f in files)
     if sheet and (several or files == ("-",)):
         raise click.UsageError("--sheet draws one query: give one FILE or one --id PATH")
-    if sheet and (exclude_self or max_distance is not None):
-        raise click.UsageError("--sheet shows the top hits as ranked: leave out --exclude-self and --max-distance")
+    if sheet and (exclude_self or max_distance is not None or scale != "invariant"):
+        raise click.UsageError("--sheet shows the top hits as ranked: leave out --exclude-self, --max-distance and --scale")
     failures = 0
     blocks = []
     with open_store(store_path) as reader:
@@ -423,7 +425,7 @@ def query(files, store, top, metric, entries, file_type, exclude_self, max_dista
                 else:
                     hits = query_store(reader, part=item.part, entry=item.entry, top=top, metric=metric,
                                        threads=available_cores(), file_type=file_type if item.label == "-" else None,
-                                       exclude_self=exclude_self, max_distance=max_distance)
+                                       exclude_self=exclude_self, max_distance=max_distance, scale=scale)
             except (LoadError, ShapeidxError) as exc:
                 if not several:
                     raise
@@ -717,6 +719,165 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
             click.echo(f"note: {METRIC_LABELS.get(name, name)}'s weights were learned on this collection"
                        f" ({figures['learned_on']}): its figures are in-sample and flatter it;"
                        " --cross-validate gives out-of-sample ones")
+
+
+# --------------------------------------------------------------------------- families (classify, cluster, duplicates)
+
+scale_option = click.option(
+    "--scale", type=click.Choice(("invariant", "sensitive")), default="invariant", show_default=True,
+    help="invariant: the paper's (size does not count); sensitive: parts whose sizes differ by more than"
+         " a factor 2 are kept apart.")
+
+
+def _family_table(store):
+    """The store's ok entries for pair work, with one line on stderr for an old store's missing columns."""
+    from .families.table import FamilyTable
+    from .store import open_store
+
+    with open_store(_store_path(store)) as reader:
+        table = FamilyTable.load(reader)
+    if table.missing_columns:
+        click.echo(f"shapeidx: warning: {_store_path(store)} predates the size and handedness columns"
+                   f" ({', '.join(table.missing_columns)}): sizes and mirroring unknown for its older entries;"
+                   " rebuild with 'shapeidx build DIR --full' to fill them", err=True)
+    return table
+
+
+def _empty_store_error(store):
+    from .errors import ShapeidxError
+
+    return ShapeidxError(f"store {_store_path(store)} has no indexed entries (run 'shapeidx build DIR' first)")
+
+
+@main.command(context_settings=CONTEXT)
+@click.argument("parts", nargs=-1, required=True)
+@store_option
+@click.option("--k", "-k", "k", default=None, type=click.IntRange(1), help="Voters [default: 3, measured on kicad6].")
+@click.option("--metric", type=click.Choice(METRICS), default="combined", show_default=True, help="The distance.")
+@click.option("--label-depth", default=1, show_default=True, type=click.IntRange(1),
+              help="An entry's label is its first N folders.")
+@click.option("--labels", "labels_file", metavar="FILE.csv",
+              help="CSV of path,label (paths as in the store) instead of folders.")
+@scale_option
+@format_options
+def classify(parts, store, k, metric, label_depth, labels_file, scale, output_format, as_json):
+    """The category of each PART (a file, or a path of the store) by its nearest labelled entries.
+
+    \b
+    Example:
+      shapeidx classify new/bracket.stl --store parts.h5
+      shapeidx classify new/*.wrl --store parts.h5 --labels categories.csv --json
+    """
+    from .families.classify import DEFAULT_K, classify_parts
+    from .families.labels import labels_from_csv, labels_from_paths
+    from .store import open_store
+    from .system import available_cores
+
+    with open_store(_store_path(store)) as reader:
+        if (reader.column("entries/status") == 0).sum() == 0:
+            raise _empty_store_error(store)
+        if labels_file:
+            labels, unknown = labels_from_csv(labels_file, reader.paths)
+            if unknown:
+                click.echo(f"shapeidx: warning: {labels_file}: {len(unknown)} path(s) not in the store, ignored"
+                           f" (first: {unknown[0]!r})", err=True)
+        else:
+            labels = labels_from_paths(reader.paths, label_depth)
+        results = classify_parts(reader, list(parts), labels, k or DEFAULT_K, metric, scale, available_cores())
+    fmt = chosen_format(output_format, as_json)
+    if fmt == "json":
+        emit_json(results)
+        return
+    if fmt != "table":
+        emit_rows(fmt, ["path", "label", "confidence"], results)
+        return
+    for r in results:
+        label = r["label"] if r["label"] is not None else "(no voter)"
+        click.echo(f"{r['path']}: {label} (confidence {r['confidence']:.2f})")
+        for nb in r["neighbours"]:
+            click.echo(f"    {nb['distance']:<11.6g} {nb['label']:24s} {nb['path']}")
+
+
+@main.command(context_settings=CONTEXT)
+@store_option
+@click.option("--clusters", type=click.IntRange(1), help="How many clusters [default: one per ten entries].")
+@click.option("--threshold", type=click.FloatRange(0), help="Cut the tree at this height instead.")
+@click.option("--metric", type=click.Choice(METRICS), default="combined", show_default=True, help="The distance.")
+@scale_option
+@click.option("--csv", "as_csv", is_flag=True, help="Rows of path,cluster,distance.")
+@click.option("--plot", metavar="OUT.png", help="Write a picture of the clusters (PNG).")
+@format_options
+def cluster(store, clusters, threshold, metric, scale, as_csv, plot, output_format, as_json):
+    """Group the whole store into families of similar parts.
+
+    \b
+    Example:
+      shapeidx cluster --store parts.h5 --clusters 50
+      shapeidx cluster --store parts.h5 --threshold 0.05 --format csv --plot families.png
+    """
+    from .families.cluster import cluster_store
+    from .system import available_cores
+
+    table = _family_table(store)
+    if len(table) == 0:
+        raise _empty_store_error(store)
+    result = cluster_store(table, metric, clusters, threshold, scale, threads=available_cores())
+    rows = [{"path": str(p), "cluster": int(c), "distance": float(d)}
+            for p, c, d in sorted(zip(result["paths"], result["clusters"], result["distances"]), key=lambda r: (r[1], r[2], r[0]))]
+    if plot:
+        from .families.plot import plot_clusters
+
+        plot_clusters(table, result, plot, metric)
+    fmt = "csv" if as_csv and output_format is None else chosen_format(output_format, as_json)
+    if fmt == "json":
+        emit_json(rows)
+    elif fmt != "table":
+        emit_rows(fmt, ["path", "cluster", "distance"], rows)
+    else:
+        click.echo(f"{len(rows)} entries in {result['count']} clusters ({metric}, {result['road']})")
+        for r in rows:
+            click.echo(f"{r['cluster']:>6}  {r['distance']:<11.6g} {r['path']}")
+
+
+@main.command(context_settings=CONTEXT)
+@store_option
+@click.option("--metric", type=click.Choice(METRICS), default="combined", show_default=True, help="The distance.")
+@scale_option
+@click.option("--csv", "as_csv", is_flag=True, help="One row per pair (same as --format csv).")
+@format_options
+def duplicates(store, metric, scale, as_csv, output_format, as_json):
+    """Groups of entries that are the same part: identical file, same geometry, near duplicate.
+
+    Only reports: nothing is deleted or moved.
+
+    \b
+    Example:
+      shapeidx duplicates --store parts.h5
+      shapeidx duplicates --store parts.h5 --csv > duplicates.csv
+    """
+    from .families.duplicates import find_duplicates
+    from .system import available_cores
+
+    table = _family_table(store)
+    if len(table) == 0:
+        raise _empty_store_error(store)
+    groups = find_duplicates(table, metric, scale, threads=available_cores())
+    fmt = "csv" if as_csv and output_format is None else chosen_format(output_format, as_json)
+    if fmt == "json":
+        emit_json(groups)
+        return
+    if fmt != "table":
+        emit_rows(fmt, ["group", "a", "b", "tier", "distance", "size_ratio", "mirrored"],
+                  [{"group": g, **p} for g, group in enumerate(groups, start=1) for p in group["pairs"]])
+        return
+    pairs = sum(len(g["pairs"]) for g in groups)
+    click.echo(f"{len(groups)} group(s) of duplicates, {pairs} pair(s), among {len(table)} entries")
+    for g, group in enumerate(groups, start=1):
+        click.echo(f"group {g}: {len(group['members'])} parts")
+        for p in group["pairs"]:
+            ratio = "size ?" if p["size_ratio"] is None else f"size x{p['size_ratio']:.4g}"
+            mirror = ", mirrored" if p["mirrored"] else ""
+            click.echo(f"  {p['tier']:9s} {p['distance']:<10.4g} {ratio}{mirror}  {p['a']}  {p['b']}")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -110,6 +110,7 @@ def query_store(
     file_type: str | None = None,
     exclude_self: bool = False,
     max_distance: float | None = None,
+    scale: str = "invariant",
 ) -> list[dict]:
     """Rank a store against a part, or against one of its own entries.
 
@@ -128,6 +129,8 @@ def query_store(
     exclude_self : leave out the query's own entry (``entry``, or ``part`` when it is a file
         of the store's tree)
     max_distance : leave out hits farther than this
+    scale : "invariant" (the paper's) or "sensitive": entries whose size differs from the
+        part's by more than :data:`shapeidx.families.scale.SIZE_BAND` are left out
 
     Raises
     ------
@@ -139,13 +142,13 @@ def query_store(
     if metric not in METRICS:
         raise ValueError(f"unknown metric {metric!r}; expected one of {', '.join(METRICS)}")
     if isinstance(store, StoreReader):
-        return _query_reader(store, part, entry, top, metric, threads, file_type, exclude_self, max_distance)
+        return _query_reader(store, part, entry, top, metric, threads, file_type, exclude_self, max_distance, scale)
     with open_store(store) as reader:
-        return _query_reader(reader, part, entry, top, metric, threads, file_type, exclude_self, max_distance)
+        return _query_reader(reader, part, entry, top, metric, threads, file_type, exclude_self, max_distance, scale)
 
 
 def _query_reader(reader: StoreReader, part, entry, top, metric, threads, file_type, exclude_self=False,
-                  max_distance=None) -> list[dict]:
+                  max_distance=None, scale="invariant") -> list[dict]:
     check_usable(reader)
     table = SignatureTable.load(reader, METRIC_HISTOGRAMS[metric])
     if entry is not None:
@@ -156,13 +159,17 @@ def _query_reader(reader: StoreReader, part, entry, top, metric, threads, file_t
         own = entry_path_of(part, reader) if isinstance(part, (str, os.PathLike)) else None
         first = table.index_of(own) if own is not None else None
     distances = table.distances(signature, metric)
-    if not exclude_self and max_distance is None:
-        return top_hits(distances, table.paths, top, first)
-    keep = np.ones(len(distances), dtype=bool)
+    if scale != "invariant":
+        from .families.scale import apply_scale
+
+        distances = apply_scale(distances, signature.histograms["all"].mean, table.means[:, 0], scale)
+    keep = np.isfinite(distances)  # a scale-sensitive search leaves out parts of another size
     if exclude_self and first is not None:
         keep[first] = False
     if max_distance is not None:
         keep &= distances <= max_distance
+    if keep.all():
+        return top_hits(distances, table.paths, top, first)
     kept = np.flatnonzero(keep)
     first_kept = None if first is None or not keep[first] else int(np.searchsorted(kept, first))
     return top_hits(distances[kept], table.paths[kept], top, first_kept)

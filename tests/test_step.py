@@ -258,7 +258,7 @@ class TestRealParts:
             np.testing.assert_array_equal(mesh.face_indices, plain.face_indices)
 
     def test_importing_shapeidx_does_not_load_opencascade(self):
-        code = "import sys, shapeidx, shapeidx.io, shapeidx.cli, shapeidx.build; print('OCP' in sys.modules)"
+        code = "import sys, shapeidx, shapeidx.io, shapeidx.cli, shapeidx.index.build, shapeidx.io.registry; print('OCP' in sys.modules)"
         out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
         assert out.strip() == "False"
 

@@ -102,6 +102,7 @@ def reason_of(error: LoadError, absolute: str) -> str:
 
 def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
     """Hash and, unless the content is known, sign one file. Never raises for a bad file."""
+    from ..families.chirality import shape_facts
     from ..io import LoadLimits
     from ..signing.pipeline import signature_of_solid, solid_of_file
 
@@ -121,7 +122,8 @@ def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
         solid = solid_of_file(task.absolute, LoadLimits(root=Path(root), faceting=params.faceting))
         check_signature_headroom(task.absolute, len(solid.faces))
         signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor)
-        entry = Entry.indexed(task.path, digest, size, mtime, signature, solid.describe())
+        entry = Entry.indexed(task.path, digest, size, mtime, signature, solid.describe(),
+                              shape_facts(solid.vertices, solid.faces))
         kind = "indexed"
     except OutOfMemory as exc:
         entry = Entry.failed(task.path, digest, size, mtime, reason_of(exc, task.absolute))

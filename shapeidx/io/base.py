@@ -49,7 +49,7 @@ class LoadLimits:
         arrays are built: for VRML after DEF/USE and Inline expansion is counted, for the
         other formats once the file is read. The default, 4 GiB, admits some 5 million
         triangles. What no count foresees (Python objects of a huge text file) is bounded
-        by the build workers' memory limit instead (:mod:`shapeidx.workers`).
+        by the build workers' memory limit instead (:mod:`shapeidx.index.workers`).
     """
 
     max_triangles: int = 50_000_000

@@ -7,7 +7,7 @@ everything downstream is the same as for a mesh format.
 
 * **What is read**: every face of the file's shapes: faces of solids, of shells that
   bound no solid, and free faces (an open shell stays open, as in the VRML reader;
-  :mod:`shapeidx.solid` then judges inside and outside by winding numbers).
+  :mod:`shapeidx.signing.solid` then judges inside and outside by winding numbers).
 * **Assemblies**: the plain ``STEPControl_Reader`` / ``IGESControl_Reader`` transfer
   gives one compound whose sub-shapes carry their placements (``TopLoc_Location``); each
   face's triangulation is moved by the location accumulated down to it, so a solid used
@@ -19,7 +19,7 @@ everything downstream is the same as for a mesh format.
   the angular one in radians (defaults and the study behind them: ``docs/faceting.md``).
 * **Bad files** (not STEP or IGES, truncated, no geometry, nothing that tessellates) raise
   one :class:`~shapeidx.errors.LoadError` line. A file that crashes or hangs OpenCASCADE
-  itself is contained by the build's worker processes (:mod:`shapeidx.workers`).
+  itself is contained by the build's worker processes (:mod:`shapeidx.index.workers`).
 
 OpenCASCADE (the ``cadquery-ocp-novtk`` wheel, module ``OCP``) is imported only when a
 solid model is read: importing :mod:`shapeidx` does not load it.

@@ -147,7 +147,7 @@ def png_bytes(picture: np.ndarray) -> bytes:
 
 
 def render_solid_png(solid, size: int = DEFAULT_SIZE) -> bytes:
-    """The PNG thumbnail of a :class:`~shapeidx.solid.Solid` (or anything with vertices and faces)."""
+    """The PNG thumbnail of a :class:`~shapeidx.signing.solid.Solid` (or anything with vertices and faces)."""
     return png_bytes(render_rgba(solid.vertices, solid.faces, size))
 
 

@@ -282,8 +282,8 @@ def query_sheet(
 ) -> list[dict]:
     """Rank the store against a part (file or ``entry``) and write the result sheet.
 
-    Returns the hits as :func:`shapeidx.query.top_hits` gives them (each with ``"words"``
-    added). Raises StoreError / LoadError as :func:`shapeidx.query.query_store` does.
+    Returns the hits as :func:`shapeidx.ranking.top_hits` gives them (each with ``"words"``
+    added). Raises StoreError / LoadError as :func:`shapeidx.ranking.query_store` does.
     """
     from ..errors import StoreError
     from ..api import load

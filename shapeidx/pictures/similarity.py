@@ -81,7 +81,7 @@ class SimilarityScale:
 
     @classmethod
     def of_table(cls, reader, table, metric: str, seed: int = 0) -> "SimilarityScale":
-        """Calibrate on a loaded :class:`~shapeidx.query.SignatureTable` of ``reader``."""
+        """Calibrate on a loaded :class:`~shapeidx.ranking.SignatureTable` of ``reader``."""
         n = len(table)
         if n < 2:
             return cls(metric, np.zeros(0), 0, 0)

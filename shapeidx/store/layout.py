@@ -17,8 +17,9 @@ from ..ragged import offsets_of
 from ..signing.histogram import Histogram, Signature
 from ..signing.parameters import HISTOGRAMS
 
-#: Layout version of the files; a store with a newer one is refused.
-SCHEMA_VERSION = 1
+#: Layout version of the files; a store with a newer one is refused. 2 added the size and
+#: handedness columns (:data:`SHAPE_COLUMNS`); files of layout 1 still open, those columns NaN.
+SCHEMA_VERSION = 2
 STATUS_OK, STATUS_FAILED = 0, 1
 #: Class fractions are stored as (N, 3) in this order.
 FRACTION_CLASSES = HISTOGRAMS[1:]
@@ -42,6 +43,11 @@ ENTRY_COLUMNS = {
     "entries/watertight": (np.bool_, np.bool_),
     "entries/fractions": (np.float64, np.float64),
 }
+#: Added in layout 2 (shapeidx.families.chirality.shape_facts): bounding box (min xyz, max
+#: xyz) and principal radii in file units, and the two handedness pseudo-scalars. Absent from
+#: older files: read as NaN (``StoreReader.missing_columns`` names them).
+SHAPE_COLUMNS = {"entries/bounds": 6, "entries/extents": 3, "entries/handedness": 2}
+ENTRY_COLUMNS.update({name: (np.float64, np.float64) for name in SHAPE_COLUMNS})
 for _name in HISTOGRAMS:
     ENTRY_COLUMNS[f"histograms/{_name}/mean"] = (np.float64, np.float64)
     ENTRY_COLUMNS[f"histograms/{_name}/bin_width"] = (np.float64, np.float64)
@@ -152,10 +158,14 @@ class Entry:
     watertight: bool = False
     fractions: tuple = (float("nan"),) * 3
     histograms: dict = field(default_factory=dict)
+    bounds: tuple = (float("nan"),) * 6
+    extents: tuple = (float("nan"),) * 3
+    handedness: tuple = (float("nan"),) * 2
 
     @classmethod
-    def indexed(cls, path, hash, size, mtime_ns, signature: Signature, facts: dict) -> "Entry":
-        """An ok entry: a signature and the mesh facts of :meth:`shapeidx.signing.solid.Solid.describe`."""
+    def indexed(cls, path, hash, size, mtime_ns, signature: Signature, facts: dict, shape: dict | None = None) -> "Entry":
+        """An ok entry: a signature, the mesh facts of :meth:`shapeidx.signing.solid.Solid.describe`
+        and the size and handedness of :func:`shapeidx.families.chirality.shape_facts` (``shape``)."""
         return cls(
             path=path,
             hash=hash,
@@ -166,6 +176,7 @@ class Entry:
             watertight=bool(facts["watertight"]),
             fractions=tuple(signature.fractions[c] for c in FRACTION_CLASSES),
             histograms=dict(signature.histograms),
+            **{k: tuple(float(v) for v in shape[k]) for k in ("bounds", "extents", "handedness") if k in (shape or {})},
         )
 
     @classmethod
@@ -190,6 +201,9 @@ def entries_to_columns(entries: list[Entry]) -> tuple[dict, dict]:
         "entries/watertight": np.array([e.watertight for e in entries], dtype=np.bool_),
         "entries/fractions": np.array([e.fractions for e in entries], dtype=np.float64).reshape(n, 3),
     }
+    for name, width in SHAPE_COLUMNS.items():
+        key = name.split("/")[1]
+        columns[name] = np.array([getattr(e, key) for e in entries], dtype=np.float64).reshape(n, width)
     counts = {}
     for name in HISTOGRAMS:
         hists = [e.histograms.get(name, empty) for e in entries]
@@ -217,12 +231,21 @@ def _as_counts(values: np.ndarray) -> np.ndarray:
 def write_columns(f: h5py.File, columns: dict) -> None:
     """Write every per-entry column (dataset name -> array) with its file dtype."""
     for name, (_, file_dtype) in ENTRY_COLUMNS.items():
-        data = columns[name]
+        data = columns[name] if name in columns or name not in SHAPE_COLUMNS else missing_column(name, _rows(columns))
         # HDF5 filters no variable-length data: strings are covered by their content hash
         options = {} if file_dtype is _STR else checked(np.shape(data))
         dataset = f.create_dataset(name, data=data, dtype=file_dtype, **options)
         if file_dtype is _STR:
             dataset.attrs[CONTENT_HASH] = strings_hash(data)
+
+
+def missing_column(name: str, rows: int) -> np.ndarray:
+    """A layout-2 column an older file lacks, as NaN: (rows, width)."""
+    return np.full((rows, SHAPE_COLUMNS[name]), np.nan)
+
+
+def _rows(columns: dict) -> int:
+    return len(columns["entries/path"])
 
 
 def write_counts(f: h5py.File, name: str, counts: np.ndarray, lengths: np.ndarray) -> None:

@@ -26,9 +26,11 @@ from .layout import (
     DEFAULT_STORE,
     ENTRY_COLUMNS,
     SCHEMA_VERSION,
+    SHAPE_COLUMNS,
     STORE_ENV,
     StoreParams,
     as_text,
+    missing_column,
     object_array,
     strings_hash,
 )
@@ -116,7 +118,10 @@ class _SourceFile:
 
     def column(self, name: str) -> np.ndarray:
         if name not in self._columns:
-            self._columns[name] = self._read(name, ENTRY_COLUMNS[name][0])
+            if name in SHAPE_COLUMNS and name not in self.file:  # a file of layout 1
+                self._columns[name] = missing_column(name, len(self))
+            else:
+                self._columns[name] = self._read(name, ENTRY_COLUMNS[name][0])
         return self._columns[name]
 
     def offsets(self, name: str) -> np.ndarray:
@@ -252,6 +257,11 @@ class StoreReader:
             i = self.index_of(p, paths)
             if i is not None:
                 out[i] = values[field_index]
+
+    @property
+    def missing_columns(self) -> list[str]:
+        """Layout-2 columns (size, handedness) some live entry lacks: its file predates them (NaN)."""
+        return [n for n in SHAPE_COLUMNS if any(n not in s.file and (self.source == i).any() for i, s in enumerate(self._sources))]
 
     @property
     def paths(self) -> np.ndarray:

@@ -5,7 +5,7 @@ multipart uploads (python-multipart), static files and a test client, and nothin
 use (no ORM, no templates, no validation layer). The API is documented in docs/web.md.
 
 The store is read once at start (:class:`StoreService`): the ok entries' histograms
-(:class:`~shapeidx.query.SignatureTable`), paths, fractions and the failed entries with their
+(:class:`~shapeidx.ranking.SignatureTable`), paths, fractions and the failed entries with their
 reasons stay in memory, so a query costs one vectorised ranking. The store is a snapshot:
 restart the server to see a newer build.
 

@@ -1,0 +1,166 @@
+"""``shapeidx cluster``: the whole store in families of similar parts.
+
+Two roads, by the store's size:
+
+* up to :data:`MATRIX_LIMIT` entries, the exact distance matrix (every pair, by
+  :meth:`FamilyTable.pair_distances`) and scipy's hierarchical clustering with Ward's
+  criterion on it (measured against average and complete linkage on kicad6:
+  docs/results.md);
+* above, a graph of each entry's :data:`GRAPH_NEIGHBOURS` nearest neighbours (candidates of
+  :mod:`.candidates`, confirmed with the exact distance) and single linkage on it: its
+  minimum spanning forest, cut at the threshold or into ``clusters`` trees by dropping the
+  longest edges. Memory and time grow as N k, not N^2.
+
+Either way ``--threshold D`` cuts the tree at distance D and ``--clusters K`` into K
+clusters; without either, :data:`DEFAULT_CLUSTERS_PER_ENTRY` sets K (one cluster per ten
+parts, kicad6's ratio of parts to folders). Each entry gets its cluster (numbered from 1 by
+size, largest first) and its distance to the cluster's most central member (the medoid:
+least total distance to the other members; on the graph road, among the members'
+neighbours).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ShapeidxError
+from .candidates import candidate_pairs
+from .scale import check_scale, within_band
+
+#: Largest store clustered from the full distance matrix (N^2 / 2 exact distances).
+MATRIX_LIMIT = 4000
+#: Neighbours per entry in the graph road.
+GRAPH_NEIGHBOURS = 15
+#: Default K = N / this (kicad6: 520 parts in 52 folders).
+DEFAULT_CLUSTERS_PER_ENTRY = 10
+DEFAULT_METRIC = "combined"
+#: Finite stand-in for "apart" (pairs outside the size band under --scale sensitive).
+APART = 1e6
+
+
+def distance_matrix(table, metric: str = DEFAULT_METRIC, scale: str = "invariant") -> np.ndarray:
+    """(N, N) exact distances between every two entries; pairs outside the size band are :data:`APART`."""
+    n = len(table)
+    i, j = np.triu_indices(n, 1)
+    d = table.pair_distances(i, j, metric) if len(i) else np.zeros(0)
+    if check_scale(scale) == "sensitive":
+        d = np.where(within_band(table.sizes[i], table.sizes[j]), d, APART)
+    matrix = np.zeros((n, n))
+    matrix[i, j] = d
+    matrix[j, i] = d
+    return matrix
+
+
+def _numbered_by_size(labels: np.ndarray) -> np.ndarray:
+    """Cluster numbers 1..K, 1 the largest (ties: the one whose first member comes first)."""
+    _, inverse, counts = np.unique(labels, return_inverse=True, return_counts=True)
+    first = np.full(len(counts), len(labels))
+    np.minimum.at(first, inverse, np.arange(len(labels)))
+    order = np.lexsort((first, -counts))
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[order] = np.arange(1, len(order) + 1)
+    return rank[inverse]
+
+
+def cluster_matrix(matrix: np.ndarray, clusters: int | None = None, threshold: float | None = None,
+                   method: str = "ward") -> np.ndarray:
+    """Hierarchical clustering of a distance matrix: cluster numbers (1 = largest)."""
+    from scipy.cluster.hierarchy import fcluster, linkage
+    from scipy.spatial.distance import squareform
+
+    n = len(matrix)
+    if n == 1:
+        return np.ones(1, dtype=np.int64)
+    tree = linkage(squareform(matrix, checks=False), method)
+    if threshold is not None:
+        labels = fcluster(tree, threshold, "distance")
+    else:
+        labels = fcluster(tree, min(clusters, n), "maxclust")
+    return _numbered_by_size(labels)
+
+
+def medoid_distances(matrix: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Each entry's distance to its cluster's medoid."""
+    out = np.zeros(len(labels))
+    for c in np.unique(labels):
+        members = np.flatnonzero(labels == c)
+        sub = matrix[np.ix_(members, members)]
+        out[members] = sub[:, int(np.argmin(sub.sum(axis=1)))]
+    return out
+
+
+def cluster_graph(table, metric: str, clusters: int | None, threshold: float | None, scale: str,
+                  k: int = GRAPH_NEIGHBOURS, method: str = "auto", threads: int | None = None):
+    """Single linkage on the nearest-neighbour graph: (cluster numbers, distance to the medoid)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
+
+    n = len(table)
+    a, b, d, _, _ = candidate_pairs(table, metric, min(k, n - 1), method, threads)
+    if check_scale(scale) == "sensitive":
+        keep = within_band(table.sizes[a], table.sizes[b])
+        a, b, d = a[keep], b[keep], d[keep]
+    # a zero weight is "no edge" to scipy's sparse graphs: identical entries get a tiny one
+    weights = np.maximum(d, 1e-300)
+    forest = minimum_spanning_tree(coo_matrix((weights, (a, b)), shape=(n, n)).tocsr()).tocoo()
+    fa, fb, fw = forest.row, forest.col, forest.data
+    if threshold is not None:
+        keep = fw <= threshold
+    else:
+        parts_now, _ = connected_components(coo_matrix((fw, (fa, fb)), shape=(n, n)), directed=False)
+        cut = max(0, min(clusters, n) - parts_now)
+        keep = np.ones(len(fw), dtype=bool)
+        if cut:
+            keep[np.argsort(-fw, kind="stable")[:cut]] = False
+    _, labels = connected_components(coo_matrix((fw[keep], (fa[keep], fb[keep])), shape=(n, n)), directed=False)
+    labels = _numbered_by_size(labels)
+    # medoid among each cluster's graph edges: the member with the least mean distance to its
+    # neighbours in the cluster; every member's distance to it is then computed exactly
+    same = labels[a] == labels[b]
+    total = np.bincount(a[same], d[same], n) + np.bincount(b[same], d[same], n)
+    count = np.bincount(a[same], minlength=n) + np.bincount(b[same], minlength=n)
+    mean = np.where(count > 0, total / np.maximum(count, 1), np.inf)
+    order = np.lexsort((mean, labels))
+    first = np.concatenate([[True], labels[order][1:] != labels[order][:-1]])
+    medoid_of = np.zeros(labels.max() + 1, dtype=np.int64)
+    medoid_of[labels[order][first]] = order[first]
+    medoids = medoid_of[labels]
+    distances = table.pair_distances(np.arange(n), medoids, metric)
+    distances[medoids == np.arange(n)] = 0.0
+    return labels, distances
+
+
+def cluster_store(table, metric: str = DEFAULT_METRIC, clusters: int | None = None, threshold: float | None = None,
+                  scale: str = "invariant", road: str = "auto", threads: int | None = None) -> dict:
+    """Cluster a :class:`~shapeidx.families.table.FamilyTable`.
+
+    Parameters
+    ----------
+    clusters, threshold : int or float, optional
+        At most one; neither: N / :data:`DEFAULT_CLUSTERS_PER_ENTRY` clusters.
+    road : "auto", "matrix" or "graph"
+        See the module docstring; "auto" takes the matrix up to :data:`MATRIX_LIMIT` entries.
+
+    Returns
+    -------
+    dict
+        ``paths``, ``clusters`` (numbers, 1 the largest), ``distances`` (to the medoid),
+        ``road``, ``count`` (clusters made).
+    """
+    n = len(table)
+    if n == 0:
+        raise ShapeidxError("the store has no indexed entries to cluster")
+    if clusters is not None and threshold is not None:
+        raise ShapeidxError("give --clusters or --threshold, not both")
+    if clusters is None and threshold is None:
+        clusters = max(1, round(n / DEFAULT_CLUSTERS_PER_ENTRY))
+    road = ("matrix" if n <= MATRIX_LIMIT else "graph") if road == "auto" else road
+    if n == 1:
+        labels, distances = np.ones(1, dtype=np.int64), np.zeros(1)
+    elif road == "matrix":
+        matrix = distance_matrix(table, metric, scale)
+        labels = cluster_matrix(matrix, clusters, threshold)
+        distances = medoid_distances(matrix, labels)
+    else:
+        labels, distances = cluster_graph(table, metric, clusters, threshold, scale, threads=threads)
+    return {"paths": table.paths, "clusters": labels, "distances": distances, "road": road, "count": int(labels.max())}

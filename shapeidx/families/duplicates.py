@@ -1,0 +1,157 @@
+"""``shapeidx duplicates``: groups of store entries that are the same part.
+
+Every pair found is put in one tier:
+
+* ``identical``: the same file content (SHA-256);
+* ``same``: the same geometry: the shape distance is within the noise of signing one part
+  with other random points (:data:`THRESHOLDS`, measured per metric by
+  ``scripts/duplicates_study.py --noise``, see docs/duplicates.md) and the part's
+  proportions (principal radii divided by the largest) agree within :data:`ASPECT_SAME`;
+* ``near``: a near duplicate: distance within the looser ``near`` threshold and proportions
+  within :data:`ASPECT_NEAR`.
+
+Each pair also says ``size_ratio`` (size of ``b`` over size of ``a``; sizes are mean pair
+distances in file units, so a copy saved in inches shows 1/25.4) and ``mirrored`` (one is the
+mirror image of the other, by :func:`shapeidx.families.chirality.mirror_relation`; always
+false for parts that are their own mirror image). With ``scale="sensitive"`` a pair whose
+sizes differ by more than :data:`~shapeidx.families.scale.SIZE_BAND` is no duplicate.
+
+Candidates come from :func:`shapeidx.families.candidates.candidate_pairs` (each entry's
+nearest neighbours in the embedding, confirmed with the exact distance), so the work grows
+as N k, not N^2. Groups are the connected components of the pairs found; a group lists the
+pairs that link it (for a large group, not every pair of its members). Nothing is ever
+deleted or moved.
+"""
+
+from __future__ import annotations
+
+import json
+from importlib import resources
+
+import numpy as np
+
+from ..errors import ShapeidxError
+from .candidates import candidate_pairs
+from .chirality import mirror_relation
+from .scale import check_scale, within_band
+
+TIERS = ("identical", "same", "near")
+DEFAULT_METRIC = "combined"
+#: Candidate neighbours per entry.
+DEFAULT_NEIGHBOURS = 10
+#: Largest |ln| gap of the proportions r2/r1, r3/r1 for ``same`` and for ``near``.
+ASPECT_SAME = 0.05
+ASPECT_NEAR = 0.15
+
+
+def _thresholds() -> dict:
+    return json.loads(resources.files(__package__).joinpath("thresholds.json").read_text())
+
+
+def thresholds(metric: str) -> dict:
+    """``{"same": d, "near": d}`` for ``metric`` (from thresholds.json, see the module docstring)."""
+    data = _thresholds()["thresholds"]
+    if metric not in data:
+        raise ShapeidxError(f"no duplicate thresholds measured for metric {metric!r} (have: {', '.join(data)})")
+    return data[metric]
+
+
+def aspect_gap(extents_a: np.ndarray, extents_b: np.ndarray) -> np.ndarray:
+    """Largest ``|ln|`` difference of the proportions r2/r1 and r3/r1 (NaN: unknown)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pa = np.log(extents_a[:, 1:] / extents_a[:, :1])
+        pb = np.log(extents_b[:, 1:] / extents_b[:, :1])
+        return np.abs(pa - pb).max(axis=1)
+
+
+class _UnionFind:
+    def __init__(self, n: int):
+        self.parent = np.arange(n)
+
+    def find(self, i: int) -> int:
+        root = i
+        while self.parent[root] != root:
+            root = self.parent[root]
+        while self.parent[i] != root:
+            self.parent[i], i = root, self.parent[i]
+        return root
+
+    def union(self, a: int, b: int) -> None:
+        ra, rb = self.find(a), self.find(b)
+        if ra != rb:
+            self.parent[max(ra, rb)] = min(ra, rb)
+
+
+def find_duplicates(table, metric: str = DEFAULT_METRIC, scale: str = "invariant", k: int = DEFAULT_NEIGHBOURS,
+                    method: str = "auto", threads: int | None = None, limits: dict | None = None) -> list[dict]:
+    """Duplicate groups of a :class:`~shapeidx.families.table.FamilyTable`.
+
+    Returns
+    -------
+    list of dict
+        Groups, largest first: ``members`` (paths, sorted) and ``pairs`` (``a``, ``b``,
+        ``tier``, ``distance``, ``size_ratio``, ``mirrored``).
+    """
+    check_scale(scale)
+    limits = limits or thresholds(metric)
+    n = len(table)
+    if n == 0:
+        return []
+    pairs_a, pairs_b, tiers, dists = [], [], [], []
+    # identical files: every member to the first of its hash
+    hashes = table.hashes
+    order = np.argsort(hashes, kind="stable")
+    sorted_hashes = hashes[order]
+    starts = np.flatnonzero(np.concatenate([[True], sorted_hashes[1:] != sorted_hashes[:-1]]))
+    ends = np.concatenate([starts[1:], [n]])
+    for lo, hi in zip(starts, ends):
+        if hi - lo > 1 and sorted_hashes[lo] not in (b"", ""):
+            members = np.sort(order[lo:hi])
+            pairs_a += [members[0]] * (len(members) - 1)
+            pairs_b += list(members[1:])
+            tiers += ["identical"] * (len(members) - 1)
+            dists += [0.0] * (len(members) - 1)
+    if n > 1:
+        a, b, d, _, _ = candidate_pairs(table, metric, min(k, n - 1), method, threads)
+        keep = (d <= limits["near"]) & (hashes[a] != hashes[b])
+        a, b, d = a[keep], b[keep], d[keep]
+        gap = aspect_gap(table.extents[a], table.extents[b])
+        unknown = np.isnan(gap)
+        same = (d <= limits["same"]) & (unknown | (gap <= ASPECT_SAME))
+        near = ~same & (unknown | (gap <= ASPECT_NEAR))
+        if scale == "sensitive":
+            band = within_band(table.sizes[a], table.sizes[b])
+            same, near = same & band, near & band
+        take = same | near
+        pairs_a += list(a[take])
+        pairs_b += list(b[take])
+        tiers += ["same" if s else "near" for s in same[take]]
+        dists += list(d[take])
+    if not pairs_a:
+        return []
+    pa, pb = np.array(pairs_a, dtype=np.int64), np.array(pairs_b, dtype=np.int64)
+    ratios = table.size_ratios(pa, pb)
+    mirrored = mirror_relation(table.handedness[pa], table.handedness[pb])
+    uf = _UnionFind(n)
+    for x, y in zip(pa, pb):
+        uf.union(int(x), int(y))
+    groups: dict = {}
+    for i, (x, y) in enumerate(zip(pa, pb)):
+        groups.setdefault(uf.find(int(x)), []).append(i)
+    out = []
+    for pair_indices in groups.values():
+        members = sorted({str(table.paths[pa[i]]) for i in pair_indices} | {str(table.paths[pb[i]]) for i in pair_indices})
+        pairs = [
+            {
+                "a": str(table.paths[pa[i]]),
+                "b": str(table.paths[pb[i]]),
+                "tier": tiers[i],
+                "distance": float(dists[i]),
+                "size_ratio": None if not np.isfinite(ratios[i]) else float(ratios[i]),
+                "mirrored": bool(mirrored[i]),
+            }
+            for i in sorted(pair_indices, key=lambda i: (TIERS.index(tiers[i]), str(table.paths[pa[i]]), str(table.paths[pb[i]])))
+        ]
+        out.append({"members": members, "pairs": pairs})
+    out.sort(key=lambda g: (-len(g["members"]), g["members"][0]))
+    return out

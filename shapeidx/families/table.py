@@ -1,0 +1,175 @@
+"""The ok entries of a store laid out for all-pairs work: histograms as ragged probability
+rows, the class fractions and means, and the size and handedness columns.
+
+:class:`~shapeidx.ranking.SignatureTable` answers "one part against every entry";
+:class:`FamilyTable` answers "these pairs of entries", which is what classifying, clustering
+and finding duplicates over a whole store need (a few neighbours per entry, never N x N).
+:meth:`FamilyTable.pair_distances` gives for each pair what :func:`shapeidx.distance.compare`
+gives for the two stored signatures (to rounding: sums run in another order).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..distance import FEATURES, METRIC_HISTOGRAMS, METRICS, metric_values
+from ..distance.combined import class_scales
+from ..errors import StoreError
+from ..ragged import offsets_of
+from ..signing.parameters import HISTOGRAMS, SIGNATURE_VERSION
+from ..store import STATUS_OK, StoreReader
+
+#: Pair values handled per step of :meth:`FamilyTable.pair_distances` (bounds its memory).
+PAIR_BLOCK_VALUES = 1 << 23
+
+
+@dataclass
+class RaggedHistograms:
+    """One histogram of every entry: probabilities end to end (``p[offsets[i]:offsets[i+1]]``)."""
+
+    p: np.ndarray
+    offsets: np.ndarray
+
+    @property
+    def lengths(self) -> np.ndarray:
+        return np.diff(self.offsets)
+
+    @classmethod
+    def from_counts(cls, counts: np.ndarray, lengths: np.ndarray) -> "RaggedHistograms":
+        offsets = offsets_of(np.asarray(lengths, dtype=np.int64))
+        totals = np.zeros(len(lengths), dtype=np.float64)
+        filled = lengths > 0
+        if filled.any():
+            totals[filled] = np.add.reduceat(counts, offsets[:-1][filled], dtype=np.int64)
+        p = counts.astype(np.float64) / np.repeat(np.maximum(totals, 1), lengths)
+        return cls(p, offsets)
+
+    def distances(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """The paper's ``D`` (zero-padded L1 / bins) between rows ``a[k]`` and ``b[k]``."""
+        lengths = self.lengths
+        la, lb = lengths[a], lengths[b]
+        width = np.maximum(la, lb)
+        out = np.zeros(len(a))
+        start = 0
+        cumulative = np.cumsum(width)
+        while start < len(a):
+            base = cumulative[start - 1] if start else 0
+            stop = max(start + 1, int(np.searchsorted(cumulative, base + PAIR_BLOCK_VALUES, side="right")))
+            out[start:stop] = self._block(a[start:stop], b[start:stop], la[start:stop], lb[start:stop], width[start:stop])
+            start = stop
+        return out
+
+    def _block(self, a, b, la, lb, width) -> np.ndarray:
+        total = int(width.sum())
+        if total == 0:
+            return np.zeros(len(a))
+        pair_offsets = offsets_of(width)
+        k = np.arange(total) - np.repeat(pair_offsets[:-1], width)  # bin index within each pair
+        va = _padded_values(self.p, self.offsets[a], la, k, width)
+        vb = _padded_values(self.p, self.offsets[b], lb, k, width)
+        sums = np.add.reduceat(np.abs(va - vb), pair_offsets[:-1][width > 0]) if total else np.zeros(0)
+        out = np.zeros(len(a))
+        out[width > 0] = sums / width[width > 0]
+        return out
+
+
+def _padded_values(p, starts, lengths, k, width) -> np.ndarray:
+    starts_r = np.repeat(starts, width)
+    inside = k < np.repeat(lengths, width)
+    values = np.zeros(len(k))
+    values[inside] = p[starts_r[inside] + k[inside]]
+    return values
+
+
+@dataclass
+class FamilyTable:
+    """The ok entries of a store, for pair work (see the module docstring).
+
+    Attributes
+    ----------
+    paths : (N,) object
+    rows : (N,) int64
+        Position of each entry in the store reader.
+    histograms : dict
+        Name -> :class:`RaggedHistograms` (those loaded).
+    fractions : (N, 3) float64
+    means : (N, 4) float64
+        Mean pair distance per histogram, in file units (``means[:, 0]``: the part's size).
+    hashes : (N,) bytes
+    extents : (N, 3) float64
+        Principal radii, NaN for entries of a store that predates them.
+    handedness : (N, 2) float64
+    missing_columns : list of str
+        Columns the store's files lack (read as NaN).
+    """
+
+    paths: np.ndarray
+    rows: np.ndarray
+    histograms: dict
+    fractions: np.ndarray
+    means: np.ndarray
+    hashes: np.ndarray
+    extents: np.ndarray
+    handedness: np.ndarray
+    missing_columns: list
+
+    @classmethod
+    def load(cls, reader: StoreReader, histograms=HISTOGRAMS) -> "FamilyTable":
+        """The ok entries of ``reader``; refuses a store of another signature version."""
+        if reader.params.signature_version != SIGNATURE_VERSION:
+            raise StoreError(
+                f"store {reader.path} holds signatures of version {reader.params.signature_version}, this shapeidx"
+                f" makes version {SIGNATURE_VERSION}: rebuild it (delete it and run shapeidx build)"
+            )
+        rows = np.flatnonzero(reader.column("entries/status") == STATUS_OK)
+        hists = {name: RaggedHistograms.from_counts(*reader.counts(name, rows)) for name in histograms}
+        means = np.stack([reader.column(f"histograms/{name}/mean")[rows] for name in HISTOGRAMS], axis=1)
+        return cls(
+            paths=reader.paths[rows],
+            rows=rows,
+            histograms=hists,
+            fractions=reader.column("entries/fractions")[rows],
+            means=means,
+            hashes=reader.column("entries/hash")[rows],
+            extents=reader.column("entries/extents")[rows],
+            handedness=reader.column("entries/handedness")[rows],
+            missing_columns=reader.missing_columns,
+        )
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    @property
+    def sizes(self) -> np.ndarray:
+        """Each part's size in file units: its mean pair distance (ALL)."""
+        return self.means[:, 0]
+
+    def pair_features(self, a: np.ndarray, b: np.ndarray, histograms=HISTOGRAMS) -> dict:
+        """The per-pair :data:`~shapeidx.distance.FEATURES` of entries ``a[k]``, ``b[k]``."""
+        a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+        features = {f"d_{h}": self.histograms[h].distances(a, b) if h in histograms else np.zeros(len(a)) for h in HISTOGRAMS}
+        for i, c in enumerate(HISTOGRAMS[1:]):
+            features[f"gap_{c}"] = np.abs(self.fractions[a, i] - self.fractions[b, i])
+        scales = class_scales(self.means)
+        gap = np.abs(scales[a] - scales[b])
+        for i, c in enumerate(HISTOGRAMS[1:]):
+            features[f"scale_{c}"] = gap[:, i]
+        assert set(features) == set(FEATURES)
+        return features
+
+    def pair_distances(self, a: np.ndarray, b: np.ndarray, metric: str = "combined") -> np.ndarray:
+        """Distance by ``metric`` between entries ``a[k]`` and ``b[k]``, for every k."""
+        if metric not in METRICS:
+            raise ValueError(f"unknown metric {metric!r}; expected one of {', '.join(METRICS)}")
+        missing = set(METRIC_HISTOGRAMS[metric]) - set(self.histograms)
+        if missing:
+            raise ValueError(f"metric {metric} needs histograms not loaded: {', '.join(sorted(missing))}")
+        features = self.pair_features(a, b, METRIC_HISTOGRAMS[metric])
+        return np.asarray(metric_values(features, (metric,))[metric], dtype=np.float64)
+
+    def size_ratios(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """``size[b] / size[a]``: how much larger b is than a (mean pair distance, file units)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return self.sizes[b] / self.sizes[a]
