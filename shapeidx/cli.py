@@ -168,14 +168,18 @@ def _size(n: int) -> str:
 @click.option("--verbose", "-v", is_flag=True, help="A line per indexed file and per commit.")
 @click.option("--dry-run", is_flag=True, help="Only say what a build would do: walk and plan, change nothing.")
 @json_option
+@click.option("--scheduler", envvar="SHAPEIDX_SCHEDULER", metavar="ADDRESS",
+              help="Index the files on this dask.distributed cluster (env SHAPEIDX_SCHEDULER) [default: locally].")
+@click.option("--worker-root", metavar="PATH", help="Where the cluster's workers see DIRECTORY [default: the same path].")
 @click.option("--merge-after", type=click.IntRange(1), default=MERGE_AFTER, hidden=True)
 @click.pass_context
 def build(ctx, directory, store, points, seed, workers, full, rehash, retry_failed, timeout, commit_interval,
-          wait, strict, quiet, verbose, dry_run, as_json, merge_after):
+          wait, strict, quiet, verbose, dry_run, as_json, scheduler, worker_root, merge_after):
     """Index every part file under DIRECTORY into the store (incremental)."""
     options = BuildOptions(points=points, seed=seed, workers=workers or 0, full=full, rehash=rehash,
                            retry_failed=retry_failed, timeout=timeout, wait=wait,
-                           commit_interval=commit_interval, merge_after=merge_after, dry_run=dry_run)
+                           commit_interval=commit_interval, merge_after=merge_after, dry_run=dry_run,
+                           scheduler=scheduler or None, worker_root=worker_root)
     reporter = BuildReporter(quiet=quiet, verbose=verbose)
     store_path = resolve_store_path(store)
     try:

@@ -43,6 +43,10 @@ class BuildOptions:
     merge_after: int = MERGE_AFTER
     #: Only plan: walk the tree and compare it with the store, change nothing.
     dry_run: bool = False
+    #: A dask.distributed scheduler's address: index the files on its cluster (see dask_pool.py).
+    scheduler: str | None = None
+    #: Where the cluster's workers see the tree, when not at the same path.
+    worker_root: str | None = None
 
 
 @dataclass
@@ -110,6 +114,8 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     store = Path(store)
     params = resolve_params(store, options)
     summary = BuildSummary()
+    if options.worker_root and not options.scheduler:
+        raise ShapeidxError("--worker-root is where a cluster's workers see the tree: it needs --scheduler")
     if options.dry_run:
         return _dry_run(root, store, params, options, reporter, summary)
     with _sigterm_as_interrupt(), StoreWriter(store, params, root, options.wait, reporter.waiting) as writer:
@@ -123,7 +129,7 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         committer = Committer(writer, options.commit_interval, options.merge_after, reporter)
         committer.remove(plan.removed)
         summary.removed = len(plan.removed)
-        pool = WorkerPool(options.workers or available_cores(), params, str(root), options.timeout)
+        pool = _pool(options, params, root)
         try:
             for outcome in pool.run(plan.tasks):
                 if outcome is not None:
@@ -140,6 +146,15 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     summary.seconds = time.monotonic() - started
     _store_counts(store, summary)
     return summary
+
+
+def _pool(options: BuildOptions, params: StoreParams, root: Path):
+    """Local worker processes, or a Dask cluster's workers with ``--scheduler``."""
+    if options.scheduler:
+        from .dask_pool import DaskPool
+
+        return DaskPool(options.scheduler, params, str(root), options.timeout, options.worker_root)
+    return WorkerPool(options.workers or available_cores(), params, str(root), options.timeout)
 
 
 def _dry_run(root: Path, store: Path, params: StoreParams, options, reporter, summary: BuildSummary) -> BuildSummary:

@@ -251,7 +251,13 @@ def open_store(path: str | os.PathLike, attempts: int = 20) -> StoreReader:
             merged = int(main.file.attrs["journal_seq"])
             for seq, batch in batch_files(path):
                 if seq > merged:
-                    batches.append(_SourceFile(batch, seq))
+                    try:
+                        batches.append(_SourceFile(batch, seq))
+                    except OSError:
+                        if batch.exists():
+                            raise
+                        # deleted between the listing and the open: h5py may say so as a bare OSError
+                        raise FileNotFoundError(batch) from None
             if _same_file(path, main):  # no merge replaced the main file while the batches were listed
                 return StoreReader(path, main, batches)
         except FileNotFoundError:  # a batch went: a merge finished meanwhile
