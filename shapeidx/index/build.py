@@ -137,7 +137,7 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
                     committer.add(outcome)
                     reporter.outcome(outcome)
                 committer.tick()
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, ShapeidxError):  # e.g. a lost Dask scheduler: keep what came back
             committer.commit()
             raise
         finally:

@@ -98,8 +98,12 @@ class DaskPool:
         """The task as the workers see it (under ``worker_root``)."""
         return dataclasses.replace(task, absolute=os.path.join(self.worker_root, *task.path.split("/")))
 
-    def _threads(self) -> int:
-        return max(1, sum(self.client.nthreads().values()))
+    def _threads(self, default: int = 1) -> int:
+        """Threads of the cluster's workers now (``default`` while the scheduler does not answer)."""
+        try:
+            return max(1, sum(self.client.nthreads().values()))
+        except Exception:  # noqa: BLE001 (reconnecting: the futures will tell what happened)
+            return default
 
     def run(self, tasks, wake_every: float = 1.0):
         """Yield an :class:`Outcome` per task (in completion order), or None at least every ``wake_every`` s."""
@@ -134,7 +138,8 @@ class DaskPool:
                 for future in done:
                     yield self._outcome_of(future, self.running.pop(future))
                 if time.monotonic() - resized > RESIZE_EVERY:  # workers come and go
-                    window, resized = IN_FLIGHT_PER_THREAD * self._threads(), time.monotonic()
+                    window = IN_FLIGHT_PER_THREAD * self._threads(window // IN_FLIGHT_PER_THREAD)
+                    resized = time.monotonic()
         finally:
             self.close()
 
