@@ -6,10 +6,9 @@ Usage::
     python scripts/bench_query.py --source kicad6.h5 [--sizes 100000 1000000] [--work DIR]
 
 ``--source`` is a store built by ``shapeidx build`` from real parts (e.g. kicad6 at the
-default 1024 points). Each synthetic entry is one of its ok signatures, perturbed so that
-no two are alike: every count scaled by a random factor in [0.9, 1.1], the last 0 to 5
-bins of each histogram dropped (so bin counts vary as in real stores). The synthetic store
-is a real HDF5 store written with shapeidx's own layout functions.
+default 1024 points). The synthetic stores of N entries are made from its ok signatures by
+``scripts/make_store.py`` (perturbed so that no two are alike; see there), written by
+shapeidx's own store writer.
 
 Measured, on one core (the process is pinned to CPU 0, BLAS threads set to 1):
 
@@ -34,96 +33,15 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import h5py  # noqa: E402
 import numpy as np  # noqa: E402
 
 from shapeidx.distance import METRIC_HISTOGRAMS  # noqa: E402
 from shapeidx.ranking import SignatureTable, top_hits  # noqa: E402
-from shapeidx.signing.parameters import HISTOGRAMS  # noqa: E402
 from _common import machine  # noqa: E402
-from shapeidx.ragged import offsets_of  # noqa: E402
-from shapeidx.store import STATUS_OK, StoreWriter, open_store  # noqa: E402
-from shapeidx.store.files import write_atomically  # noqa: E402
-from shapeidx.store.layout import COUNT_DTYPE, ENTRY_COLUMNS, write_columns  # noqa: E402
+from make_store import real_signatures, write_store  # noqa: E402
+from shapeidx.store import open_store  # noqa: E402
 
-#: Synthetic entries generated per step (bounds the generator's memory).
-CHUNK = 50_000
 TARGETS = {100_000: 0.2, 1_000_000: 2.0}
-
-
-def real_signatures(source: Path) -> dict:
-    """The source store's ok entries: per histogram (counts, lengths, means, widths)."""
-    with open_store(source) as reader:
-        rows = np.flatnonzero(reader.column("entries/status") == STATUS_OK)
-        out = {"params": reader.params, "paths": reader.paths[rows]}
-        for name in HISTOGRAMS:
-            counts, lengths = reader.counts(name, rows)
-            out[name] = (counts, lengths, reader.column(f"histograms/{name}/mean")[rows],
-                         reader.column(f"histograms/{name}/bin_width")[rows])
-    return out
-
-
-def perturbed(base_counts, base_lengths, picks, rng):
-    """Histograms ``picks`` of the base, each count scaled in [0.9, 1.1] and 0-5 last bins dropped."""
-    offsets = offsets_of(base_lengths)
-    lengths = np.maximum(base_lengths[picks] - rng.integers(0, 6, len(picks)), np.minimum(base_lengths[picks], 1))
-    starts = np.repeat(offsets[picks] - offsets_of(lengths)[:-1], lengths)
-    counts = base_counts[starts + np.arange(int(lengths.sum()))].astype(np.float64)
-    counts *= rng.uniform(0.9, 1.1, len(counts))
-    return np.maximum(np.rint(counts), 1).astype(COUNT_DTYPE), lengths
-
-
-def write_synthetic(path: Path, size: int, real: dict, seed: int = 1) -> None:
-    """A store of ``size`` entries derived from ``real`` (see the module docstring)."""
-    rng = np.random.default_rng(seed)
-    picks = rng.integers(0, len(real["paths"]), size)
-    StoreWriter(path, real["params"], Path("/synthetic")).close()  # the attributes of a real store
-    with h5py.File(path, "r") as empty:
-        attrs = dict(empty.attrs)
-
-    def fill(f):
-        f.attrs.update(attrs)
-        totals = np.zeros((size, 3))
-        columns = _plain_columns(size, picks, real)
-        for name in HISTOGRAMS:
-            base_counts, base_lengths, means, widths = real[name]
-            columns[f"histograms/{name}/mean"] = means[picks]
-            columns[f"histograms/{name}/bin_width"] = widths[picks]
-            pieces = [perturbed(base_counts, base_lengths, picks[s : s + CHUNK], rng) for s in range(0, size, CHUNK)]
-            lengths = np.concatenate([p[1] for p in pieces])
-            f.create_dataset(f"histograms/{name}/offsets", data=offsets_of(lengths))
-            data = f.create_dataset(f"histograms/{name}/counts", shape=(int(lengths.sum()),), dtype=COUNT_DTYPE)
-            at = 0
-            for counts, piece_lengths in pieces:
-                data[at : at + len(counts)] = counts
-                at += len(counts)
-            if name != "all":
-                sums = np.add.reduceat(np.concatenate([p[0] for p in pieces]).astype(np.int64),
-                                       offsets_of(lengths)[:-1]) if size else np.zeros(0)
-                totals[:, HISTOGRAMS.index(name) - 1] = np.where(lengths > 0, sums, 0)
-        columns["entries/fractions"] = totals / totals.sum(axis=1, keepdims=True)
-        write_columns(f, columns)
-
-    write_atomically(path, fill)
-
-
-def _plain_columns(size: int, picks, real) -> dict:
-    width = len(str(size))
-    paths = np.array([f"synthetic/{i:0{width}d}-{real['paths'][p]}" for i, p in enumerate(picks)], dtype=object)
-    columns = {
-        "entries/path": paths,
-        "entries/hash": np.full(size, b"0" * 64, dtype="S64"),
-        "entries/size": np.ones(size, dtype=np.int64),
-        "entries/mtime_ns": np.zeros(size, dtype=np.int64),
-        "entries/status": np.zeros(size, dtype=np.uint8),
-        "entries/reason": np.full(size, "", dtype=object),
-        "entries/triangles": np.ones(size, dtype=np.int64),
-        "entries/area": np.ones(size),
-        "entries/watertight": np.ones(size, dtype=bool),
-    }
-    assert set(columns) | {"entries/fractions"} | {k for k in ENTRY_COLUMNS if k.startswith("histograms/")} == set(
-        ENTRY_COLUMNS)
-    return columns
 
 
 def measure(store: Path, metric: str, repeats: int) -> dict:
@@ -161,7 +79,7 @@ def main() -> int:
         store = args.work / f"synthetic-{size}.h5"
         if not store.exists():
             started = time.perf_counter()
-            write_synthetic(store, size, real)
+            write_store(store, size, real)
             print(f"wrote {store} ({store.stat().st_size / 1e6:.0f} MB) in {time.perf_counter() - started:.1f} s")
         for metric in args.metrics:
             m = measure(store, metric, args.repeats)

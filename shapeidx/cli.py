@@ -316,11 +316,14 @@ def _store_path(store):
 @click.option("--verbose", "-v", is_flag=True, help="A line per indexed file and per commit.")
 @click.option("--dry-run", is_flag=True, help="Only say what a build would do: walk and plan, change nothing.")
 @json_option
+@click.option("--scheduler", envvar="SHAPEIDX_SCHEDULER", metavar="ADDRESS",
+              help="Index the files on this dask.distributed cluster (env SHAPEIDX_SCHEDULER) [default: locally].")
+@click.option("--worker-root", metavar="PATH", help="Where the cluster's workers see DIRECTORY [default: the same path].")
 @click.option("--merge-after", type=click.IntRange(1), default=MERGE_AFTER, hidden=True)
 @click.pass_context
 def build(ctx, directory, store, points, seed, linear_deflection, angular_deflection, workers, full, rehash,
           retry_failed, timeout, worker_memory, commit_interval, wait, wait_timeout, strict, repair,
-          follow_outside_links, quiet, verbose, dry_run, as_json, merge_after):
+          follow_outside_links, quiet, verbose, dry_run, as_json, scheduler, worker_root, merge_after):
     """Index every part file under DIRECTORY into the store (incremental).
 
     \b
@@ -336,7 +339,8 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
                            wait_timeout=wait_timeout, commit_interval=commit_interval, merge_after=merge_after,
                            dry_run=dry_run, repair=repair, follow_outside_links=follow_outside_links,
                            linear_deflection=linear_deflection, angular_deflection=angular_deflection,
-                           worker_memory=None if worker_memory is None else int(worker_memory * (1 << 30)))
+                           worker_memory=None if worker_memory is None else int(worker_memory * (1 << 30)),
+                           scheduler=scheduler or None, worker_root=worker_root)
     reporter = BuildReporter(quiet=quiet, verbose=verbose)
     store_path = _store_path(store)
     try:

@@ -56,6 +56,10 @@ class BuildOptions:
     repair: bool = False
     #: Also follow symbolic links that lead out of the tree.
     follow_outside_links: bool = False
+    #: A dask.distributed scheduler's address: index the files on its cluster (see dask_pool.py).
+    scheduler: str | None = None
+    #: Where the cluster's workers see the tree, when not at the same path.
+    worker_root: str | None = None
 
 
 @dataclass
@@ -145,6 +149,8 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     store = Path(store)
     params = resolve_params(store, options)
     summary = BuildSummary(root=str(root))
+    if options.worker_root and not options.scheduler:
+        raise ShapeidxError("--worker-root is where a cluster's workers see the tree: it needs --scheduler")
     if options.dry_run:
         return _dry_run(root, store, params, options, reporter, summary)
     walk = walk_parts(root, options.follow_outside_links)
@@ -162,7 +168,7 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         committer = Committer(writer, options.commit_interval, options.merge_after, reporter)
         committer.remove(plan.removed)
         summary.removed = len(plan.removed)
-        pool = WorkerPool(options.workers or available_cores(), params, str(root), options.timeout, options.worker_memory)
+        pool = _pool(options, params, root)
         try:
             for outcome in pool.run(plan.tasks):
                 if outcome is not None:
@@ -171,7 +177,7 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
                     committer.add(outcome)
                     reporter.outcome(outcome)
                 committer.tick()
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, ShapeidxError):  # e.g. a lost Dask scheduler: keep what came back
             committer.commit()
             raise
         finally:
@@ -205,6 +211,13 @@ def _refuse_empty(given, walk) -> None:
             f"{given}: no part files in this directory tree (looked for {' '.join(suffixes())}, also gzipped);"
             " nothing was indexed or changed"
         )
+def _pool(options: BuildOptions, params: StoreParams, root: Path):
+    """Local worker processes, or a Dask cluster's workers with ``--scheduler``."""
+    if options.scheduler:
+        from .dask_pool import DaskPool
+
+        return DaskPool(options.scheduler, params, str(root), options.timeout, options.worker_root)
+    return WorkerPool(options.workers or available_cores(), params, str(root), options.timeout, options.worker_memory)
 
 
 def _dry_run(root: Path, store: Path, params: StoreParams, options, reporter, summary: BuildSummary) -> BuildSummary:
