@@ -162,7 +162,7 @@ def serve(source: Path, size: int, work: Path, data: Path, repeats: int) -> None
         signature = reader.signature(int(table.rows[len(table) // 3]))
     bare, _ = best_of(lambda: top_hits(table.rank(signature, "weighted"), table.paths, 10), repeats)
     print(f"serve      bare ranking (SignatureTable.rank + top_hits, in process) of {size:,} entries: {bare:.3f} s")
-    del table
+    table = signature = None  # the server holds its own copy
     for old in Path(str(store) + ".thumbs").glob("calibration-*.npz"):
         old.unlink()  # the first start calibrates the words; the second finds them kept
     for start in ("first", "second"):

@@ -12,7 +12,7 @@ from urllib.parse import unquote, urlparse
 import numpy as np
 import pytest
 from PIL import Image
-from storetools import build, cli, cli_json, small_kicad
+from storetools import cli, cli_json, small_kicad
 
 from shapeidx.distance import compare
 from shapeidx.pictures.plot import figure_of
