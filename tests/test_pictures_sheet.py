@@ -12,8 +12,12 @@ from urllib.parse import unquote, urlparse
 import numpy as np
 import pytest
 from PIL import Image
+<<<<<<< HEAD
 from clitools import cli, cli_json
 from storetools import small_kicad
+=======
+from storetools import cli, cli_json, small_kicad
+>>>>>>> pictures
 
 from shapeidx.distance import compare
 from shapeidx.pictures.plot import figure_of
@@ -214,8 +218,9 @@ class TestQuerySheet:
         finally:
             moved.rename(victim)
 
-    def test_compare_sheet(self, store, tmp_path):
+    def test_compare_sheet(self, store, tmp_path, monkeypatch):
         tree, _ = store
+        monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))  # not the user's own cache
         a, b = sorted((tree / "LED_SMD").iterdir())[:2]
         out = tmp_path / "c.html"
         result = cli("compare", a, b, "--sheet", out, "--json")
@@ -224,6 +229,7 @@ class TestQuerySheet:
         page = Page(out.read_text())
         assert len(page.all("img")) == 2 and len(page.all("article")) == 1
         assert f"Weighted {distances['weighted']:.4g}" in out.read_text()
+        assert len(list((tmp_path / "cache" / "shapeidx" / "thumbs").glob("*.png"))) == 2
 
 
 class TestLongSheets:

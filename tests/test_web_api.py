@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 import os
 import tempfile
+import warnings
 
 import numpy as np
 import pytest
@@ -19,7 +20,9 @@ from storetools import FAST_POINTS, small_kicad
 
 pytest.importorskip("starlette")
 pytest.importorskip("httpx")
-from starlette.testclient import TestClient  # noqa: E402
+with warnings.catch_warnings():  # Starlette 1.x would rather have httpx's successor; httpx works
+    warnings.simplefilter("ignore")
+    from starlette.testclient import TestClient  # noqa: E402
 
 from shapeidx.distance import compare  # noqa: E402
 from shapeidx.pictures.similarity import signatures_of  # noqa: E402

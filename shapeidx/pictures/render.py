@@ -84,7 +84,9 @@ def render_rgba(
     if len(faces) == 0 or len(vertices) == 0:
         return picture
     right, up, back = camera_axes(view)
-    used = vertices[np.unique(faces)]
+    in_use = np.zeros(len(vertices), dtype=bool)
+    in_use[faces.ravel()] = True  # frame what is drawn, not stray points
+    used = vertices[in_use]
     u, v, w = used @ right, used @ up, used @ back
     centre_u, centre_v = (u.min() + u.max()) / 2, (v.min() + v.max()) / 2
     span = max(u.max() - u.min(), v.max() - v.min())

@@ -169,6 +169,7 @@ STYLE = """
 body{font:14px/1.4 system-ui,-apple-system,'Segoe UI',sans-serif;margin:0;background:#f3f4f6;color:#222}
 header{background:#fff;border-bottom:1px solid #ddd;padding:16px 24px;display:flex;gap:24px;align-items:flex-start}
 header h1{font-size:20px;margin:0 0 6px}
+header .thumb,header .nopic{margin:0;flex:none}
 .meta{color:#555;font-size:13px;max-width:70em}
 .hits{display:grid;grid-template-columns:repeat(auto-fill,minmax(300px,1fr));gap:14px;padding:18px 24px}
 .hit{background:#fff;border:1px solid #ddd;border-radius:6px;padding:10px;display:flex;flex-direction:column;gap:4px}

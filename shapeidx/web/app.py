@@ -119,6 +119,7 @@ class StoreService:
         self.ok = status == STATUS_OK
         self.reasons = self.reader.column("entries/reason")
         self.triangles = self.reader.column("entries/triangles")
+        self.all_fractions = self.reader.column("entries/fractions")
         self._lock = threading.Lock()  # one h5py reader shared by the request threads
         self._scales: dict = {}
         self._uploads: OrderedDict = OrderedDict()
@@ -158,7 +159,7 @@ class StoreService:
             picked &= np.array([needle in p.lower() for p in self.all_paths], dtype=bool)
         rows = np.flatnonzero(picked)
         page = rows[offset : offset + limit]
-        fractions = self.reader.column("entries/fractions")
+        fractions = self.all_fractions
         return {
             "total": int(len(rows)),
             "offset": offset,

@@ -101,7 +101,7 @@ function renderQuery(result) {
     const far = hit.words === "weakly similar" || hit.words === "not similar";
     const share = hit.share === null || hit.distance === 0 ? "" : ` (closer than ${(100 * (1 - hit.share)).toFixed(1)}% of the store's pairs)`;
     hits.append(h("article", {class: "hit", dataset: {testid: "hit", rank: hit.rank, id: hit.id}},
-      h("div", {class: "top"}, h("span", {class: "rank", text: `#${hit.rank}`}), h("span", {class: "distance", text: `distance ${hit.distance.toPrecision(4)}`})),
+      h("div", {class: "top"}, h("span", {class: "rank", text: `#${hit.rank}`}), h("span", {class: "distance", text: `distance ${hit.distance === 0 ? "0" : hit.distance.toPrecision(4)}`})),
       h("div", {class: far ? "words far" : "words", text: hit.words + share}),
       thumb(hit.thumbnail, 160, hit.id, () => go("query", {id: hit.id, metric: result.metric, top: result.top}), k >= 12),
       h("div", {class: "path", text: hit.id}),
