@@ -13,7 +13,7 @@ import random
 
 import pytest
 
-from test_bombs import import_fuzz
+from test_bombs import import_fuzz  # also puts scripts/ on sys.path
 
 CASES = 600
 SEED = 20260101
