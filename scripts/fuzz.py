@@ -373,6 +373,13 @@ def _peak_kb() -> int:
     return -1
 
 
+def _cpu_seconds() -> float:
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
 def _reset_peak() -> None:
     try:
         with open("/proc/self/clear_refs", "w") as f:
@@ -452,9 +459,10 @@ def _worker(conn, memory: int, signature: bool, stderr_path: str) -> None:
         os.ftruncate(2, 0)
         os.lseek(2, 0, os.SEEK_SET)
         _reset_peak()
-        started = time.monotonic()
+        started, cpu = time.monotonic(), _cpu_seconds()
         result = run_case(path, root, signature)
         result["seconds"] = round(time.monotonic() - started, 4)
+        result["cpu_seconds"] = round(_cpu_seconds() - cpu, 4)  # what a busy machine does not inflate
         result["peak_kb"] = _peak_kb()
         sys.stderr.flush()
         conn.send(result)
@@ -599,6 +607,7 @@ def summarise(results) -> dict:
         by_kind.setdefault(info.get("kind", "?"), Counter())[r["outcome"]] += 1
     peaks = [r["peak_kb"] for _, r in results if r.get("peak_kb", -1) > 0]
     seconds = [r["seconds"] for _, r in results if "seconds" in r]
+    cpu = [r["cpu_seconds"] for _, r in results if "cpu_seconds" in r]
     exception_types = Counter(r.get("type", r["outcome"]) for _, r in results if r["outcome"] in ("exception", "wrapped"))
     return {
         "cases": len(results),
@@ -615,6 +624,10 @@ def summarise(results) -> dict:
             "median": round(statistics.median(seconds), 4) if seconds else None,
             "max": round(max(seconds), 2) if seconds else None,
             "total": round(sum(seconds), 1),
+        },
+        "cpu_seconds": {
+            "median": round(statistics.median(cpu), 4) if cpu else None,
+            "max": round(max(cpu), 2) if cpu else None,
         },
     }
 
@@ -645,7 +658,8 @@ def markdown(summary: dict, seeds: list[Seed], command: str, wall: float) -> str
         "",
         f"Peak memory per case (worker VmHWM): median {summary['peak_mb']['median']} MB, "
         f"max {summary['peak_mb']['max']} MB. Time per case: median {summary['seconds']['median']} s, "
-        f"max {summary['seconds']['max']} s. Load errors that were out of memory: {summary['out_of_memory_errors']}.",
+        f"max {summary['seconds']['max']} s (CPU: median {summary['cpu_seconds']['median']} s, max "
+        f"{summary['cpu_seconds']['max']} s). Load errors that were out of memory: {summary['out_of_memory_errors']}.",
     ]
     if summary["exception_types"]:
         lines += ["", "Uncaught: " + ", ".join(f"{k} {v}" for k, v in summary["exception_types"].items())]
