@@ -26,9 +26,9 @@ def keep_freed_memory(limit: int = 1 << 30) -> bool:
         try:  # glibc's usual name first: find_library runs ldconfig, a cost on every start-up
             libc = ctypes.CDLL("libc.so.6")
         except OSError:
-            import ctypes.util  # imports subprocess, tempfile, bz2, lzma: only where needed
+            from ctypes.util import find_library  # imports subprocess, tempfile, bz2, lzma: only if needed
 
-            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+            libc = ctypes.CDLL(find_library("c") or "libc.so.6")
         return bool(libc.mallopt(_M_MMAP_THRESHOLD, limit)) and bool(libc.mallopt(_M_TRIM_THRESHOLD, 2 * limit))
     except (OSError, AttributeError):
         return False
