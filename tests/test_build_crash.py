@@ -161,7 +161,7 @@ def test_a_stopped_build_commits_what_it_did(data_dir, tmp_path, signal_name):
     while indexed < 3:
         line = proc.stderr.readline()
         assert line, "the build ended before it was stopped"
-        indexed += line.startswith("indexed ")
+        indexed += "shapeidx build: indexed " in line  # after the timestamp
     proc.send_signal(getattr(signal, signal_name))
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130 and "interrupted" in err
