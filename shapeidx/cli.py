@@ -615,7 +615,8 @@ def _failed_entries(reader) -> list[dict]:
     ]
 
 
-main.add_command(click.Command("info", callback=stats.callback, params=stats.params, help="Same as stats.",
+main.add_command(click.Command("info", callback=stats.callback, params=stats.params,
+                               help="Same as stats.\n\n\b\nExample:\n  shapeidx info --store parts.h5",
                                context_settings=CONTEXT))
 
 

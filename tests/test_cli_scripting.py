@@ -279,3 +279,31 @@ class TestHelp:
     def test_evaluate_says_all_is_plain_d2(self):
         text = " ".join(cli("evaluate", "--help").stdout.split())
         assert "plain D2" in text and "not every metric" in text
+
+
+class TestInSample:
+    def test_the_combined_metric_is_marked_in_sample_on_its_training_collection(self):
+        from shapeidx.distance import combined_weights
+        from shapeidx.evaluation.evaluate import in_sample
+
+        trained = combined_weights()["trained_on"]
+
+        class Reader:
+            def __init__(self, root):
+                self.attrs = {"root": root}
+
+        assert in_sample(Reader(f"/data/{trained['collection']}"), 10, 2) == {"learned_on": trained["collection"]}
+        assert in_sample(Reader("/data/other"), trained["models"], trained["classes"]) is not None
+        assert in_sample(Reader("/data/other"), 10, 2) is None
+
+    def test_evaluate_prints_the_mark(self, data_dir, tmp_path):
+        from storetools import copy_tree
+
+        collection = copy_tree(data_dir / "kicad6", tmp_path / "kicad6", ["LED_SMD", "Diode_SMD"])
+        table = cli("evaluate", collection, "--store", tmp_path / "k.h5", "--points", 128, "-q")
+        assert table.exit_code == 0, table.stderr
+        assert "combined (in-sample)" in table.stdout and "note: combined's weights were learned" in table.stdout
+        rows = list(csv.DictReader(io.StringIO(cli("evaluate", collection, "--store", tmp_path / "k.h5", "--format",
+                                                   "csv", "-q").stdout)))
+        marks = {r["metric"]: r["in_sample"] for r in rows}
+        assert marks["combined"] == "true" and marks["weighted"] == "false"
