@@ -173,15 +173,9 @@ def serve(source: Path, size: int, work: Path, data: Path, repeats: int) -> None
         table = SignatureTable.load(reader)
         entry = str(table.paths[len(table) // 3])
         signature = reader.signature(int(table.rows[len(table) // 3]))
-<<<<<<< HEAD
     bare, _ = best_of(lambda: top_hits(table.distances(signature, "weighted"), table.paths, 10), repeats)
     print(f"serve      bare ranking (SignatureTable.distances + top_hits, in process) of {size:,} entries: {bare:.3f} s")
-    del table
-=======
-    bare, _ = best_of(lambda: top_hits(table.rank(signature, "weighted"), table.paths, 10), repeats)
-    print(f"serve      bare ranking (SignatureTable.rank + top_hits, in process) of {size:,} entries: {bare:.3f} s")
     table = signature = None  # the server holds its own copy
->>>>>>> pictures
     for old in Path(str(store) + ".thumbs").glob("calibration-*.npz"):
         old.unlink()  # the first start calibrates the words; the second finds them kept
     for start in ("first", "second"):

@@ -164,12 +164,8 @@ def check_store(store: Path, tree_files: set, at_least: int) -> list[str]:
             capture_output=True, text=True,
         )
         check(query.returncode == 0, f"query failed: {query.stderr.strip()}")
-<<<<<<< HEAD
         check(json.loads(query.stdout)["hits"][0]["relative_path"] == paths[len(paths) // 2],
               "the queried entry is not at rank 1")
-=======
-        check(json.loads(query.stdout)["hits"][0]["relative_path"] == paths[len(paths) // 2], "the queried entry is not at rank 1")
->>>>>>> cli15
     return paths
 
 

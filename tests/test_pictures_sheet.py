@@ -12,12 +12,8 @@ from urllib.parse import unquote, urlparse
 import numpy as np
 import pytest
 from PIL import Image
-<<<<<<< HEAD
 from clitools import cli, cli_json
 from storetools import small_kicad
-=======
-from storetools import cli, cli_json, small_kicad
->>>>>>> pictures
 
 from shapeidx.distance import compare
 from shapeidx.pictures.plot import figure_of
