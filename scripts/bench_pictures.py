@@ -80,9 +80,9 @@ def embree_scene(vertices, faces):
     """Only the scene construction a thumbnail starts with (embreex copies the arrays element by element)."""
     from embreex import mesh_construction, rtcore_scene
 
-    from shapeidx.signing.classify import _embree_device
+    from shapeidx.signing.occlusion import embree_device
 
-    scene = rtcore_scene.EmbreeScene(_embree_device())
+    scene = rtcore_scene.EmbreeScene(embree_device())
     mesh_construction.TriangleMesh(scene, np.ascontiguousarray(vertices, dtype=np.float32), np.ascontiguousarray(faces, dtype=np.int32))
     return scene
 
