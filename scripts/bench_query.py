@@ -44,7 +44,7 @@ from _common import machine  # noqa: E402
 from shapeidx.ragged import offsets_of  # noqa: E402
 from shapeidx.store import STATUS_OK, StoreWriter, open_store  # noqa: E402
 from shapeidx.store.files import write_atomically  # noqa: E402
-from shapeidx.store.layout import COUNT_DTYPE, ENTRY_COLUMNS, write_columns  # noqa: E402
+from shapeidx.store.layout import COUNT_DTYPE, ENTRY_COLUMNS, SHAPE_COLUMNS, write_columns  # noqa: E402
 
 #: Synthetic entries generated per step (bounds the generator's memory).
 CHUNK = 50_000
@@ -56,6 +56,7 @@ def real_signatures(source: Path) -> dict:
     with open_store(source) as reader:
         rows = np.flatnonzero(reader.column("entries/status") == STATUS_OK)
         out = {"params": reader.params, "paths": reader.paths[rows]}
+        out.update({name: reader.column(name)[rows] for name in SHAPE_COLUMNS})
         for name in HISTOGRAMS:
             counts, lengths = reader.counts(name, rows)
             out[name] = (counts, lengths, reader.column(f"histograms/{name}/mean")[rows],
@@ -112,7 +113,7 @@ def _plain_columns(size: int, picks, real) -> dict:
     paths = np.array([f"synthetic/{i:0{width}d}-{real['paths'][p]}" for i, p in enumerate(picks)], dtype=object)
     columns = {
         "entries/path": paths,
-        "entries/hash": np.full(size, b"0" * 64, dtype="S64"),
+        "entries/hash": np.char.zfill(np.arange(size).astype("S64"), 64),  # unique: no entry is a copy
         "entries/size": np.ones(size, dtype=np.int64),
         "entries/mtime_ns": np.zeros(size, dtype=np.int64),
         "entries/status": np.zeros(size, dtype=np.uint8),
@@ -121,6 +122,7 @@ def _plain_columns(size: int, picks, real) -> dict:
         "entries/area": np.ones(size),
         "entries/watertight": np.ones(size, dtype=bool),
     }
+    columns.update({name: real[name][picks] for name in SHAPE_COLUMNS})
     assert set(columns) | {"entries/fractions"} | {k for k in ENTRY_COLUMNS if k.startswith("histograms/")} == set(
         ENTRY_COLUMNS)
     return columns

@@ -6,8 +6,9 @@
 1. ``--noise``: the re-sampling noise. kicad6 is signed again with another seed (7 instead of
    the store's fixed 20020101); the distance between the two signatures of one part, per
    metric, is the noise of drawing other random points on the same surface, which is all a
-   re-faceted or re-exported copy changes for D2. The ``same`` threshold is the largest such
-   distance times :data:`SAME_MARGIN`; ``near`` is :data:`NEAR_FACTOR` times ``same``.
+   re-faceted or re-exported copy changes for D2. The ``same`` threshold is the 99th
+   percentile of those distances times :data:`SAME_MARGIN`; ``near`` is :data:`NEAR_FACTOR`
+   times ``same``.
    Written to shapeidx/families/thresholds.json.
 2. The copies. For every kicad6 part (its cleaned Solid, as the store signs it), in
    ``WORK/parts``: the original (a link), a byte copy, and as binary STL written here: rotated
@@ -47,7 +48,7 @@ from shapeidx.store import open_store
 
 KICAD6 = DATA / "kicad6"
 NOISE_SEED = 7
-#: ``same`` = the largest re-sampling distance seen times this margin.
+#: ``same`` = the 99th percentile of the re-sampling distances times this margin.
 SAME_MARGIN = 1.5
 #: ``near`` = this many times ``same``.
 NEAR_FACTOR = 3.0
@@ -168,7 +169,7 @@ def _ragged_rows(ra, rows_a, rb, rows_b):
 def write_thresholds(noise: dict, command: str) -> dict:
     thresholds = {}
     for metric, d in noise["distances"].items():
-        same = float(d.max() * SAME_MARGIN)
+        same = float(np.quantile(d, 0.99) * SAME_MARGIN)
         thresholds[metric] = {"same": same, "near": same * NEAR_FACTOR}
     data = {
         "thresholds": thresholds,
@@ -178,7 +179,7 @@ def write_thresholds(noise: dict, command: str) -> dict:
         },
         "size_noise": {"max_abs_log": float(np.abs(np.log(noise["size_ratio"])).max())},
         "measured_on": {"collection": "kicad6", "parts": noise["parts"], "seeds": [20020101, NOISE_SEED]},
-        "rule": f"same = {SAME_MARGIN} x the largest distance between two seeds' signatures of one part; near = {NEAR_FACTOR} x same",
+        "rule": f"same = {SAME_MARGIN} x the 99th percentile of the distances between two seeds' signatures of one part; near = {NEAR_FACTOR} x same",
         "command": command,
     }
     THRESHOLDS.write_text(json.dumps(data, indent=2) + "\n")
@@ -280,7 +281,7 @@ def main(argv=None) -> int:
 
 def write_report(output, result, table, noise, args, command, seconds, failed) -> None:
     from shapeidx.families.chirality import AXIS_GAP, CHIRAL_MIN
-    from shapeidx.families.duplicates import ASPECT_NEAR, ASPECT_SAME
+    from shapeidx.families.duplicates import FINGERPRINT_NEAR, FINGERPRINT_SAME
 
     originals = [p for p in map(str, table.paths) if origin_of(p)[1] == "original"]
     hand = table.handedness[np.isin(table.paths, originals)]
@@ -294,8 +295,9 @@ def write_report(output, result, table, noise, args, command, seconds, failed) -
         "## The tiers and their thresholds",
         "",
         "`shapeidx duplicates` puts each pair it finds in one tier: **identical** (same SHA-256),",
-        "**same** (same geometry: distance within the re-sampling noise, proportions within",
-        f"{ASPECT_SAME:g} in |ln|), **near** (distance within the looser threshold, proportions within {ASPECT_NEAR:g}).",
+        "**same** (same geometry: distance within the re-sampling noise, and the exact surface moments",
+        f"(proportions, area / sum r^2, |skewness| per axis) within {FINGERPRINT_SAME:g}), **near** (distance within the looser",
+        f"threshold, moments within {FINGERPRINT_NEAR:g}).",
         "",
         "The noise: every kicad6 part signed with two seeds (" + ", ".join(map(str, noise["measured_on"]["seeds"]))
         + f"), {noise['measured_on']['parts']} parts; the distance between a part's two signatures:",

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import ShapeidxError
 from .candidates import candidate_pairs
-from .scale import check_scale, within_band
+from .scale import check_scale, ratio_within_band
 
 #: Largest store clustered from the full distance matrix (N^2 / 2 exact distances).
 MATRIX_LIMIT = 4000
@@ -44,7 +44,7 @@ def distance_matrix(table, metric: str = DEFAULT_METRIC, scale: str = "invariant
     i, j = np.triu_indices(n, 1)
     d = table.pair_distances(i, j, metric) if len(i) else np.zeros(0)
     if check_scale(scale) == "sensitive":
-        d = np.where(within_band(table.sizes[i], table.sizes[j]), d, APART)
+        d = np.where(ratio_within_band(table.size_ratios(i, j)), d, APART)
     matrix = np.zeros((n, n))
     matrix[i, j] = d
     matrix[j, i] = d
@@ -98,7 +98,7 @@ def cluster_graph(table, metric: str, clusters: int | None, threshold: float | N
     n = len(table)
     a, b, d, _, _ = candidate_pairs(table, metric, min(k, n - 1), method, threads)
     if check_scale(scale) == "sensitive":
-        keep = within_band(table.sizes[a], table.sizes[b])
+        keep = ratio_within_band(table.size_ratios(a, b))
         a, b, d = a[keep], b[keep], d[keep]
     # a zero weight is "no edge" to scipy's sparse graphs: identical entries get a tiny one
     weights = np.maximum(d, 1e-300)
