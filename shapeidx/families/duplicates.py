@@ -44,7 +44,7 @@ DEFAULT_METRIC = "combined"
 DEFAULT_NEIGHBOURS = 10
 #: Largest :func:`fingerprint_gap` for ``same`` and for ``near`` (docs/duplicates.md).
 FINGERPRINT_SAME = 0.02
-FINGERPRINT_NEAR = 0.10
+FINGERPRINT_NEAR = 0.06
 
 
 def _thresholds() -> dict:
