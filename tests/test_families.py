@@ -303,3 +303,28 @@ def test_nmi_and_ari_against_hand_computed_values():
     index, rows, cols, total = 1 + 3, 3 + 3, 1 + 6, 15  # sum C(n_ij,2), C(a_i,2), C(b_j,2), C(6,2)
     expected = rows * cols / total
     assert ari(classes, clusters) == pytest.approx((index - expected) / ((rows + cols) / 2 - expected))
+
+
+def test_query_scale_sensitive_leaves_out_parts_of_another_size(dup_store):
+    _, store = dup_store
+    plain = cli_json("query", "--id", CHIRAL, "--store", store, "--top", "6")
+    assert "copies/rgb-inches.stl" in [h["path"] for h in plain[:5]]
+    sensitive = cli_json("query", "--id", CHIRAL, "--store", store, "--top", "40", "--scale", "sensitive")
+    assert "copies/rgb-inches.stl" not in [h["path"] for h in sensitive]
+    assert [h["path"] for h in sensitive[:4]][0] == CHIRAL
+
+
+def test_one_voter_leave_one_out_is_the_retrieval_nearest_neighbour_score(dup_store):
+    from shapeidx.evaluation.retrieval import retrieval_scores
+    from shapeidx.families.cluster import distance_matrix
+    from shapeidx.families.labels import labels_from_paths
+    from shapeidx.families.scores import family_scores
+
+    _, store = dup_store
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader)
+    matrix = distance_matrix(table, "weighted")
+    labels = labels_from_paths(table.paths)
+    assert family_scores(matrix, labels, k=1)["knn"] == pytest.approx(retrieval_scores(matrix, labels)["nn"])
+    scores = family_scores(matrix, labels)
+    assert 0 <= scores["nmi"] <= 1 and -1 <= scores["ari"] <= 1
