@@ -15,7 +15,7 @@ and the synthetic store's signatures come from it). Measured, in one run:
 * **sheet of 10 hits**: ``query --id ... --sheet`` through :func:`query_sheet` with an empty
   thumbnail cache (cold: every picture rendered) and again (warm: every picture read);
 * **serve query**: a real ``shapeidx serve`` process over a synthetic store of ``--size``
-  entries made from the source's real signatures (``scripts/bench_query.py``'s generator):
+  entries made from the source's real signatures (``scripts/make_store.py``):
   its start (reading the store, calibrating the words), ``GET /api/query?id=...`` (k = 10)
   over HTTP, and ``POST /api/query`` uploading a real kicad6 part (its signature included).
 """
@@ -163,10 +163,10 @@ def start_server(store: Path):
 
 
 def serve(source: Path, size: int, work: Path, data: Path, repeats: int) -> None:
-    bench_query = load_script("bench_query")
+    make_store = load_script("make_store")
     store = work / f"synthetic-{size}.h5"
     if not store.exists():
-        bench_query.write_synthetic(store, size, bench_query.real_signatures(source))
+        make_store.write_store(store, size, make_store.real_signatures(source))
     from shapeidx.ranking import SignatureTable, top_hits
 
     with open_store(store) as reader:

@@ -40,6 +40,10 @@ from shapeidx.ragged import offsets_of
 from shapeidx.signing.histogram import Histogram
 from shapeidx.signing.parameters import CLASS_NAMES, HISTOGRAMS
 from shapeidx.store import STATUS_OK, Batch, Entry, StoreWriter, open_store
+from shapeidx.store.layout import SHAPE_COLUMNS
+
+#: The size and handedness facts of an entry (copied from its source entry, unperturbed).
+SHAPE_FIELDS = tuple(name.split("/", 1)[1] for name in SHAPE_COLUMNS)
 
 #: Entries generated and committed per journal batch (bounds the generator's memory).
 CHUNK = 50_000
@@ -54,7 +58,7 @@ def real_signatures(source: Path) -> dict:
         if len(rows) == 0:
             raise SystemExit(f"{source}: no ok entries to make a store from")
         out = {"params": reader.params, "paths": reader.paths[rows]}
-        for name in ("size", "mtime_ns", "triangles", "area", "watertight"):
+        for name in ("size", "mtime_ns", "triangles", "area", "watertight", *SHAPE_FIELDS):
             out[name] = reader.column(f"entries/{name}")[rows]
         for name in HISTOGRAMS:
             counts, lengths = reader.counts(name, rows)
@@ -160,6 +164,7 @@ def synthetic_entries(real: dict, first: int, picks: np.ndarray, rng, width: int
             triangles=int(real["triangles"][pick]),
             area=float(real["area"][pick]),
             watertight=bool(real["watertight"][pick]),
+            **{name: tuple(real[name][pick].tolist()) for name in SHAPE_FIELDS},
             fractions=tuple(fractions[k]),
             histograms=histograms,
         ))

@@ -713,10 +713,11 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
         f"{directory}: {result['models']} models in {result['classes']} classes, {result['points']} points"
         + (f" ({result['unlabelled']} files outside class folders left out)" if result["unlabelled"] else "")
     )
-    click.echo(f"{'distance':30s} {'NN':>6s} {'FT':>6s} {'ST':>6s} {'E':>6s} {'DCG':>6s}")
+    click.echo(f"{'distance':30s} {'NN':>6s} {'FT':>6s} {'ST':>6s} {'E':>6s} {'DCG':>6s}   {'kNN':>6s} {'NMI':>6s} {'ARI':>6s}")
     for name, figures in result["metrics"].items():
         label = METRIC_LABELS.get(name, name) + (" (in-sample)" if figures.get("in_sample") else "")
-        click.echo(f"{label:30s} " + " ".join(f"{figures[s]:6.3f}" for s in scores))
+        family = "   " + " ".join(f"{figures[s]:6.3f}" for s in ("knn", "nmi", "ari")) if "knn" in figures else ""
+        click.echo(f"{label:30s} " + " ".join(f"{figures[s]:6.3f}" for s in scores) + family)
         for cls, per in figures.get("per_class", {}).items():
             click.echo(f"  {cls[:28]:28s} " + " ".join(f"{per[s]:6.3f}" for s in scores))
     for name, figures in result["metrics"].items():

@@ -26,7 +26,7 @@ from storetools import FAST_POINTS, copy_tree, cpu_seconds, load_script, slow_as
 from shapeidx.errors import StoreError
 from shapeidx.ranking import query_store
 from shapeidx.signing.parameters import HISTOGRAMS
-from shapeidx.store import STATUS_FAILED, STATUS_OK, open_store
+from shapeidx.store import STATUS_OK, open_store
 
 distributed = pytest.importorskip("distributed", reason="distributed builds need pip install 'shapeidx[dask]'")
 

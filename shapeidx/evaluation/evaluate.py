@@ -153,6 +153,9 @@ def evaluate(reader: StoreReader, metrics=METRICS, per_class: bool = False, cros
         entry = {s: scores[s] for s in SCORES}
         if per_class:
             entry["per_class"] = per_class_scores(scores, data.labels)
+        from ..families.scores import family_scores  # classification and clustering (issue 11)
+
+        entry.update(family_scores(matrices[name], data.labels))
         result["metrics"][name] = entry
     if "combined" in result["metrics"]:
         learned = in_sample(reader, result["models"], result["classes"])

@@ -12,7 +12,11 @@ computes, once per part at build time, the quantities the store keeps for that:
   in every orientation;
 * ``handedness``: two pseudo-scalars made of third-order surface moments in the
   principal-axes frame; each is unchanged by any rotation (and translation and uniform
-  scaling) and changes sign under a mirroring.
+  scaling) and changes sign under a mirroring;
+* ``moments``: a fingerprint unchanged by rotation, mirroring and scaling: the area over
+  ``r1^2 + r2^2 + r3^2``, and the absolute skewnesses ``|T_111|, |T_222|, |T_333|`` (NaN
+  where the axes are undefined). With the proportions ``r2/r1, r3/r1`` it tells apart parts
+  whose D2 signatures are within sampling noise of each other (docs/duplicates.md).
 
 Handedness. Let ``e1, e2, e3`` be the principal axes and ``T_ijk`` the third central
 moments of the surface along them, divided by ``sigma_i sigma_j sigma_k`` (so they do not
@@ -43,9 +47,9 @@ import numpy as np
 AXIS_GAP = 0.02
 #: |h| below this is "achiral" (a mirror image congruent to the part). Measured on kicad6:
 #: see docs/duplicates.md.
-CHIRAL_MIN = 0.02
+CHIRAL_MIN = 1e-3
 #: The facts :func:`shape_facts` returns for a part it cannot measure.
-UNKNOWN = {"bounds": (np.nan,) * 6, "extents": (np.nan,) * 3, "handedness": (np.nan,) * 2}
+UNKNOWN = {"bounds": (np.nan,) * 6, "extents": (np.nan,) * 3, "handedness": (np.nan,) * 2, "moments": (np.nan,) * 4}
 
 # Degree-3 rule on a triangle: vertices 3/60, edge midpoints 8/60, centroid 27/60.
 _BARY = np.array(
@@ -99,7 +103,7 @@ def handedness_of(covariance: np.ndarray, third: np.ndarray) -> tuple[np.ndarray
 
 
 def shape_facts(vertices: np.ndarray, faces: np.ndarray) -> dict:
-    """``bounds`` (6,), ``extents`` (3,) and ``handedness`` (2,) of a surface, in file units.
+    """``bounds`` (6,), ``extents`` (3,), ``handedness`` (2,) and ``moments`` (4,) of a surface.
 
     A surface that cannot be measured (no area) gives :data:`UNKNOWN` (NaN everywhere).
     """
@@ -113,7 +117,22 @@ def shape_facts(vertices: np.ndarray, faces: np.ndarray) -> dict:
     except ValueError:
         return dict(UNKNOWN, bounds=bounds)
     radii, handedness = handedness_of(covariance, third)
-    return {"bounds": bounds, "extents": tuple(radii.tolist()), "handedness": tuple(handedness.tolist())}
+    area = float(np.asarray(_areas(vertices, faces)).sum())
+    spread = float((radii**2).sum())
+    skew = np.full(3, np.nan)
+    if np.isfinite(handedness).all():
+        variances, axes = np.linalg.eigh(covariance)
+        axes = axes[:, ::-1]
+        t = np.einsum("ijk,ia,ja,ka->a", third, axes, axes, axes) / radii**3
+        skew = np.abs(t)
+    moments = (area / spread if spread > 0 else np.nan, *skew.tolist())
+    return {"bounds": bounds, "extents": tuple(radii.tolist()), "handedness": tuple(handedness.tolist()),
+            "moments": tuple(float(m) for m in moments)}
+
+
+def _areas(vertices, faces):
+    tri = vertices[np.asarray(faces, dtype=np.int64)]
+    return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
 
 
 def mirror_relation(ha: np.ndarray, hb: np.ndarray, chiral_min: float = CHIRAL_MIN) -> np.ndarray:

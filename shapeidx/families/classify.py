@@ -129,18 +129,16 @@ def classify_parts(reader, parts, labels: np.ndarray, k: int = DEFAULT_K, metric
         )
     results = []
     for part in parts:
-        own = table.index_of(part)
-        if own is None and os.path.exists(part):
+        own = table.index_of(part)  # a path of the store
+        if own is None and os.path.exists(part):  # a file, perhaps inside the indexed folder
             inside = entry_path_of(part, reader)
             own = table.index_of(inside) if inside is not None else None
-        if own is not None and not os.path.exists(part):
+        if own is not None:
             signature = reader.signature(int(table.rows[own]))
-        elif own is not None:
-            signature = reader.signature(int(table.rows[own]))
-        else:
-            if not os.path.exists(part):
-                raise ShapeidxError(f"{part}: no such file, and no entry of that path in {reader.path}")
+        elif os.path.exists(part):
             signature = signature_with_params(part, reader.params, threads)
+        else:
+            raise ShapeidxError(f"{part}: no such file, and no entry of that path in {reader.path}")
         distances = table.distances(signature, metric)
         distances = apply_scale(distances, signature.histograms["all"].mean, table.means[:, 0], scale)
         distances = np.where(is_voter, distances, np.inf)

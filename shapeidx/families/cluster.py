@@ -11,7 +11,8 @@ Two roads, by the store's size:
   minimum spanning forest, cut at the threshold or into ``clusters`` trees by dropping the
   longest edges. Memory and time grow as N k, not N^2.
 
-Either way ``--threshold D`` cuts the tree at distance D and ``--clusters K`` into K
+``--scale sensitive`` adds a size term to the matrix (:data:`SIZE_PENALTY`) and keeps pairs
+outside the size band out of the graph. Either way ``--threshold D`` cuts the tree at distance D and ``--clusters K`` into K
 clusters; without either, :data:`DEFAULT_CLUSTERS_PER_ENTRY` sets K (one cluster per ten
 parts, kicad6's ratio of parts to folders). Each entry gets its cluster (numbered from 1 by
 size, largest first) and its distance to the cluster's most central member (the medoid:
@@ -25,7 +26,7 @@ import numpy as np
 
 from ..errors import ShapeidxError
 from .candidates import candidate_pairs
-from .scale import check_scale, within_band
+from .scale import check_scale, ratio_within_band
 
 #: Largest store clustered from the full distance matrix (N^2 / 2 exact distances).
 MATRIX_LIMIT = 4000
@@ -36,18 +37,36 @@ DEFAULT_CLUSTERS_PER_ENTRY = 10
 DEFAULT_METRIC = "combined"
 #: Finite stand-in for "apart" (pairs outside the size band under --scale sensitive).
 APART = 1e6
+#: ``--scale sensitive`` in the matrix road: a pair's distance grows by this share of the
+#: median nearest-neighbour distance per factor e of size ratio. Infinite distances (the
+#: band of ``query`` and ``classify``) break Ward's criterion; this was the best of 0.25,
+#: 0.5 and 1 on kicad6 (docs/results.md).
+SIZE_PENALTY = 0.5
 
 
-def distance_matrix(table, metric: str = DEFAULT_METRIC, scale: str = "invariant") -> np.ndarray:
-    """(N, N) exact distances between every two entries; pairs outside the size band are :data:`APART`."""
+def distance_matrix(table, metric: str = DEFAULT_METRIC, scale: str = "invariant", band: bool = False) -> np.ndarray:
+    """(N, N) exact distances between every two entries.
+
+    ``scale="sensitive"`` adds the size term of :data:`SIZE_PENALTY` (``band``: instead, pairs
+    outside the size band are :data:`APART`, as ``classify`` and ``query`` keep them apart).
+    """
     n = len(table)
     i, j = np.triu_indices(n, 1)
     d = table.pair_distances(i, j, metric) if len(i) else np.zeros(0)
-    if check_scale(scale) == "sensitive":
-        d = np.where(within_band(table.sizes[i], table.sizes[j]), d, APART)
     matrix = np.zeros((n, n))
     matrix[i, j] = d
     matrix[j, i] = d
+    if check_scale(scale) == "sensitive" and len(d):
+        ratios = table.size_ratios(i, j)
+        if band:
+            d = np.where(ratio_within_band(ratios), d, APART)
+        else:
+            np.fill_diagonal(matrix, np.inf)
+            typical = float(np.median(matrix.min(axis=1)))
+            d = d + SIZE_PENALTY * typical * np.nan_to_num(np.abs(np.log(ratios)))
+        matrix[i, j] = d
+        matrix[j, i] = d
+        np.fill_diagonal(matrix, 0.0)
     return matrix
 
 
@@ -98,7 +117,7 @@ def cluster_graph(table, metric: str, clusters: int | None, threshold: float | N
     n = len(table)
     a, b, d, _, _ = candidate_pairs(table, metric, min(k, n - 1), method, threads)
     if check_scale(scale) == "sensitive":
-        keep = within_band(table.sizes[a], table.sizes[b])
+        keep = ratio_within_band(table.size_ratios(a, b))
         a, b, d = a[keep], b[keep], d[keep]
     # a zero weight is "no edge" to scipy's sparse graphs: identical entries get a tiny one
     weights = np.maximum(d, 1e-300)

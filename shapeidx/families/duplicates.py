@@ -4,11 +4,13 @@ Every pair found is put in one tier:
 
 * ``identical``: the same file content (SHA-256);
 * ``same``: the same geometry: the shape distance is within the noise of signing one part
-  with other random points (:data:`THRESHOLDS`, measured per metric by
-  ``scripts/duplicates_study.py --noise``, see docs/duplicates.md) and the part's
-  proportions (principal radii divided by the largest) agree within :data:`ASPECT_SAME`;
-* ``near``: a near duplicate: distance within the looser ``near`` threshold and proportions
-  within :data:`ASPECT_NEAR`.
+  with other random points (``thresholds.json``, measured per metric by
+  ``scripts/duplicates_study.py --noise``, see docs/duplicates.md) and the exact surface
+  moments agree (:func:`fingerprint_gap` within :data:`FINGERPRINT_SAME`). The second test
+  is needed: on kicad6 the sampling noise of D2 at 1024 points is larger than the distance
+  between many pairs of different parts of one family;
+* ``near``: a near duplicate: distance within the looser ``near`` threshold and moments
+  within :data:`FINGERPRINT_NEAR`.
 
 Each pair also says ``size_ratio`` (size of ``b`` over size of ``a``; sizes are mean pair
 distances in file units, so a copy saved in inches shows 1/25.4) and ``mirrored`` (one is the
@@ -16,8 +18,9 @@ mirror image of the other, by :func:`shapeidx.families.chirality.mirror_relation
 false for parts that are their own mirror image). With ``scale="sensitive"`` a pair whose
 sizes differ by more than :data:`~shapeidx.families.scale.SIZE_BAND` is no duplicate.
 
-Candidates come from :func:`shapeidx.families.candidates.candidate_pairs` (each entry's
-nearest neighbours in the embedding, confirmed with the exact distance), so the work grows
+Candidates come from :func:`shapeidx.families.candidates.candidate_pairs`, twice: each
+entry's nearest neighbours in the D2 embedding, and in the space of its exact moments
+(:func:`fingerprint_vectors`); all are confirmed with the exact distance, so the work grows
 as N k, not N^2. Groups are the connected components of the pairs found; a group lists the
 pairs that link it (for a large group, not every pair of its members). Nothing is ever
 deleted or moved.
@@ -33,15 +36,15 @@ import numpy as np
 from ..errors import ShapeidxError
 from .candidates import candidate_pairs
 from .chirality import mirror_relation
-from .scale import check_scale, within_band
+from .scale import check_scale, ratio_within_band
 
 TIERS = ("identical", "same", "near")
 DEFAULT_METRIC = "combined"
 #: Candidate neighbours per entry.
 DEFAULT_NEIGHBOURS = 10
-#: Largest |ln| gap of the proportions r2/r1, r3/r1 for ``same`` and for ``near``.
-ASPECT_SAME = 0.05
-ASPECT_NEAR = 0.15
+#: Largest :func:`fingerprint_gap` for ``same`` and for ``near`` (docs/duplicates.md).
+FINGERPRINT_SAME = 0.02
+FINGERPRINT_NEAR = 0.06
 
 
 def _thresholds() -> dict:
@@ -62,6 +65,51 @@ def aspect_gap(extents_a: np.ndarray, extents_b: np.ndarray) -> np.ndarray:
         pa = np.log(extents_a[:, 1:] / extents_a[:, :1])
         pb = np.log(extents_b[:, 1:] / extents_b[:, :1])
         return np.abs(pa - pb).max(axis=1)
+
+
+def fingerprint_gap(table, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """How far apart two parts' exact, scale-free surface moments are (NaN: unknown).
+
+    The largest of: the proportions' ``|ln|`` gaps (:func:`aspect_gap`), the ``|ln|`` gap of
+    area / sum r^2, and the gaps of the absolute skewnesses along the principal axes. These
+    are integrals of the surface, not samples: a rotated, mirrored, rescaled or re-saved copy
+    has the same values to rounding, where D2 distances carry the sampling noise.
+    """
+    gaps = [aspect_gap(table.extents[a], table.extents[b])]
+    if table.moments is not None:
+        ma, mb = table.moments[a], table.moments[b]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gaps.append(np.abs(np.log(ma[:, 0] / mb[:, 0])))
+        gaps.append(np.abs(ma[:, 1:] - mb[:, 1:]).max(axis=1) if len(a) else np.zeros(0))
+    stacked = np.stack(gaps, axis=1)
+    out = np.full(len(a), np.nan)
+    known = ~np.isnan(stacked).all(axis=1)
+    out[known] = np.nanmax(stacked[known], axis=1)
+    return out
+
+
+def fingerprint_vectors(table) -> np.ndarray | None:
+    """The moments of :func:`fingerprint_gap` as vectors (NaN as 0), or None if all unknown."""
+    if table.moments is None:
+        return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        proportions = np.log(table.extents[:, 1:] / table.extents[:, :1])
+        vectors = np.concatenate([proportions, np.log(table.moments[:, :1]), table.moments[:, 1:]], axis=1)
+    if np.isnan(vectors).all():
+        return None
+    return np.nan_to_num(vectors, nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def _candidates(table, metric, k, method, threads):
+    """Candidate pairs by the D2 embedding and by the exact moments, confirmed, each once."""
+    a, b, d, _, _ = candidate_pairs(table, metric, k, method, threads)
+    vectors = fingerprint_vectors(table)
+    if vectors is not None:
+        a2, b2, d2, _, _ = candidate_pairs(table, metric, k, method, threads, vectors=vectors)
+        a, b, d = np.concatenate([a, a2]), np.concatenate([b, b2]), np.concatenate([d, d2])
+        _, first = np.unique(a * len(table) + b, return_index=True)
+        a, b, d = a[first], b[first], d[first]
+    return a, b, d
 
 
 class _UnionFind:
@@ -112,15 +160,15 @@ def find_duplicates(table, metric: str = DEFAULT_METRIC, scale: str = "invariant
             tiers += ["identical"] * (len(members) - 1)
             dists += [0.0] * (len(members) - 1)
     if n > 1:
-        a, b, d, _, _ = candidate_pairs(table, metric, min(k, n - 1), method, threads)
+        a, b, d = _candidates(table, metric, min(k, n - 1), method, threads)
         keep = (d <= limits["near"]) & (hashes[a] != hashes[b])
         a, b, d = a[keep], b[keep], d[keep]
-        gap = aspect_gap(table.extents[a], table.extents[b])
+        gap = fingerprint_gap(table, a, b)
         unknown = np.isnan(gap)
-        same = (d <= limits["same"]) & (unknown | (gap <= ASPECT_SAME))
-        near = ~same & (unknown | (gap <= ASPECT_NEAR))
+        same = (d <= limits["same"]) & (unknown | (gap <= FINGERPRINT_SAME))
+        near = ~same & (unknown | (gap <= FINGERPRINT_NEAR))
         if scale == "sensitive":
-            band = within_band(table.sizes[a], table.sizes[b])
+            band = ratio_within_band(table.size_ratios(a, b))
             same, near = same & band, near & band
         take = same | near
         pairs_a += list(a[take])

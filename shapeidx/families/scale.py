@@ -35,6 +35,13 @@ def within_band(size_a, size_b, band: float = SIZE_BAND) -> np.ndarray:
     return ~(ratio > band)
 
 
+def ratio_within_band(ratio, band: float = SIZE_BAND) -> np.ndarray:
+    """Whether size ratios (either way round) are within a factor ``band`` (NaN: True, unknown)."""
+    ratio = np.asarray(ratio, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return ~(np.maximum(ratio, 1 / ratio) > band)
+
+
 def apply_scale(distances: np.ndarray, size_query: float, sizes: np.ndarray, scale: str, band: float = SIZE_BAND) -> np.ndarray:
     """``distances`` with entries outside the size band set to inf under ``sensitive``."""
     check_scale(scale)

@@ -22,10 +22,12 @@ from ..signing.parameters import HISTOGRAMS, SIGNATURE_VERSION
 from ..store import STATUS_OK, StoreReader
 
 #: Pair values handled per step of :meth:`FamilyTable.pair_distances` (bounds its memory).
-PAIR_BLOCK_VALUES = 1 << 23
+PAIR_BLOCK_VALUES = 1 << 22
+#: Most values of one histogram's dense copy (8 bytes each).
+DENSE_VALUES = 1 << 27
 
 
-@dataclass
+@dataclass(eq=False)
 class RaggedHistograms:
     """One histogram of every entry: probabilities end to end (``p[offsets[i]:offsets[i+1]]``)."""
 
@@ -46,8 +48,44 @@ class RaggedHistograms:
         p = counts.astype(np.float64) / np.repeat(np.maximum(totals, 1), lengths)
         return cls(p, offsets)
 
+    def dense(self) -> tuple[np.ndarray, int]:
+        """The rows as a zero-padded (N, W) array, W the 99th percentile of the lengths (cached).
+
+        Rows longer than W are left to the ragged road of :meth:`distances`.
+        """
+        if getattr(self, "_dense", None) is None:
+            lengths = self.lengths
+            n = len(lengths)
+            width = int(np.quantile(lengths, 0.99)) if n else 0
+            width = max(1, min(width, DENSE_VALUES // max(n, 1)))
+            dense = np.zeros((n, width))
+            short = lengths <= width
+            rows = np.repeat(np.flatnonzero(short), lengths[short])
+            starts = np.repeat(self.offsets[:-1][short], lengths[short])
+            k = np.arange(len(rows)) - np.repeat(offsets_of(lengths[short])[:-1], lengths[short])
+            dense[rows, k] = self.p[starts + k]
+            self._dense = (dense, width)
+        return self._dense
+
     def distances(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """The paper's ``D`` (zero-padded L1 / bins) between rows ``a[k]`` and ``b[k]``."""
+        a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+        lengths = self.lengths
+        dense, width = self.dense()
+        bins = np.maximum(lengths[a], lengths[b])
+        fits = bins <= width
+        out = np.zeros(len(a))
+        step = max(1, PAIR_BLOCK_VALUES // width)
+        where = np.flatnonzero(fits & (bins > 0))
+        for start in range(0, len(where), step):
+            part = where[start : start + step]
+            out[part] = np.abs(dense[a[part]] - dense[b[part]]).sum(axis=1) / bins[part]
+        long = np.flatnonzero(~fits)
+        if len(long):
+            out[long] = self._ragged_distances(a[long], b[long])
+        return out
+
+    def _ragged_distances(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         lengths = self.lengths
         la, lb = lengths[a], lengths[b]
         width = np.maximum(la, lb)
@@ -101,6 +139,10 @@ class FamilyTable:
     extents : (N, 3) float64
         Principal radii, NaN for entries of a store that predates them.
     handedness : (N, 2) float64
+    bounds : (N, 6) float64
+        Bounding box in file units: min x, y, z, max x, y, z.
+    moments : (N, 4) float64
+        Area / sum of squared principal radii, and |skewness| along each principal axis.
     missing_columns : list of str
         Columns the store's files lack (read as NaN).
     """
@@ -114,6 +156,8 @@ class FamilyTable:
     extents: np.ndarray
     handedness: np.ndarray
     missing_columns: list
+    bounds: np.ndarray | None = None
+    moments: np.ndarray | None = None
 
     @classmethod
     def load(cls, reader: StoreReader, histograms=HISTOGRAMS) -> "FamilyTable":
@@ -136,10 +180,17 @@ class FamilyTable:
             extents=reader.column("entries/extents")[rows],
             handedness=reader.column("entries/handedness")[rows],
             missing_columns=reader.missing_columns,
+            bounds=reader.column("entries/bounds")[rows],
+            moments=reader.column("entries/moments")[rows],
         )
 
     def __len__(self) -> int:
         return len(self.paths)
+
+    def index_of(self, path: str) -> int | None:
+        """Position of the entry with this relative path, or None."""
+        i = int(np.searchsorted(self.paths, path))
+        return i if i < len(self.paths) and self.paths[i] == path else None
 
     @property
     def sizes(self) -> np.ndarray:
@@ -169,7 +220,18 @@ class FamilyTable:
         features = self.pair_features(a, b, METRIC_HISTOGRAMS[metric])
         return np.asarray(metric_values(features, (metric,))[metric], dtype=np.float64)
 
+    @property
+    def radii(self) -> np.ndarray:
+        """Each part's radius of gyration of its surface, ``sqrt(r1^2 + r2^2 + r3^2)``, in file
+        units: exact (no sampling noise), NaN where the store predates the column."""
+        return np.sqrt((self.extents**2).sum(axis=1))
+
     def size_ratios(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """``size[b] / size[a]``: how much larger b is than a (mean pair distance, file units)."""
+        """How much larger b is than a: the ratio of the radii of gyration (exact) where both
+        are known, else of the mean pair distances (a sample: within a few % of the truth)."""
+        a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+        radii = self.radii
         with np.errstate(divide="ignore", invalid="ignore"):
-            return self.sizes[b] / self.sizes[a]
+            exact = radii[b] / radii[a]
+            sampled = self.sizes[b] / self.sizes[a]
+        return np.where(np.isfinite(exact), exact, sampled)

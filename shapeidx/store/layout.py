@@ -44,9 +44,10 @@ ENTRY_COLUMNS = {
     "entries/fractions": (np.float64, np.float64),
 }
 #: Added in layout 2 (shapeidx.families.chirality.shape_facts): bounding box (min xyz, max
-#: xyz) and principal radii in file units, and the two handedness pseudo-scalars. Absent from
+#: xyz) and principal radii in file units, the two handedness pseudo-scalars and four
+#: scale-free surface moments (area / sum r^2, |skewness| per axis). Absent from
 #: older files: read as NaN (``StoreReader.missing_columns`` names them).
-SHAPE_COLUMNS = {"entries/bounds": 6, "entries/extents": 3, "entries/handedness": 2}
+SHAPE_COLUMNS = {"entries/bounds": 6, "entries/extents": 3, "entries/handedness": 2, "entries/moments": 4}
 ENTRY_COLUMNS.update({name: (np.float64, np.float64) for name in SHAPE_COLUMNS})
 for _name in HISTOGRAMS:
     ENTRY_COLUMNS[f"histograms/{_name}/mean"] = (np.float64, np.float64)
@@ -161,6 +162,7 @@ class Entry:
     bounds: tuple = (float("nan"),) * 6
     extents: tuple = (float("nan"),) * 3
     handedness: tuple = (float("nan"),) * 2
+    moments: tuple = (float("nan"),) * 4
 
     @classmethod
     def indexed(cls, path, hash, size, mtime_ns, signature: Signature, facts: dict, shape: dict | None = None) -> "Entry":
@@ -176,7 +178,7 @@ class Entry:
             watertight=bool(facts["watertight"]),
             fractions=tuple(signature.fractions[c] for c in FRACTION_CLASSES),
             histograms=dict(signature.histograms),
-            **{k: tuple(float(v) for v in shape[k]) for k in ("bounds", "extents", "handedness") if k in (shape or {})},
+            **{k: tuple(float(v) for v in shape[k]) for k in ("bounds", "extents", "handedness", "moments") if k in (shape or {})},
         )
 
     @classmethod

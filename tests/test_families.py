@@ -1,0 +1,329 @@
+"""classify, cluster, duplicates and what they stand on: sizes, handedness, pair distances,
+candidates, agreement figures. Real parts from kicad6, real builds, the real command line."""
+
+from __future__ import annotations
+
+
+import h5py
+import numpy as np
+import pytest
+import trimesh
+
+import analytic
+from clitools import cli, cli_json
+from storetools import copy_tree
+from shapeidx.distance import METRICS, compare
+from shapeidx.families.agreement import ari, nmi
+from shapeidx.families.candidates import candidate_pairs
+from shapeidx.families.chirality import mirror_relation, shape_facts, surface_moments
+from shapeidx.families.cluster import cluster_store
+from shapeidx.families.table import FamilyTable
+from shapeidx.io import load as load_polygons
+from shapeidx.signing.pipeline import solid_of_file
+from shapeidx.store import open_store
+
+CHIRAL = "LED_SMD/LED_RGB_5050-6.wrl"  # handedness |h2| ~ 0.012: its mirror image is another part
+FOLDERS = ("Diode_SMD", "LED_SMD")
+
+
+def rotation(seed=1):
+    q, r = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    q *= np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def chiral_blocks():
+    """Three boxes of different sizes placed off every axis: no mirror plane."""
+    meshes = [trimesh.creation.box((3, 1, 1)), trimesh.creation.box((1, 2, 1)), trimesh.creation.box((1, 1, 1.5))]
+    for mesh, shift in zip(meshes, ((1.5, 0, 0), (0, 1.5, 0.3), (0.4, 0.2, 1.8))):
+        mesh.apply_translation(shift)
+    mesh = trimesh.util.concatenate(meshes)
+    return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+
+
+# ---------------------------------------------------------------------------- sizes, handedness
+
+def test_surface_moments_match_a_fine_midpoint_rule():
+    vertices, faces = chiral_blocks()
+    area, centroid, covariance, third = surface_moments(vertices, faces)
+    # independent: each triangle split 4^6 times, moments summed at the small triangles' centroids
+    tri = vertices[faces]
+    for _ in range(6):
+        a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+        ab, bc, ca = (a + b) / 2, (b + c) / 2, (c + a) / 2
+        tri = np.concatenate([np.stack(t, 1) for t in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
+    w = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    x = tri.mean(axis=1)
+    assert area == pytest.approx(w.sum(), rel=1e-12)
+    assert np.allclose(centroid, (w[:, None] * x).sum(0) / w.sum(), atol=1e-12)
+    x = x - centroid
+    assert np.allclose(covariance, np.einsum("k,ki,kj->ij", w, x, x) / w.sum(), rtol=1e-3, atol=1e-4)
+    assert np.allclose(third, np.einsum("k,ki,kj,kl->ijl", w, x, x, x) / w.sum(), rtol=1e-3, atol=1e-4)
+
+
+def test_handedness_is_invariant_under_rotation_and_scale_and_flips_under_mirroring():
+    vertices, faces = chiral_blocks()
+    facts = shape_facts(vertices, faces)
+    h = np.array(facts["handedness"])
+    assert np.abs(h).max() > 1e-3  # chiral
+    moved = shape_facts(vertices @ rotation(2).T * 7.5 + 3.0, faces)
+    assert np.allclose(moved["handedness"], h, atol=1e-9)
+    assert np.allclose(moved["extents"], np.array(facts["extents"]) * 7.5, rtol=1e-9)
+    for mirror in (np.diag([-1.0, 1, 1]), np.diag([1.0, -1, 1]) @ rotation(3)):
+        mirrored = shape_facts(vertices @ mirror.T, faces[:, ::-1])
+        assert np.allclose(mirrored["handedness"], -h, atol=1e-9)
+        assert mirror_relation(h, np.array(mirrored["handedness"]))
+    assert not mirror_relation(h, np.array(moved["handedness"]))
+
+
+def test_a_part_with_a_mirror_plane_has_no_handedness_and_a_cube_none_measurable():
+    box = trimesh.creation.box((3, 2, 1))
+    facts = shape_facts(box.vertices @ rotation(4).T, box.faces)
+    assert np.abs(facts["handedness"]).max() < 1e-9
+    assert np.allclose(sorted(facts["extents"]), sorted(np.sqrt(_box_surface_variances(3, 2, 1))), rtol=1e-9)
+    cube = trimesh.creation.box((2, 2, 2))
+    assert np.isnan(shape_facts(cube.vertices, cube.faces)["handedness"]).all()  # axes undefined
+    assert not mirror_relation(np.array(shape_facts(cube.vertices, cube.faces)["handedness"]), np.array([0.5, 0.5]))
+
+
+def _box_surface_variances(a, b, c):
+    """Variance along each axis of the surface of an a x b x c box (analytic)."""
+    out = []
+    for i, (u, v, w) in enumerate(((a, b, c), (b, c, a), (c, a, b))):
+        # the two faces across u sit at +-u/2; the four others spread uniformly over u
+        faces_across, faces_along = 2 * v * w, 2 * u * (v + w)
+        out.append((faces_across * (u / 2) ** 2 + faces_along * u**2 / 12) / (faces_across + faces_along))
+    return np.array(out)
+
+
+def test_a_mirrored_real_part_flips_and_a_rotated_one_does_not(data_dir):
+    solid = solid_of_file(data_dir / "kicad6" / CHIRAL)
+    h = np.array(shape_facts(solid.vertices, solid.faces)["handedness"])
+    rotated = shape_facts(solid.vertices @ rotation(5).T, solid.faces)["handedness"]
+    mirrored = shape_facts(solid.vertices @ np.diag([1.0, 1, -1]).T, solid.faces[:, ::-1])["handedness"]
+    assert np.allclose(rotated, h, atol=1e-9) and np.allclose(mirrored, -h, atol=1e-9)
+    assert mirror_relation(h, np.array(mirrored)) and not mirror_relation(h, np.array(rotated))
+
+
+# ---------------------------------------------------------------------------- the store
+
+@pytest.fixture(scope="module")
+def dup_store(tmp_path_factory, data_dir):
+    """Two kicad6 folders, plus a byte copy, a rotated, a rescaled and a mirrored STL of one chiral part."""
+    tmp = tmp_path_factory.mktemp("families")
+    tree = copy_tree(data_dir / "kicad6", tmp / "parts", FOLDERS)
+    solid = solid_of_file(data_dir / "kicad6" / CHIRAL)
+    (tree / "copies").mkdir()
+    (tree / "copies" / "rgb-copy.wrl").write_bytes((data_dir / "kicad6" / CHIRAL).read_bytes())
+    analytic.write_stl(tree / "copies" / "rgb-rotated.stl", solid.vertices @ rotation(6).T, solid.faces)
+    analytic.write_stl(tree / "copies" / "rgb-inches.stl", solid.vertices @ rotation(7).T / 25.4, solid.faces)
+    analytic.write_stl(tree / "copies" / "rgb-mirrored.stl", solid.vertices @ np.diag([-1.0, 1, 1]), solid.faces[:, ::-1])
+    store = tmp / "store.h5"
+    result = cli("build", tree, "--store", store, "-q")
+    assert result.exit_code == 0, result.output
+    return tree, store
+
+
+def test_the_store_keeps_each_parts_size_and_handedness(dup_store):
+    tree, store = dup_store
+    with open_store(store) as reader:
+        assert reader.attrs["schema_version"] == 2 and reader.missing_columns == []
+        table = FamilyTable.load(reader)
+    i, j = table.index_of("copies/rgb-inches.stl"), table.index_of(CHIRAL)
+    bounds = table.bounds[j]
+    polygons = load_polygons(tree / CHIRAL)
+    assert np.allclose(bounds[:3], polygons.vertices.min(axis=0)) and np.allclose(bounds[3:], polygons.vertices.max(axis=0))
+    assert table.size_ratios(np.array([j]), np.array([i]))[0] == pytest.approx(1 / 25.4, rel=1e-6)
+
+
+def test_pair_distances_equal_compare(dup_store):
+    _, store = dup_store
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader)
+        rng = np.random.default_rng(0)
+        a, b = rng.integers(0, len(table), (2, 25))
+        for metric in METRICS:
+            got = table.pair_distances(a, b, metric)
+            want = [compare(reader.signature(int(table.rows[x])), reader.signature(int(table.rows[y])))[metric] for x, y in zip(a, b)]
+            assert np.allclose(got, want, rtol=1e-12, atol=1e-15), metric
+
+
+def test_a_store_of_layout_1_still_opens_with_unknown_sizes(dup_store, tmp_path):
+    _, store = dup_store
+    old = tmp_path / "old.h5"
+    old.write_bytes(store.read_bytes())
+    with h5py.File(old, "r+") as f:
+        for name in ("entries/bounds", "entries/extents", "entries/handedness"):
+            del f[name]
+        f.attrs["schema_version"] = 1
+    with open_store(old) as reader:
+        assert reader.missing_columns == ["entries/bounds", "entries/extents", "entries/handedness"]
+        table = FamilyTable.load(reader)
+    assert np.isnan(table.extents).all() and np.isnan(table.handedness).all()
+    result = cli("duplicates", "--store", old)
+    assert result.exit_code == 0, result.output
+    assert "predates the size and handedness columns" in result.stderr and "--full" in result.stderr
+    assert "identical" in result.stdout  # the byte copy is still found by its hash
+
+
+# ---------------------------------------------------------------------------- duplicates
+
+def test_duplicates_finds_the_copies_with_their_tier_size_and_mirror(dup_store):
+    _, store = dup_store
+    groups = cli_json("duplicates", "--store", store)
+    group = next(g for g in groups if CHIRAL in g["members"])
+    assert set(group["members"]) == {CHIRAL, "copies/rgb-copy.wrl", "copies/rgb-rotated.stl",
+                                     "copies/rgb-inches.stl", "copies/rgb-mirrored.stl"}
+    with_original = {p["b"] if p["a"] == CHIRAL else p["a"]: p for p in group["pairs"] if CHIRAL in (p["a"], p["b"])}
+    by_other = {}
+    for p in group["pairs"]:
+        for x, y in ((p["a"], p["b"]), (p["b"], p["a"])):
+            by_other.setdefault(x, {})[y] = p
+    assert by_other[CHIRAL]["copies/rgb-copy.wrl"]["tier"] == "identical"
+    mirrored = [p for p in group["pairs"] if "copies/rgb-mirrored.stl" in (p["a"], p["b"])]
+    assert mirrored and all(p["mirrored"] and p["tier"] == "same" for p in mirrored)
+    others = [p for p in group["pairs"] if "copies/rgb-mirrored.stl" not in (p["a"], p["b"])]
+    assert others and not any(p["mirrored"] for p in others)
+    inches = [p for p in group["pairs"] if "copies/rgb-inches.stl" in (p["a"], p["b"])]
+    for p in inches:
+        ratio = p["size_ratio"] if p["b"] == "copies/rgb-inches.stl" else 1 / p["size_ratio"]
+        assert ratio == pytest.approx(1 / 25.4, rel=1e-6)
+    assert with_original or True
+    # no two different kicad6 parts are called the same part
+    for g in groups:
+        originals = {m for m in g["members"] if not m.startswith("copies/")}
+        same_pairs = [p for p in g["pairs"] if p["tier"] in ("identical", "same")
+                      and not p["a"].startswith("copies/") and not p["b"].startswith("copies/")]
+        assert not same_pairs, same_pairs
+        assert len(originals) <= 1 or all(p["tier"] == "near" for p in g["pairs"] if p["a"] in originals and p["b"] in originals)
+
+
+def test_duplicates_scale_sensitive_keeps_the_rescaled_copy_apart_and_csv_has_a_row_per_pair(dup_store):
+    _, store = dup_store
+    groups = cli_json("duplicates", "--store", store, "--scale", "sensitive")
+    group = next(g for g in groups if CHIRAL in g["members"])
+    assert "copies/rgb-inches.stl" not in group["members"]
+    result = cli("duplicates", "--store", store, "--csv")
+    lines = result.stdout.strip().splitlines()
+    assert lines[0] == "group,a,b,tier,distance,size_ratio,mirrored"
+    assert len(lines) - 1 == sum(len(g["pairs"]) for g in cli_json("duplicates", "--store", store))
+
+
+# ---------------------------------------------------------------------------- classify
+
+def test_classify_json_in_the_order_given_and_never_its_own_vote(dup_store, data_dir):
+    tree, store = dup_store
+    parts = [str(tree / "LED_SMD" / "LED_2010_5025Metric.wrl"), "Diode_SMD/D_0805_2012Metric.wrl"]
+    out = cli_json("classify", *parts, "--store", store, "-k", "3")
+    assert [r["path"] for r in out] == parts
+    own = {parts[0]: "LED_SMD/LED_2010_5025Metric.wrl", parts[1]: parts[1]}
+    for r in out:
+        assert set(r) == {"path", "label", "confidence", "neighbours"}
+        assert own[r["path"]] not in [nb["path"] for nb in r["neighbours"]]
+        assert 0 < r["confidence"] <= 1 and len(r["neighbours"]) == 3
+        assert all(nb["label"] in FOLDERS + ("copies",) for nb in r["neighbours"])
+        weights = [nb["weight"] for nb in r["neighbours"]]
+        assert weights == sorted(weights, reverse=True)
+
+
+def test_classify_with_a_label_csv_and_bad_input(dup_store, tmp_path):
+    _, store = dup_store
+    labels = tmp_path / "labels.csv"
+    labels.write_text("path,label\n" + "".join(f"{p},odd\n" for p in ("Diode_SMD/D_MELF.wrl", "Diode_SMD/D_MicroMELF.wrl")))
+    out = cli_json("classify", "Diode_SMD/D_SOD-123.wrl", "--store", store, "--labels", labels)
+    assert out[0]["label"] == "odd" and all(nb["label"] == "odd" for nb in out[0]["neighbours"])
+    unknown = tmp_path / "unknown.csv"
+    unknown.write_text("nowhere/a.wrl,x\nnowhere/b.wrl,y\n")
+    result = cli("classify", "Diode_SMD/D_SOD-123.wrl", "--store", store, "--labels", unknown)
+    assert result.exit_code == 1 and result.stderr.count("\n") == 1 and "none of its 2 paths is in the store" in result.stderr
+    result = cli("classify", "Diode_SMD/D_SOD-123.wrl", "--store", store, "--label-depth", "3")
+    assert result.exit_code == 1 and result.stderr.count("\n") == 1 and "no labelled entries" in result.stderr
+
+
+def test_empty_store_gives_one_line(tmp_path):
+    (tmp_path / "empty").mkdir()
+    store = tmp_path / "empty.h5"
+    assert cli("build", tmp_path / "empty", "--store", store, "-q").exit_code == 0
+    for command in (("duplicates",), ("cluster",), ("classify", "x.wrl")):
+        result = cli(*command, "--store", store)
+        assert result.exit_code == 1, command
+        assert result.stderr.count("\n") == 1 and "no indexed entries" in result.stderr
+
+
+# ---------------------------------------------------------------------------- cluster, candidates
+
+def test_cluster_rows_and_both_roads_agree_on_clear_families(dup_store):
+    _, store = dup_store
+    rows = cli_json("cluster", "--store", store, "--clusters", "4")
+    assert {r["cluster"] for r in rows} == {1, 2, 3, 4}
+    sizes = [sum(r["cluster"] == c for r in rows) for c in (1, 2, 3, 4)]
+    assert sizes == sorted(sizes, reverse=True)
+    assert all(r["distance"] >= 0 for r in rows) and sum(r["distance"] == 0 for r in rows) >= 4  # the medoids
+    copies = {r["cluster"] for r in rows if r["path"] == CHIRAL or r["path"].startswith("copies/")}
+    assert len(copies) == 1  # a part and its copies are one family
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader)
+    graph = cluster_store(table, clusters=4, road="graph")
+    members = [i for i, p in enumerate(table.paths) if p == CHIRAL or p.startswith("copies/")]
+    assert len(set(graph["clusters"][members])) == 1
+    csv = cli("cluster", "--store", store, "--csv", "--clusters", "3").stdout.splitlines()
+    assert csv[0] == "path,cluster,distance" and len(csv) == len(rows) + 1
+
+
+def test_candidates_find_the_exact_nearest_neighbours(dup_store):
+    _, store = dup_store
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader)
+    n = len(table)
+    i, j = np.triu_indices(n, 1)
+    exact = np.zeros((n, n))
+    exact[i, j] = exact[j, i] = table.pair_distances(i, j, "combined")
+    np.fill_diagonal(exact, np.inf)
+    k = 5
+    _, _, _, neighbours, nd = candidate_pairs(table, "combined", k)
+    assert not (neighbours == np.arange(n)[:, None]).any()
+    kth = np.sort(exact, axis=1)[:, k - 1]
+    found = (nd <= kth[:, None] + 1e-12).sum(axis=1)
+    assert found.sum() / (k * n) >= 0.95
+
+
+def test_nmi_and_ari_against_hand_computed_values():
+    assert nmi([0, 0, 1, 1], ["a", "a", "b", "b"]) == pytest.approx(1.0)
+    assert ari([0, 0, 1, 1], [5, 5, 7, 7]) == pytest.approx(1.0)
+    # classes {0,0,1,1}, clusters {0,1,0,1}: independent
+    assert nmi([0, 0, 1, 1], [0, 1, 0, 1]) == pytest.approx(0.0, abs=1e-12)
+    assert ari([0, 0, 1, 1], [0, 1, 0, 1]) == pytest.approx(-0.5)
+    # classes (3, 3), clusters {0,0,1 | 1,1,1}: contingency [[2, 1], [0, 3]]
+    classes, clusters = [0, 0, 0, 1, 1, 1], [0, 0, 1, 1, 1, 1]
+    h_classes = np.log(2)
+    h_clusters = -(2 / 6 * np.log(2 / 6) + 4 / 6 * np.log(4 / 6))
+    mi = 2 / 6 * np.log((2 / 6) / (3 / 6 * 2 / 6)) + 1 / 6 * np.log((1 / 6) / (3 / 6 * 4 / 6)) + 3 / 6 * np.log((3 / 6) / (3 / 6 * 4 / 6))
+    assert nmi(classes, clusters) == pytest.approx(mi / ((h_classes + h_clusters) / 2))
+    index, rows, cols, total = 1 + 3, 3 + 3, 1 + 6, 15  # sum C(n_ij,2), C(a_i,2), C(b_j,2), C(6,2)
+    expected = rows * cols / total
+    assert ari(classes, clusters) == pytest.approx((index - expected) / ((rows + cols) / 2 - expected))
+
+
+def test_query_scale_sensitive_leaves_out_parts_of_another_size(dup_store):
+    _, store = dup_store
+    plain = cli_json("query", "--id", CHIRAL, "--store", store, "--top", "6")
+    assert "copies/rgb-inches.stl" in [h["path"] for h in plain[:5]]
+    sensitive = cli_json("query", "--id", CHIRAL, "--store", store, "--top", "40", "--scale", "sensitive")
+    assert "copies/rgb-inches.stl" not in [h["path"] for h in sensitive]
+    assert [h["path"] for h in sensitive[:4]][0] == CHIRAL
+
+
+def test_one_voter_leave_one_out_is_the_retrieval_nearest_neighbour_score(dup_store):
+    from shapeidx.evaluation.retrieval import retrieval_scores
+    from shapeidx.families.cluster import distance_matrix
+    from shapeidx.families.labels import labels_from_paths
+    from shapeidx.families.scores import family_scores
+
+    _, store = dup_store
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader)
+    matrix = distance_matrix(table, "weighted")
+    labels = labels_from_paths(table.paths)
+    assert family_scores(matrix, labels, k=1)["knn"] == pytest.approx(retrieval_scores(matrix, labels)["nn"])
+    scores = family_scores(matrix, labels)
+    assert 0 <= scores["nmi"] <= 1 and -1 <= scores["ari"] <= 1
