@@ -29,7 +29,8 @@ Measured, in one run on one machine:
   cost with no overhead of its own).
 
 With ``--scheduler`` the build runs on that Dask cluster (``--workers`` is then only the
-floor's divisor: give the cluster's thread count).
+floor's divisor: give the cluster's thread count; the memory and CPU figures are then those of
+the build's machine only, not of the workers).
 """
 
 from __future__ import annotations

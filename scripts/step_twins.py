@@ -48,7 +48,7 @@ def build_store(folder: Path, store: Path, workers: int) -> float | None:
 
 def twin_ranks(step_store: Path, vrml_store: Path, metric: str = "weighted") -> list:
     """For every ok STEP entry: (path, rank of its VRML twin, the first hit, distance gap)."""
-    from shapeidx.query import SignatureTable
+    from shapeidx.ranking import SignatureTable
     from shapeidx.store import open_store
 
     rows = []
@@ -79,7 +79,7 @@ BASELINE_SEED = 7
 
 
 def _vrml_resampled(path: str):
-    from shapeidx.pipeline import signature_of_solid, solid_of_file
+    from shapeidx.signing.pipeline import signature_of_solid, solid_of_file
 
     solid = solid_of_file(path)
     return signature_of_solid(solid, seed=BASELINE_SEED), solid.watertight
@@ -92,7 +92,7 @@ def baseline_ranks(vrml_store: Path, vrml_folder: Path, parts: list, workers: in
     """
     import multiprocessing
 
-    from shapeidx.query import SignatureTable
+    from shapeidx.ranking import SignatureTable
     from shapeidx.store import open_store
 
     files = [str(vrml_folder / f"{p}.wrl") for p in parts]
@@ -113,8 +113,8 @@ def baseline_ranks(vrml_store: Path, vrml_folder: Path, parts: list, workers: in
 def retrieval(store: Path, only: set | None = None) -> dict:
     """Retrieval scores of every distance over the store's labelled entries (optionally a subset of paths)."""
     from shapeidx.distance import FEATURES, METRICS, metric_values
-    from shapeidx.evaluate import labelled_features
-    from shapeidx.retrieval import retrieval_scores
+    from shapeidx.evaluation.evaluate import labelled_features
+    from shapeidx.evaluation.retrieval import retrieval_scores
     from shapeidx.store import open_store
 
     with open_store(store) as reader:
@@ -130,7 +130,7 @@ def retrieval(store: Path, only: set | None = None) -> dict:
 
 def time_parts(pairs: list) -> list:
     """(step seconds, vrml seconds, step triangles, vrml triangles) per pair, one core, one at a time."""
-    from shapeidx.pipeline import signature_of_solid, solid_of_file
+    from shapeidx.signing.pipeline import signature_of_solid, solid_of_file
 
     solid_of_file(pairs[0][0])  # load OpenCASCADE and warm caches before timing
     out = []

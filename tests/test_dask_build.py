@@ -84,7 +84,13 @@ class LocalCluster:
         """The worker processes the nannies run (the ones that run the tasks)."""
         kill_build = load_script("kill_build")
         return [pid for nanny in self.nannies for pid in kill_build.children_of(nanny.pid)
-                if b"spawn_main" in Path(f"/proc/{pid}/cmdline").read_bytes()]
+                if b"spawn_main" in _cmdline(pid)]
+
+    def indexing_processes(self) -> list[int]:
+        """The workers' indexing processes (shapeidx.index.remote): this cluster's only, never another's."""
+        kill_build = load_script("kill_build")
+        return [pid for worker in self.worker_processes() for pid in kill_build.children_of(worker)
+                if b"shapeidx.index.remote" in _cmdline(pid)]
 
     def stop(self) -> None:
         for proc in self.processes:
@@ -93,6 +99,13 @@ class LocalCluster:
             except ProcessLookupError:
                 pass
             proc.wait()
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return b""
 
 
 @pytest.fixture(scope="module")
@@ -199,19 +212,6 @@ def test_no_scheduler_there_is_one_line(tmp_path, reference):
     assert "shapeidx: error: cannot reach the dask scheduler at tcp://127.0.0.1:9" in run.stderr
 
 
-def _indexing_processes() -> list[int]:
-    """The workers' indexing processes (shapeidx.index.remote), wherever they run here."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if b"shapeidx.index.remote" in (entry / "cmdline").read_bytes():
-                    found.append(int(entry.name))
-            except OSError:
-                pass
-    return found
-
-
 def reading(proc) -> list:
     """The lines of ``proc``'s stderr so far (a thread keeps reading them)."""
     lines: list = []
@@ -219,7 +219,7 @@ def reading(proc) -> list:
     return lines
 
 
-def busy_on_the_assembly(proc, lines, small: int = 10) -> int:
+def busy_on_the_assembly(cluster, proc, lines, small: int = 10) -> int:
     """The indexing process working on the tree's last file, a slow assembly.
 
     Once the ``small`` quick files before it are indexed, it is the process whose CPU time
@@ -232,7 +232,7 @@ def busy_on_the_assembly(proc, lines, small: int = 10) -> int:
     baseline: dict = {}
     while True:
         assert proc.poll() is None and time.monotonic() < deadline, "no indexing process got busy"
-        for pid in _indexing_processes():
+        for pid in cluster.indexing_processes():
             try:
                 used = cpu_seconds(pid)
             except OSError:
@@ -261,7 +261,7 @@ def test_a_file_that_crashes_its_process_is_failed_on_the_cluster(cluster, data_
     slow_assembly(data_dir, tree / "z_assembly.stl")
     proc = dask_build(tree, tmp_path / "s.h5", cluster, "--verbose")
     lines = reading(proc)
-    os.kill(busy_on_the_assembly(proc, lines), signal.SIGSEGV)
+    os.kill(busy_on_the_assembly(cluster, proc, lines), signal.SIGSEGV)
     out = proc.stdout.read()
     assert proc.wait(timeout=300) == 0, "".join(lines)
     assert summary_counts(out) == {"indexed": 10, "unchanged": 0, "removed": 0, "failed": 1}
@@ -356,7 +356,7 @@ def test_a_file_whose_workers_keep_dying_is_failed_with_the_reason(data_dir, tmp
         slow_assembly(data_dir, tree / "z_assembly.stl")
         proc = dask_build(tree, tmp_path / "s.h5", cluster, "--verbose")
         lines = reading(proc)
-        busy_on_the_assembly(proc, lines)
+        busy_on_the_assembly(cluster, proc, lines)
         os.kill(cluster.worker_processes()[0], signal.SIGKILL)
         out = proc.stdout.read()
         assert proc.wait(timeout=300) == 0, "".join(lines)

@@ -136,7 +136,9 @@ class DaskPool:
                 while not finished.empty():
                     done.append(finished.get_nowait())
                 for future in done:
-                    yield self._outcome_of(future, self.running.pop(future))
+                    task = self.running.pop(future, None)
+                    if task is not None:  # (a callback that fires twice hands a file on once)
+                        yield self._outcome_of(future, task)
                 if time.monotonic() - resized > RESIZE_EVERY:  # workers come and go
                     window = IN_FLIGHT_PER_THREAD * self._threads(window // IN_FLIGHT_PER_THREAD)
                     resized = time.monotonic()
@@ -154,10 +156,10 @@ class DaskPool:
         if future.status == "error":
             error = future.exception()
             if isinstance(error, distributed.KilledWorker):
-                deaths = error.allowed_failures + 1
-                return _failure(task, one_line(
-                    f"dask workers died while indexing this file, {deaths} time{'s' * (deaths != 1)}"
-                    " (more than the scheduler's distributed.scheduler.allowed-failures)"))
+                allowed = getattr(error, "allowed_failures", None)
+                times = "" if allowed is None else f", {allowed + 1} time{'s' * (allowed != 0)}"
+                return _failure(task, one_line(f"dask workers died while indexing this file{times}"
+                                               " (more than the scheduler's distributed.scheduler.allowed-failures)"))
             if isinstance(error, WorkerSetupError):
                 raise ShapeidxError(str(error)) from None
             raise ShapeidxError(one_line(f"a dask worker failed to run shapeidx: {type(error).__name__}: {error}"))
