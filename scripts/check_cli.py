@@ -492,6 +492,7 @@ def main() -> int:
     parser.add_argument("--data", type=Path, default=Path(os.environ.get("SHAPEIDX_DATA", Path(__file__).resolve().parents[2] / "shared/data")))
     parser.add_argument("--only", help="comma-separated words: run the items whose name contains one")
     parser.add_argument("--keep", action="store_true", help="keep the scratch folder")
+    parser.add_argument("--verbose", action="store_true", help="print what was seen for passing items too")
     args = parser.parse_args()
     command = [args.command] if args.command else default_command()
     scratch = Path(tempfile.mkdtemp(prefix="check_cli-"))
@@ -514,7 +515,7 @@ def main() -> int:
                 verdict, seen = "FAIL", f"{type(exc).__name__}: {exc}"
             tally[verdict] += 1
             print(f"{verdict}  {name}  ({time.monotonic() - started:.1f} s)")
-            if verdict != "PASS":
+            if verdict != "PASS" or args.verbose or name.startswith("start-up"):
                 print(f"      seen: {seen}")
     finally:
         if not args.keep:
