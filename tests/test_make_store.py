@@ -99,8 +99,8 @@ def test_a_made_store_ranks_each_entry_nearest_to_its_siblings(stores):
                 nearest_sibling += source_of(paths[int(np.argmin(d))]) == source_of(path)
     assert with_siblings > MADE // 2
     assert nearest_sibling >= 0.9 * with_siblings, (nearest_sibling, with_siblings)
-    top = json.loads(run_shapeidx("query", "--store", made, "--id", paths[7], "--top", "3", "--json").stdout)
-    assert [h["path"] for h in top][0] == paths[7] and len(top) == 3
+    top = json.loads(run_shapeidx("query", "--store", made, "--id", paths[7], "--top", "3", "--json").stdout)["hits"]
+    assert [h["relative_path"] for h in top][0] == paths[7] and len(top) == 3
 
 
 def test_make_store_never_writes_over_a_store(stores):

@@ -144,7 +144,9 @@ class TestSimilarity:
 
 
 def query_json(store_path, *args):
-    return cli_json("query", *args, "--store", store_path)
+    """The hits of ``shapeidx query --json``, each ``path`` relative to the indexed folder."""
+    hits = cli_json("query", *args, "--store", store_path)["hits"]
+    return [{**hit, "path": hit["relative_path"]} for hit in hits]
 
 
 class TestQuerySheet:

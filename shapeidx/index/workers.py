@@ -310,7 +310,10 @@ class _Worker:
         self.wait_ready()
         self.task = task
         self.deadline = time.monotonic() + timeout if timeout else float("inf")
-        self.conn.send(task)
+        try:
+            self.conn.send(task)
+        except (BrokenPipeError, ConnectionResetError):
+            pass  # it died before it could take the file: judged by its exit code, as any death
 
     def kill(self) -> None:
         if self.process.is_alive():
