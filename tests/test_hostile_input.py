@@ -18,7 +18,7 @@ import pytest
 
 from shapeidx.errors import LoadError, ShapeidxError, printable
 from shapeidx.signing.pipeline import solid_of_file
-from storetools import shapeidx_command
+from clitools import shapeidx_command
 
 TETRAHEDRON = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
 TETRA_FACES = [(0, 2, 1), (0, 1, 3), (0, 3, 2), (1, 2, 3)]
