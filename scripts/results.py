@@ -304,13 +304,14 @@ def families(lines, work):
         with open_store(store_of(work, name, directory)) as reader:
             labels, plain, _ = family_matrices(reader)
             _, sensitive, _ = family_matrices(reader, "sensitive")
-            _, banded, _ = family_matrices(reader, "sensitive", band=True)
+            _, banded, _ = family_matrices(reader, "sensitive", band=True, moments=False)
+            _, bare, _ = family_matrices(reader, moments=False)  # what classify votes with
         lines += [f"### {name}: {len(labels)} models, {len(set(labels))} classes", "",
                   "| distance | scale | kNN | 1-NN | NMI | ARI |", "|---|---|---|---|---|---|"]
         for m in METRICS:
             for scale, matrices in (("invariant", plain), ("sensitive", sensitive)):
                 matrix = matrices[m]
-                voting = np.where(banded[m] >= APART, np.inf, banded[m]) if scale == "sensitive" else matrix
+                voting = np.where(banded[m] >= APART, np.inf, banded[m]) if scale == "sensitive" else bare[m]
                 f = family_scores(matrix, labels)  # cluster's matrix: metric + moments (+ size)
                 one = leave_one_out(voting, labels, 1)["accuracy"]
                 knn = leave_one_out(voting, labels, DEFAULT_K)["accuracy"]
@@ -318,13 +319,13 @@ def families(lines, work):
         lines.append("")
     with open_store(store_of(work, "kicad6", COLLECTIONS["kicad6"])) as reader:
         labels, plain, table = family_matrices(reader)
-        _, sensitive, _ = family_matrices(reader, "sensitive", band=True)
+        _, sensitive, _ = family_matrices(reader, "sensitive", band=True, moments=False)
         _, bare, _ = family_matrices(reader, moments=False)
     classes = len(set(labels))
     lines += ["### How the defaults were chosen (kicad6, combined)", "",
               "Voters k (kNN accuracy, leave-one-out):", "", "| k | invariant | sensitive |", "|---|---|---|"]
     for k in (1, 3, 5, 7, 10):
-        acc = [leave_one_out(np.where(mm >= APART, np.inf, mm), labels, k)["accuracy"] for mm in (plain["combined"], sensitive["combined"])]
+        acc = [leave_one_out(np.where(mm >= APART, np.inf, mm), labels, k)["accuracy"] for mm in (bare["combined"], sensitive["combined"])]
         lines.append(f"| {k} | {acc[0]:.3f} | {acc[1]:.3f} |")
     lines += ["", f"Linkage, cut at {classes} clusters (the combined distance alone):", "", "| linkage | NMI | ARI |", "|---|---|---|"]
     for method in ("ward", "average", "complete", "single"):
@@ -351,7 +352,7 @@ def families(lines, work):
     ratios = np.maximum(ratios, 1 / ratios)
     for band in (None, 1.25, 1.5, 2.0, 3.0, 4.0):
         for m in ("weighted", "combined"):
-            matrix = plain[m] if band is None else np.where(ratios > band, APART + plain[m], plain[m])
+            matrix = bare[m] if band is None else np.where(ratios > band, APART + bare[m], bare[m])
             r = retrieval_scores(matrix, labels)
             lines.append(f"| {'none (invariant)' if band is None else f'{band:g}'} | {LABELS[m]} | {r['nn']:.3f} | {r['ft']:.3f} | {r['st']:.3f} |")
     lines += ["", f"The band kept ({SIZE_BAND:g}) gives the best first tier of those tried with either distance.", ""]

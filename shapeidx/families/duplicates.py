@@ -34,14 +34,14 @@ from importlib import resources
 import numpy as np
 
 from ..errors import ShapeidxError
-from .candidates import candidate_pairs
+from .candidates import OVERFETCH as OVERFETCH_MOMENTS, candidate_pairs
 from .chirality import mirror_relation
 from .scale import check_scale, ratio_within_band
 
 TIERS = ("identical", "same", "near")
 DEFAULT_METRIC = "combined"
 #: Candidate neighbours per entry.
-DEFAULT_NEIGHBOURS = 10
+DEFAULT_NEIGHBOURS = 20
 #: Largest :func:`fingerprint_gap` for ``same`` and for ``near`` (docs/duplicates.md).
 FINGERPRINT_SAME = 0.02
 FINGERPRINT_NEAR = 0.06
@@ -100,16 +100,55 @@ def fingerprint_vectors(table) -> np.ndarray | None:
     return np.nan_to_num(vectors, nan=0.0, posinf=0.0, neginf=0.0)
 
 
+#: Entries sharing one exact fingerprint (copies of one surface) are all paired with each
+#: other up to this many; a larger set pairs each member with the first and its neighbours.
+ALL_PAIRS_LIMIT = 200
+
+
 def _candidates(table, metric, k, method, threads):
-    """Candidate pairs by the D2 embedding and by the exact moments, confirmed, each once."""
-    a, b, d, _, _ = candidate_pairs(table, metric, k, method, threads)
+    """Candidate pairs by the D2 embedding and by the exact moments, confirmed, each once.
+
+    Copies of one surface share their moments exactly, so they would fill each other's
+    nearest-moment lists; the moment search therefore runs over the distinct fingerprints
+    (each once), pairs the first entry of each with the first of its neighbours, and pairs
+    the entries of one fingerprint among themselves.
+    """
+    from .candidates import CandidateIndex
+
+    a, b, _, _, _ = candidate_pairs(table, metric, k, method, threads)
+    pieces_a, pieces_b = [a], [b]
     vectors = fingerprint_vectors(table)
     if vectors is not None:
-        a2, b2, d2, _, _ = candidate_pairs(table, metric, k, method, threads, vectors=vectors)
-        a, b, d = np.concatenate([a, a2]), np.concatenate([b, b2]), np.concatenate([d, d2])
-        _, first = np.unique(a * len(table) + b, return_index=True)
-        a, b, d = a[first], b[first], d[first]
-    return a, b, d
+        unique, first, inverse = np.unique(vectors, axis=0, return_index=True, return_inverse=True)
+        inverse = inverse.ravel()
+        if len(unique) > 1:
+            index = CandidateIndex(unique, method, threads)
+            _, found = index.search(unique, min(OVERFETCH_MOMENTS * k, len(unique) - 1) + 1)
+            rows = np.repeat(first, found.shape[1])
+            cols = found.ravel()
+            keep = cols >= 0
+            pieces_a.append(rows[keep])
+            pieces_b.append(first[cols[keep]])
+        order = np.argsort(inverse, kind="stable")
+        bounds = np.flatnonzero(np.diff(np.concatenate([[-1], inverse[order], [-2]])))
+        for lo, hi in zip(bounds[:-1], bounds[1:]):
+            members = order[lo:hi]
+            if len(members) < 2:
+                continue
+            if len(members) <= ALL_PAIRS_LIMIT:
+                i, j = np.triu_indices(len(members), 1)
+                pieces_a.append(members[i])
+                pieces_b.append(members[j])
+            else:
+                pieces_a.append(np.full(len(members) - 1, members[0]))
+                pieces_b.append(members[1:])
+    a, b = np.concatenate(pieces_a), np.concatenate(pieces_b)
+    a, b = np.minimum(a, b), np.maximum(a, b)
+    keep = a != b
+    a, b = a[keep], b[keep]
+    _, once = np.unique(a * len(table) + b, return_index=True)
+    a, b = a[once], b[once]
+    return a, b, table.pair_distances(a, b, metric)
 
 
 class _UnionFind:
