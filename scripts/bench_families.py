@@ -35,7 +35,6 @@ from shapeidx.families.candidates import candidate_pairs
 from shapeidx.families.cluster import GRAPH_NEIGHBOURS, cluster_store
 from shapeidx.families.duplicates import FINGERPRINT_NEAR, find_duplicates, fingerprint_gap, thresholds
 from shapeidx.families.table import FamilyTable
-from shapeidx.ranking import SignatureTable
 from shapeidx.store import open_store
 
 TARGET_SECONDS = 600.0

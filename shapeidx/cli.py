@@ -355,9 +355,8 @@ def classify(parts, store, k, metric, label_depth, labels_file, scale, as_json):
 @click.option("--metric", type=click.Choice(METRICS), default="combined", show_default=True, help="The distance.")
 @scale_option
 @click.option("--csv", "as_csv", is_flag=True, help="Rows of path,cluster,distance.")
-@click.option("--plot", type=click.Path(dir_okay=False, path_type=str), help="Write a picture of the clusters (PNG).")
 @json_option
-def cluster(store, clusters, threshold, metric, scale, as_csv, plot, as_json):
+def cluster(store, clusters, threshold, metric, scale, as_csv, as_json):
     """Group the whole store into families of similar parts."""
     from .families.cluster import cluster_store
 
@@ -367,10 +366,6 @@ def cluster(store, clusters, threshold, metric, scale, as_csv, plot, as_json):
     result = cluster_store(table, metric, clusters, threshold, scale, threads=available_cores())
     rows = [{"path": str(p), "cluster": int(c), "distance": float(d)}
             for p, c, d in sorted(zip(result["paths"], result["clusters"], result["distances"]), key=lambda r: (r[1], r[2], r[0]))]
-    if plot:
-        from .families.plot import plot_clusters
-
-        plot_clusters(table, result, plot, metric)
     if as_json:
         _emit_json(rows)
     elif as_csv:

@@ -3,7 +3,6 @@ candidates, agreement figures. Real parts from kicad6, real builds, the real com
 
 from __future__ import annotations
 
-import json
 
 import h5py
 import numpy as np
