@@ -21,8 +21,9 @@ sizes differ by more than :data:`~shapeidx.families.scale.SIZE_BAND` is no dupli
 Candidates come from :func:`shapeidx.families.candidates.candidate_pairs`, twice: each
 entry's nearest neighbours in the D2 embedding, and in the space of its exact moments
 (:func:`fingerprint_vectors`); all are confirmed with the exact distance, so the work grows
-as N k, not N^2. Groups are the connected components of the pairs found; a group lists the
-pairs that link it (for a large group, not every pair of its members). Nothing is ever
+as N k, not N^2. Groups are the connected components of the pairs found; a group of up to
+:data:`ALL_PAIRS_GROUP` members lists every pair found among them, a larger one the pairs of
+a minimum spanning tree (best tier first, then least distance), which link it. Nothing is ever
 deleted or moved.
 """
 
@@ -151,6 +152,38 @@ def _candidates(table, metric, k, method, threads):
     return a, b, table.pair_distances(a, b, metric)
 
 
+#: Groups up to this size list every pair found among their members; larger ones list the
+#: pairs of a minimum spanning tree (tier first, then distance): enough to link them.
+ALL_PAIRS_GROUP = 12
+
+
+def _linking_pairs(n, pa, pb, tier, dist):
+    """The pairs a group lists: all of a small group's, a spanning tree's in a large one."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
+
+    a, b = np.minimum(pa, pb), np.maximum(pa, pb)
+    order = np.lexsort((dist, tier))  # per pair of entries, its best tier, then distance
+    key = a[order] * n + b[order]
+    _, first = np.unique(key, return_index=True)
+    keep = order[first]
+    a, b, tier, dist = a[keep], b[keep], tier[keep], dist[keep]
+    _, component = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)
+    size = np.bincount(component, minlength=n)
+    small = size[component[a]] <= ALL_PAIRS_GROUP
+    # spanning tree of the large groups: weight orders by tier, then by distance
+    span = np.flatnonzero(~small)
+    chosen = np.flatnonzero(small)
+    if len(span):
+        scale = float(dist[span].max()) + 1.0
+        weight = tier[span] * scale + dist[span] + 1e-9
+        tree = minimum_spanning_tree(coo_matrix((weight, (a[span], b[span])), shape=(n, n)).tocsr()).tocoo()
+        span_keys = a[span] * n + b[span]  # increasing: the pairs came out of np.unique sorted by key
+        tree_keys = np.minimum(tree.row, tree.col).astype(np.int64) * n + np.maximum(tree.row, tree.col)
+        chosen = np.concatenate([chosen, span[np.searchsorted(span_keys, tree_keys)]]).astype(np.int64)
+    return a[chosen], b[chosen], tier[chosen], dist[chosen]
+
+
 class _UnionFind:
     def __init__(self, n: int):
         self.parent = np.arange(n)
@@ -217,27 +250,31 @@ def find_duplicates(table, metric: str = DEFAULT_METRIC, scale: str = "invariant
     if not pairs_a:
         return []
     pa, pb = np.array(pairs_a, dtype=np.int64), np.array(pairs_b, dtype=np.int64)
+    tier_code = np.array([TIERS.index(t) for t in tiers], dtype=np.int64)
+    dists = np.asarray(dists, dtype=np.float64)
+    pa, pb, tier_code, dists = _linking_pairs(n, pa, pb, tier_code, dists)
     ratios = table.size_ratios(pa, pb)
     mirrored = mirror_relation(table.handedness[pa], table.handedness[pb])
-    uf = _UnionFind(n)
-    for x, y in zip(pa, pb):
-        uf.union(int(x), int(y))
-    groups: dict = {}
-    for i, (x, y) in enumerate(zip(pa, pb)):
-        groups.setdefault(uf.find(int(x)), []).append(i)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    _, component = connected_components(coo_matrix((np.ones(len(pa)), (pa, pb)), shape=(n, n)), directed=False)
+    by_group: dict = {}
+    for i in np.lexsort((table.paths[pb], table.paths[pa], tier_code)):
+        by_group.setdefault(int(component[pa[i]]), []).append(int(i))
     out = []
-    for pair_indices in groups.values():
+    for pair_indices in by_group.values():
         members = sorted({str(table.paths[pa[i]]) for i in pair_indices} | {str(table.paths[pb[i]]) for i in pair_indices})
         pairs = [
             {
                 "a": str(table.paths[pa[i]]),
                 "b": str(table.paths[pb[i]]),
-                "tier": tiers[i],
+                "tier": TIERS[tier_code[i]],
                 "distance": float(dists[i]),
                 "size_ratio": None if not np.isfinite(ratios[i]) else float(ratios[i]),
                 "mirrored": bool(mirrored[i]),
             }
-            for i in sorted(pair_indices, key=lambda i: (TIERS.index(tiers[i]), str(table.paths[pa[i]]), str(table.paths[pb[i]])))
+            for i in pair_indices
         ]
         out.append({"members": members, "pairs": pairs})
     out.sort(key=lambda g: (-len(g["members"]), g["members"][0]))
