@@ -109,6 +109,7 @@ def main() -> int:
     parser.add_argument("--metric", default="combined")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--work", type=Path, default=Path("bench-stores"))
+    parser.add_argument("--methods", nargs="+", default=["exact", "hnsw"], help="candidate indexes to measure recall of")
     args = parser.parse_args()
     print(f"machine: {machine()}")
     print(f"command: {shlex.join([sys.executable, *sys.argv])}")
@@ -116,7 +117,7 @@ def main() -> int:
     args.work.mkdir(parents=True, exist_ok=True)
     failed = False
     store = synthetic(args.work, args.recall_size, real)
-    for method in ("exact", "hnsw"):
+    for method in args.methods:
         r = recall(store, args.metric, args.queries, method)
         ok = r["neighbour_recall"] >= TARGET_RECALL and r["pair_recall"] >= TARGET_RECALL
         failed |= not ok and method == "exact"

@@ -811,15 +811,14 @@ def classify(parts, store, k, metric, label_depth, labels_file, scale, output_fo
 @click.option("--metric", type=click.Choice(METRICS), default="combined", show_default=True, help="The distance.")
 @scale_option
 @click.option("--csv", "as_csv", is_flag=True, help="Rows of path,cluster,distance.")
-@click.option("--plot", metavar="OUT.png", help="Write a picture of the clusters (PNG).")
 @format_options
-def cluster(store, clusters, threshold, metric, scale, as_csv, plot, output_format, as_json):
+def cluster(store, clusters, threshold, metric, scale, as_csv, output_format, as_json):
     """Group the whole store into families of similar parts.
 
     \b
     Example:
       shapeidx cluster --store parts.h5 --clusters 50
-      shapeidx cluster --store parts.h5 --threshold 0.05 --format csv --plot families.png
+      shapeidx cluster --store parts.h5 --threshold 0.05 --format csv
     """
     from .families.cluster import cluster_store
     from .system import available_cores
@@ -830,10 +829,6 @@ def cluster(store, clusters, threshold, metric, scale, as_csv, plot, output_form
     result = cluster_store(table, metric, clusters, threshold, scale, threads=available_cores())
     rows = [{"path": str(p), "cluster": int(c), "distance": float(d)}
             for p, c, d in sorted(zip(result["paths"], result["clusters"], result["distances"]), key=lambda r: (r[1], r[2], r[0]))]
-    if plot:
-        from .families.plot import plot_clusters
-
-        plot_clusters(table, result, plot, metric)
     fmt = "csv" if as_csv and output_format is None else chosen_format(output_format, as_json)
     if fmt == "json":
         emit_json(rows)

@@ -21,8 +21,9 @@ sizes differ by more than :data:`~shapeidx.families.scale.SIZE_BAND` is no dupli
 Candidates come from :func:`shapeidx.families.candidates.candidate_pairs`, twice: each
 entry's nearest neighbours in the D2 embedding, and in the space of its exact moments
 (:func:`fingerprint_vectors`); all are confirmed with the exact distance, so the work grows
-as N k, not N^2. Groups are the connected components of the pairs found; a group lists the
-pairs that link it (for a large group, not every pair of its members). Nothing is ever
+as N k, not N^2. Groups are the connected components of the pairs found; a group of up to
+:data:`ALL_PAIRS_GROUP` members lists every pair found among them, a larger one the pairs of
+a minimum spanning tree (best tier first, then least distance), which link it. Nothing is ever
 deleted or moved.
 """
 
@@ -34,14 +35,14 @@ from importlib import resources
 import numpy as np
 
 from ..errors import ShapeidxError
-from .candidates import candidate_pairs
+from .candidates import OVERFETCH as OVERFETCH_MOMENTS, candidate_pairs
 from .chirality import mirror_relation
 from .scale import check_scale, ratio_within_band
 
 TIERS = ("identical", "same", "near")
 DEFAULT_METRIC = "combined"
 #: Candidate neighbours per entry.
-DEFAULT_NEIGHBOURS = 10
+DEFAULT_NEIGHBOURS = 20
 #: Largest :func:`fingerprint_gap` for ``same`` and for ``near`` (docs/duplicates.md).
 FINGERPRINT_SAME = 0.02
 FINGERPRINT_NEAR = 0.06
@@ -100,16 +101,87 @@ def fingerprint_vectors(table) -> np.ndarray | None:
     return np.nan_to_num(vectors, nan=0.0, posinf=0.0, neginf=0.0)
 
 
+#: Entries sharing one exact fingerprint (copies of one surface) are all paired with each
+#: other up to this many; a larger set pairs each member with the first and its neighbours.
+ALL_PAIRS_LIMIT = 200
+
+
 def _candidates(table, metric, k, method, threads):
-    """Candidate pairs by the D2 embedding and by the exact moments, confirmed, each once."""
-    a, b, d, _, _ = candidate_pairs(table, metric, k, method, threads)
+    """Candidate pairs by the D2 embedding and by the exact moments, confirmed, each once.
+
+    Copies of one surface share their moments exactly, so they would fill each other's
+    nearest-moment lists; the moment search therefore runs over the distinct fingerprints
+    (each once), pairs the first entry of each with the first of its neighbours, and pairs
+    the entries of one fingerprint among themselves.
+    """
+    from .candidates import CandidateIndex
+
+    a, b, _, _, _ = candidate_pairs(table, metric, k, method, threads)
+    pieces_a, pieces_b = [a], [b]
     vectors = fingerprint_vectors(table)
     if vectors is not None:
-        a2, b2, d2, _, _ = candidate_pairs(table, metric, k, method, threads, vectors=vectors)
-        a, b, d = np.concatenate([a, a2]), np.concatenate([b, b2]), np.concatenate([d, d2])
-        _, first = np.unique(a * len(table) + b, return_index=True)
-        a, b, d = a[first], b[first], d[first]
-    return a, b, d
+        unique, first, inverse = np.unique(vectors, axis=0, return_index=True, return_inverse=True)
+        inverse = inverse.ravel()
+        if len(unique) > 1:
+            index = CandidateIndex(unique, method, threads)
+            _, found = index.search(unique, min(OVERFETCH_MOMENTS * k, len(unique) - 1) + 1)
+            rows = np.repeat(first, found.shape[1])
+            cols = found.ravel()
+            keep = cols >= 0
+            pieces_a.append(rows[keep])
+            pieces_b.append(first[cols[keep]])
+        order = np.argsort(inverse, kind="stable")
+        bounds = np.flatnonzero(np.diff(np.concatenate([[-1], inverse[order], [-2]])))
+        for lo, hi in zip(bounds[:-1], bounds[1:]):
+            members = order[lo:hi]
+            if len(members) < 2:
+                continue
+            if len(members) <= ALL_PAIRS_LIMIT:
+                i, j = np.triu_indices(len(members), 1)
+                pieces_a.append(members[i])
+                pieces_b.append(members[j])
+            else:
+                pieces_a.append(np.full(len(members) - 1, members[0]))
+                pieces_b.append(members[1:])
+    a, b = np.concatenate(pieces_a), np.concatenate(pieces_b)
+    a, b = np.minimum(a, b), np.maximum(a, b)
+    keep = a != b
+    a, b = a[keep], b[keep]
+    _, once = np.unique(a * len(table) + b, return_index=True)
+    a, b = a[once], b[once]
+    return a, b, table.pair_distances(a, b, metric)
+
+
+#: Groups up to this size list every pair found among their members; larger ones list the
+#: pairs of a minimum spanning tree (tier first, then distance): enough to link them.
+ALL_PAIRS_GROUP = 12
+
+
+def _linking_pairs(n, pa, pb, tier, dist):
+    """The pairs a group lists: all of a small group's, a spanning tree's in a large one."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
+
+    a, b = np.minimum(pa, pb), np.maximum(pa, pb)
+    order = np.lexsort((dist, tier))  # per pair of entries, its best tier, then distance
+    key = a[order] * n + b[order]
+    _, first = np.unique(key, return_index=True)
+    keep = order[first]
+    a, b, tier, dist = a[keep], b[keep], tier[keep], dist[keep]
+    _, component = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)
+    size = np.bincount(component, minlength=n)
+    small = size[component[a]] <= ALL_PAIRS_GROUP
+    # spanning tree of the large groups: weight orders by tier, then by distance
+    span = np.flatnonzero(~small)
+    chosen = np.flatnonzero(small)
+    if len(span):
+        scale = float(dist[span].max()) + 1.0
+        weight = tier[span] * scale + dist[span] + 1e-9
+        tree = minimum_spanning_tree(coo_matrix((weight, (a[span], b[span])), shape=(n, n)).tocsr()).tocoo()
+        span_keys = a[span] * n + b[span]  # increasing: the pairs came out of np.unique sorted by key
+        tree_keys = np.minimum(tree.row, tree.col).astype(np.int64) * n + np.maximum(tree.row, tree.col)
+        chosen = np.concatenate([chosen, span[np.searchsorted(span_keys, tree_keys)]]).astype(np.int64)
+    return a[chosen], b[chosen], tier[chosen], dist[chosen]
 
 
 class _UnionFind:
@@ -178,27 +250,31 @@ def find_duplicates(table, metric: str = DEFAULT_METRIC, scale: str = "invariant
     if not pairs_a:
         return []
     pa, pb = np.array(pairs_a, dtype=np.int64), np.array(pairs_b, dtype=np.int64)
+    tier_code = np.array([TIERS.index(t) for t in tiers], dtype=np.int64)
+    dists = np.asarray(dists, dtype=np.float64)
+    pa, pb, tier_code, dists = _linking_pairs(n, pa, pb, tier_code, dists)
     ratios = table.size_ratios(pa, pb)
     mirrored = mirror_relation(table.handedness[pa], table.handedness[pb])
-    uf = _UnionFind(n)
-    for x, y in zip(pa, pb):
-        uf.union(int(x), int(y))
-    groups: dict = {}
-    for i, (x, y) in enumerate(zip(pa, pb)):
-        groups.setdefault(uf.find(int(x)), []).append(i)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    _, component = connected_components(coo_matrix((np.ones(len(pa)), (pa, pb)), shape=(n, n)), directed=False)
+    by_group: dict = {}
+    for i in np.lexsort((table.paths[pb], table.paths[pa], tier_code)):
+        by_group.setdefault(int(component[pa[i]]), []).append(int(i))
     out = []
-    for pair_indices in groups.values():
+    for pair_indices in by_group.values():
         members = sorted({str(table.paths[pa[i]]) for i in pair_indices} | {str(table.paths[pb[i]]) for i in pair_indices})
         pairs = [
             {
                 "a": str(table.paths[pa[i]]),
                 "b": str(table.paths[pb[i]]),
-                "tier": tiers[i],
+                "tier": TIERS[tier_code[i]],
                 "distance": float(dists[i]),
                 "size_ratio": None if not np.isfinite(ratios[i]) else float(ratios[i]),
                 "mirrored": bool(mirrored[i]),
             }
-            for i in sorted(pair_indices, key=lambda i: (TIERS.index(tiers[i]), str(table.paths[pa[i]]), str(table.paths[pb[i]])))
+            for i in pair_indices
         ]
         out.append({"members": members, "pairs": pairs})
     out.sort(key=lambda g: (-len(g["members"]), g["members"][0]))
