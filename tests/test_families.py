@@ -241,7 +241,9 @@ def test_classify_with_a_label_csv_and_bad_input(dup_store, tmp_path):
 
 
 def test_empty_store_gives_one_line(tmp_path):
+    # a build refuses a tree without part files; a tree of one broken file leaves no ok entry
     (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / "broken.stl").write_bytes(b"solid x\nendsolid x\n")
     store = tmp_path / "empty.h5"
     assert cli("build", tmp_path / "empty", "--store", store, "-q").exit_code == 0
     for command in (("duplicates",), ("cluster",), ("classify", "x.wrl")):
@@ -306,11 +308,11 @@ def test_nmi_and_ari_against_hand_computed_values():
 
 def test_query_scale_sensitive_leaves_out_parts_of_another_size(dup_store):
     _, store = dup_store
-    plain = cli_json("query", "--id", CHIRAL, "--store", store, "--top", "6")
-    assert "copies/rgb-inches.stl" in [h["path"] for h in plain[:5]]
-    sensitive = cli_json("query", "--id", CHIRAL, "--store", store, "--top", "40", "--scale", "sensitive")
-    assert "copies/rgb-inches.stl" not in [h["path"] for h in sensitive]
-    assert [h["path"] for h in sensitive[:4]][0] == CHIRAL
+    plain = cli_json("query", "--id", CHIRAL, "--store", store, "--top", "6")["hits"]
+    assert "copies/rgb-inches.stl" in [h["relative_path"] for h in plain[:5]]
+    sensitive = cli_json("query", "--id", CHIRAL, "--store", store, "--top", "40", "--scale", "sensitive")["hits"]
+    assert "copies/rgb-inches.stl" not in [h["relative_path"] for h in sensitive]
+    assert [h["relative_path"] for h in sensitive[:4]][0] == CHIRAL
 
 
 def test_one_voter_leave_one_out_is_the_retrieval_nearest_neighbour_score(dup_store):

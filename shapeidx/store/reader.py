@@ -95,6 +95,8 @@ class _SourceFile:
         """Every column holds one row per entry (cheap: shapes only)."""
         n = len(self)
         for name in ENTRY_COLUMNS:
+            if name in SHAPE_COLUMNS and name not in self.file:
+                continue  # a file of layout 1: these columns read as NaN
             shape = self.dataset(name).shape
             if not shape or shape[0] != n:
                 raise self.damaged(f"{name} has {shape[0] if shape else 0} rows, not {n}")
