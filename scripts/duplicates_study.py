@@ -314,7 +314,8 @@ def main(argv=None) -> int:
 
 
 def write_report(output, result, table, noise, args, command, seconds, failed) -> None:
-    from shapeidx.families.chirality import AXIS_GAP, CHIRAL_MIN
+    from shapeidx.families.chirality import CHIRAL_MIN
+    from shapeidx.signing.moments import AXIS_GAP
     from shapeidx.families.duplicates import FINGERPRINT_NEAR, FINGERPRINT_SAME
 
     originals = [p for p in map(str, table.paths) if origin_of(p)[1] == "original"]

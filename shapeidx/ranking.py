@@ -130,7 +130,7 @@ def query_store(
         of the store's tree)
     max_distance : leave out hits farther than this
     scale : "invariant" (the paper's) or "sensitive": entries whose size differs from the
-        part's by more than :data:`shapeidx.families.scale.SIZE_BAND` are left out
+        part's by more than :data:`shapeidx.distance.scale.SIZE_BAND` are left out
 
     Raises
     ------
@@ -160,7 +160,7 @@ def _query_reader(reader: StoreReader, part, entry, top, metric, threads, file_t
         first = table.index_of(own) if own is not None else None
     distances = table.distances(signature, metric)
     if scale != "invariant":
-        from .families.scale import apply_scale
+        from .distance.scale import apply_scale
 
         distances = apply_scale(distances, signature.histograms["all"].mean, table.means[:, 0], scale)
     keep = np.isfinite(distances)  # a scale-sensitive search leaves out parts of another size

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import ShapeidxError
 from .candidates import candidate_pairs
-from .scale import check_scale, ratio_within_band
+from ..distance.scale import check_scale, ratio_within_band
 
 #: Largest store clustered from the full distance matrix (N^2 / 2 exact distances).
 MATRIX_LIMIT = 4000

@@ -16,7 +16,7 @@ Each pair also says ``size_ratio`` (size of ``b`` over size of ``a``; sizes are 
 distances in file units, so a copy saved in inches shows 1/25.4) and ``mirrored`` (one is the
 mirror image of the other, by :func:`shapeidx.families.chirality.mirror_relation`; always
 false for parts that are their own mirror image). With ``scale="sensitive"`` a pair whose
-sizes differ by more than :data:`~shapeidx.families.scale.SIZE_BAND` is no duplicate.
+sizes differ by more than :data:`~shapeidx.distance.scale.SIZE_BAND` is no duplicate.
 
 Candidates come from :func:`shapeidx.families.candidates.candidate_pairs`, twice: each
 entry's nearest neighbours in the D2 embedding, and in the space of its exact moments
@@ -37,7 +37,7 @@ import numpy as np
 from ..errors import ShapeidxError
 from .candidates import OVERFETCH as OVERFETCH_MOMENTS, candidate_pairs
 from .chirality import mirror_relation
-from .scale import check_scale, ratio_within_band
+from ..distance.scale import check_scale, ratio_within_band
 
 TIERS = ("identical", "same", "near")
 DEFAULT_METRIC = "combined"

@@ -43,7 +43,7 @@ ENTRY_COLUMNS = {
     "entries/watertight": (np.bool_, np.bool_),
     "entries/fractions": (np.float64, np.float64),
 }
-#: Added in layout 2 (shapeidx.families.chirality.shape_facts): bounding box (min xyz, max
+#: Added in layout 2 (shapeidx.signing.moments.shape_facts): bounding box (min xyz, max
 #: xyz) and principal radii in file units, the two handedness pseudo-scalars and four
 #: scale-free surface moments (area / sum r^2, |skewness| per axis). Absent from
 #: older files: read as NaN (``StoreReader.missing_columns`` names them).
@@ -167,7 +167,7 @@ class Entry:
     @classmethod
     def indexed(cls, path, hash, size, mtime_ns, signature: Signature, facts: dict, shape: dict | None = None) -> "Entry":
         """An ok entry: a signature, the mesh facts of :meth:`shapeidx.signing.solid.Solid.describe`
-        and the size and handedness of :func:`shapeidx.families.chirality.shape_facts` (``shape``)."""
+        and the size and handedness of :func:`shapeidx.signing.moments.shape_facts` (``shape``)."""
         return cls(
             path=path,
             hash=hash,
