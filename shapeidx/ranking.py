@@ -220,8 +220,18 @@ def _query_view(reader: StoreReader, view, part, entry, top, metric, threads, fi
         own = entry_path_of(part, reader) if isinstance(part, (str, os.PathLike)) else None
         found = view.find(own) if own is not None else None
         first = view.position_of(found) if found is not None else None
-    distances = view.distances(signature, metric)
     paths = LazyPaths(view)
+    if scale == "invariant":
+        near = view.nearest(signature, metric, top, first, first if exclude_self else None, max_distance)
+        if near is not None:  # exact distances of the entries that can be hits (and ``first``)
+            chosen, distances = near
+            keep = np.isfinite(distances) & ((chosen != first) if exclude_self and first is not None else True)
+            if max_distance is not None:
+                keep &= distances <= max_distance
+            kept = np.flatnonzero(keep)
+            at_first = np.flatnonzero(chosen[kept] == first) if first is not None else []
+            return top_hits(distances[kept], paths.take(chosen[kept]), top, int(at_first[0]) if len(at_first) else None)
+    distances = view.distances(signature, metric)
     if scale != "invariant":
         from .families.scale import apply_scale
 

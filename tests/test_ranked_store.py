@@ -57,8 +57,14 @@ def assert_ranks_as_the_table(reader, queries=4):
             for threads in (1, 2):
                 got = view.distances(signature, metric, threads=threads)[order]
                 assert np.array_equal(got, expected), (metric, threads)
-        hits = query_store(reader, signature, top=10, metric="combined")
-        assert hits == top_hits(table.distances(signature, "combined"), table.paths, 10)
+        for metric in METRICS:  # combined ranks every entry; the paper's metrics prune by lower bounds
+            for top in (1, 10):
+                hits = query_store(reader, signature, top=top, metric=metric)
+                assert hits == top_hits(table.distances(signature, metric), table.paths, top), (metric, top)
+        d = table.distances(signature, "weighted")
+        limit = float(np.sort(d)[min(len(d) - 1, 40)])
+        within = np.flatnonzero(d <= limit)
+        assert query_store(reader, signature, top=500, max_distance=limit) == top_hits(d[within], table.paths[within], 500)
     return table, view
 
 

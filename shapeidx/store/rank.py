@@ -13,6 +13,7 @@ the same signatures laid out as :class:`~shapeidx.distance.HistogramBank` ranks 
     rank/H/groups      (G, 2) int64    bins_g, n_g per group
     rank/H/order       (M,) int64      the rank position of each grouped row
     rank/H/totals      (M,) int64      each grouped row's pair total (at least 1), grouped order
+    rank/H/coarse      (sum,) uint32   the grouped histograms with every ``coarse`` bins summed (lower bounds)
 
 Every dataset is contiguous and unfiltered: HDF5 gives its file offset, so a query maps it
 (``mmap``) instead of reading and decoding it, and touches only the pages it ranks. Such
@@ -28,6 +29,7 @@ from __future__ import annotations
 
 import hashlib
 import mmap
+import os
 import zlib
 
 import h5py
@@ -44,6 +46,11 @@ CHECKSUM = "crc32"
 CRC_ON_MAP = ("path_key", "rows", "fractions", "means", "groups", "order", "totals")
 #: Dtype of the stored counts (the canonical counts' dtype).
 COUNT_DTYPE = np.uint32
+#: Bins summed into one bin of the coarse histograms (``rank/H/coarse``). By the triangle
+#: inequality the L1 distance of two coarse histograms is at most that of the histograms, so
+#: ranking reads 1/COARSE of the counts to bound every entry's distance from below and
+#: computes exact distances only where the bound does not rule an entry out.
+COARSE = 8
 
 
 def path_keys(paths) -> np.ndarray:
@@ -75,6 +82,8 @@ def grouped(flat: np.ndarray, lengths: np.ndarray):
     groups : (G, 2) int64, bins_g and n_g
     order : (M,) int64, the row (0..M-1) of each grouped histogram
     totals : (M,) int64, each grouped histogram's total, at least 1 (what ranking divides by)
+    coarse : (sum,) uint32, the same histograms with every :data:`COARSE` bins summed, group
+        after group (n_g, ceil(bins_g / COARSE)): what the lower bounds of ranking read
     """
     lengths = np.asarray(lengths, dtype=np.int64)
     offsets = offsets_of(lengths)
@@ -87,7 +96,8 @@ def grouped(flat: np.ndarray, lengths: np.ndarray):
     bins, starts = np.unique(sorted_lengths, return_index=True)
     sizes = np.diff(np.append(starts, len(order)))
     out = np.empty(int(lengths.sum()), dtype=COUNT_DTYPE)
-    at = 0
+    coarse = np.empty(int(np.sum(-(-bins // COARSE) * sizes)), dtype=COUNT_DTYPE)
+    at = coarse_at = 0
     for b, lo, n in zip(bins.tolist(), starts.tolist(), sizes.tolist()):
         if b:
             rows = order[lo : lo + n]
@@ -95,8 +105,13 @@ def grouped(flat: np.ndarray, lengths: np.ndarray):
             block = np.lib.stride_tricks.sliding_window_view(flat, b)[offsets[rows]]
             out[at : at + n * b] = block.reshape(-1)
             at += n * b
+            width = -(-b // COARSE)
+            padded = np.zeros((n, width * COARSE), dtype=np.int64)
+            padded[:, :b] = block
+            coarse[coarse_at : coarse_at + n * width] = padded.reshape(n, width, COARSE).sum(axis=2).reshape(-1)
+            coarse_at += n * width
     groups = np.stack([bins, sizes], axis=1).astype(np.int64).reshape(-1, 2)
-    return out, groups, order.astype(np.int64), np.maximum(totals[order], 1)
+    return out, groups, order.astype(np.int64), np.maximum(totals[order], 1), coarse
 
 
 def write_rank(f: h5py.File, columns: dict, counts: dict, histograms) -> None:
@@ -114,6 +129,7 @@ def write_rank_entries(f: h5py.File, columns: dict, histograms) -> np.ndarray:
     ok = np.flatnonzero(status == STATUS_OK)
     group = f.create_group(RANK)
     group.attrs["histograms"] = " ".join(histograms)
+    group.attrs["coarse"] = COARSE
     _write(f, f"{RANK}/path_key", path_keys(columns["entries/path"]))
     _write(f, f"{RANK}/rows", ok.astype(np.int64))
     _write(f, f"{RANK}/fractions", np.asarray(columns["entries/fractions"], dtype=np.float64)[ok].reshape(-1, 3))
@@ -125,12 +141,13 @@ def write_rank_entries(f: h5py.File, columns: dict, histograms) -> np.ndarray:
 def write_rank_histogram(f: h5py.File, h: str, flat: np.ndarray, lengths: np.ndarray, ok: np.ndarray) -> None:
     """Histogram ``h`` of the ``rank/`` section from every entry's counts (flat, lengths); ``ok``: the ok rows."""
     flat, lengths = take_ragged(np.asarray(flat, dtype=COUNT_DTYPE), offsets_of(lengths), ok)
-    values, groups, order, totals = grouped(flat, lengths)
+    values, groups, order, totals, coarse = grouped(flat, lengths)
     del flat
     _write(f, f"{RANK}/{h}/counts", values)
     _write(f, f"{RANK}/{h}/groups", groups)
     _write(f, f"{RANK}/{h}/order", order)
     _write(f, f"{RANK}/{h}/totals", totals)
+    _write(f, f"{RANK}/{h}/coarse", coarse)
 
 
 def expected_rank(columns: dict, counts: dict, histograms):
@@ -147,14 +164,32 @@ def expected_rank(columns: dict, counts: dict, histograms):
     for h in histograms:
         flat, lengths = counts[h]
         flat, lengths = take_ragged(np.asarray(flat, dtype=COUNT_DTYPE), offsets_of(lengths), ok)
-        values, groups, order, totals = grouped(flat, lengths)
-        yield from ((f"{h}/counts", values), (f"{h}/groups", groups), (f"{h}/order", order), (f"{h}/totals", totals))
+        values, groups, order, totals, coarse = grouped(flat, lengths)
+        yield from ((f"{h}/counts", values), (f"{h}/groups", groups), (f"{h}/order", order), (f"{h}/totals", totals),
+                    (f"{h}/coarse", coarse))
 
 
 def rank_datasets(histograms) -> list:
     """Every dataset name of a ``rank/`` section holding ``histograms``."""
     names = [f"{RANK}/{n}" for n in ("path_key", "rows", "fractions", "means")]
-    return names + [f"{RANK}/{h}/{n}" for h in histograms for n in ("counts", "groups", "order", "totals")]
+    return names + [f"{RANK}/{h}/{n}" for h in histograms for n in ("counts", "groups", "order", "totals", "coarse")]
+
+
+def _map_file(file: h5py.File, path) -> mmap.mmap:
+    """A read-only mapping of the file ``file`` has open.
+
+    Opened anew through ``/proc/self/fd`` (the same file even when a merge deleted its name
+    meanwhile), not through HDF5's own descriptor: a mapping shares its descriptor's lock, and
+    HDF5's lock would then outlive the file's closing for as long as an array views the map.
+    """
+    try:
+        fd = os.open(f"/proc/self/fd/{file.id.get_vfd_handle()}", os.O_RDONLY)
+    except OSError:
+        fd = os.open(path, os.O_RDONLY)
+    try:
+        return mmap.mmap(fd, 0, access=mmap.ACCESS_READ)
+    finally:
+        os.close(fd)
 
 
 class RankSection:
@@ -176,6 +211,7 @@ class RankSection:
         self.file = file
         self.path = path
         self.histograms = tuple(str(group.attrs["histograms"]).split())
+        self.coarse = int(group.attrs["coarse"])
         self._map = None
         self._arrays: dict = {}
         n = int(file["entries/size"].shape[0])
@@ -191,8 +227,10 @@ class RankSection:
         for h in self.histograms:
             groups = np.asarray(self.array(f"{h}/groups"), dtype=np.int64).reshape(-1, 2)
             total = int(np.sum(groups[:, 0] * groups[:, 1]))
+            coarse_total = int(np.sum(-(-groups[:, 0] // self.coarse) * groups[:, 1]))
             if (int(groups[:, 1].sum()) != m or np.any(groups < 0) or total != self.array(f"{h}/counts").shape[0]
-                    or self.array(f"{h}/order").shape != (m,) or self.array(f"{h}/totals").shape != (m,)):
+                    or self.array(f"{h}/order").shape != (m,) or self.array(f"{h}/totals").shape != (m,)
+                    or self.array(f"{h}/coarse", verify=False).shape != (coarse_total,)):
                 raise ValueError(f"ranking groups of {h} disagree with its arrays")
             self.groups[h] = groups
 
@@ -208,8 +246,8 @@ class RankSection:
             if offset is None or dataset.size == 0 or dataset.chunks is not None:
                 values = dataset[()]
             else:
-                if self._map is None:  # the open file itself: a merge may have deleted its name meanwhile
-                    self._map = mmap.mmap(self.file.id.get_vfd_handle(), 0, access=mmap.ACCESS_READ)
+                if self._map is None:
+                    self._map = _map_file(self.file, self.path)
                 values = np.frombuffer(self._map, dtype=dataset.dtype, count=dataset.size, offset=offset)
                 values = values.reshape(dataset.shape)
             if verify and name.rsplit("/", 1)[-1] in CRC_ON_MAP:
@@ -231,6 +269,30 @@ class RankSection:
             at += n * bins
             row += n
         return HistogramBank(len(self), groups)
+
+    def slots(self, h: str):
+        """(group start of each group, grouped slot of each rank position) of histogram ``h``."""
+        key = f"{h}/slot"
+        if key not in self._arrays:
+            order = self.array(f"{h}/order")
+            slot = np.empty(len(order), dtype=np.int64)
+            slot[order] = np.arange(len(order))
+            starts = np.concatenate([[0], np.cumsum(self.groups[h][:, 1])])
+            self._arrays[key] = (starts, slot)
+        return self._arrays[key]
+
+    def blocks(self, h: str, name: str = "counts"):
+        """Per group of ``h``: (bins, its (n, width) block of ``name``, its totals), where width is
+        bins for the counts and ceil(bins / coarse) for the coarse counts."""
+        values, totals = self.array(f"{h}/{name}", verify=False), self.array(f"{h}/totals")
+        out, at, row = [], 0, 0
+        for bins, n in self.groups[h].tolist():
+            width = bins if name == "counts" else -(-bins // self.coarse)
+            block = values[at : at + n * width].reshape(n, width) if width else np.zeros((n, 0), dtype=COUNT_DTYPE)
+            out.append((bins, block, totals[row : row + n]))
+            at += n * width
+            row += n
+        return out
 
     def verify(self) -> list[str]:
         """Every dataset's checksum and the orders being permutations; returns what is wrong."""

@@ -149,6 +149,109 @@ class RankedView:
         features = features_to_many(signature, None, fractions, means, needed, distances=d)
         return metric_values(features, (metric,))[metric]
 
+    # -- the nearest entries, with exact distances only where a lower bound cannot rule them out
+    def nearest(self, signature: Signature, metric: str, top: int, first: int | None = None,
+                exclude: int | None = None, max_distance: float | None = None):
+        """Positions and exact distances of a set of live entries that holds every entry a
+        ``top``-nearest answer can contain: the ``top`` nearest (not ``exclude``, within
+        ``max_distance``), every entry tied with the last of them, and ``first``.
+
+        Each entry's distance is bounded from below by that of its coarse histograms
+        (``rank/H/coarse``: by the triangle inequality, summing bins never increases an L1
+        distance, and the paper's metrics grow with every ``D``); exact distances are computed
+        for the entries of smallest bound, more of them until the ``top``-th exact distance is
+        below every other entry's bound. The distances are those of :meth:`distances`, bit
+        for bit. Returns None for a metric this does not bound (``combined``).
+        """
+        from ..distance.bank import METRIC_HISTOGRAMS
+        from ..distance.paper import PAPER_METRICS
+
+        if metric not in PAPER_METRICS:
+            return None
+        if top <= 0 or len(self) == 0:
+            return np.zeros(0, dtype=np.int64), np.zeros(0)
+        needed = METRIC_HISTOGRAMS[metric]
+        with self._checked(None):
+            fractions, means = self.fractions, self.means
+            bounds = {h: self._lower_bounds(h, signature.histograms[h].p) for h in needed}
+        features = features_to_many(signature, None, fractions, means, needed, distances=bounds)
+        # room for rounding: the bound and the distance are sums of different float terms
+        bound = metric_values(features, (metric,))[metric] * (1 - 1e-9) - 1e-15
+        if exclude is not None:
+            bound[exclude] = np.inf
+        n = len(bound)
+        count = min(n, max(256, 16 * top))
+        while True:
+            chosen = np.argpartition(bound, count - 1)[:count] if count < n else np.arange(n)
+            if first is not None and first != exclude and first not in chosen:
+                chosen = np.append(chosen, first)
+            exact = self.exact_distances(signature, metric, chosen)
+            valid = exact[(chosen != exclude) & (exact <= (np.inf if max_distance is None else max_distance))]
+            reach = np.partition(valid, top - 1)[top - 1] if len(valid) >= top else np.inf
+            if max_distance is not None:
+                reach = min(reach, max_distance)
+            outside = np.partition(bound, count)[count] if count < n else np.inf
+            if count == n or reach < outside:
+                return chosen, exact
+            count = min(n, 4 * count)
+
+    def _lower_bounds(self, h: str, query_p: np.ndarray) -> np.ndarray:
+        """A lower bound of ``D`` of histogram ``h`` from ``query_p`` to every live entry."""
+        from ..distance.bank import _padded_l1
+
+        query_p = np.asarray(query_p, dtype=np.float64)
+        parts = []
+        for i, section in enumerate(self.sections):
+            c = section.coarse
+            padded = np.zeros(-(-len(query_p) // c) * c)
+            padded[: len(query_p)] = query_p
+            query_coarse = padded.reshape(-1, c).sum(axis=1)
+            out = np.zeros(len(section))
+            row = 0
+            order = section.array(f"{h}/order")
+            for bins, block, totals in section.blocks(h, "coarse"):
+                n = len(block)
+                width = max(bins, len(query_p))
+                if width:
+                    coarse_width = max(block.shape[1], len(query_coarse))
+                    out[order[row : row + n]] = _padded_l1(block, totals, query_coarse, coarse_width, True) / width
+                row += n
+            parts.append(out[self.live[i]] if len(self.live[i]) != len(out) else out)
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def exact_distances(self, signature: Signature, metric: str, positions: np.ndarray) -> np.ndarray:
+        """The distance (as :meth:`distances`, bit for bit) of the live entries at ``positions`` only."""
+        from ..distance.bank import METRIC_HISTOGRAMS, _padded_l1
+
+        needed = METRIC_HISTOGRAMS[metric]
+        positions = np.asarray(positions, dtype=np.int64)
+        file_of = np.searchsorted(self.starts, positions, side="right") - 1
+        d = {h: np.zeros(len(positions)) for h in needed}
+        fractions = np.zeros((len(positions), 3))
+        means = np.zeros((len(positions), len(HISTOGRAMS)))
+        for i in np.unique(file_of).tolist():
+            mine = np.flatnonzero(file_of == i)
+            section = self.sections[i]
+            rank_positions = self.live[i][positions[mine] - self.starts[i]]
+            with self._checked(i):
+                fractions[mine] = section.array("fractions")[rank_positions]
+                means[mine] = section.array("means")[rank_positions]
+                for h in needed:
+                    query_p = np.asarray(signature.histograms[h].p, dtype=np.float64)
+                    starts, slot = section.slots(h)
+                    k = slot[rank_positions]
+                    group = np.searchsorted(starts, k, side="right") - 1
+                    blocks = section.blocks(h)
+                    for j in np.unique(group).tolist():
+                        sel = np.flatnonzero(group == j)
+                        bins, block, totals = blocks[j]
+                        width = max(bins, len(query_p))
+                        at = k[sel] - starts[j]
+                        if width:
+                            d[h][mine[sel]] = _padded_l1(block[at], totals[at], query_p, width, True) / width
+        features = features_to_many(signature, None, fractions, means, needed, distances=d)
+        return metric_values(features, (metric,))[metric]
+
     # -- single entries, read alone
     def locate(self, position: int) -> tuple[int, int]:
         """(file, row) of the live entry at ``position``."""
