@@ -623,19 +623,35 @@ main.add_command(click.Command("info", callback=stats.callback, params=stats.par
 @main.command(context_settings=CONTEXT)
 @store_option
 @click.option("--files", "check_files", is_flag=True, help="Also hash every entry's file and compare with the store.")
+@click.option("--repair", is_flag=True, help="Rebuild damaged or missing ranking arrays (written before layout 3) from the checked entries; takes the store's lock.")
 @format_options
-def check(store, check_files, output_format, as_json):
+def check(store, check_files, repair, output_format, as_json):
     """Verify a store: structure, offsets, totals, checksums (and with --files, that every
-    entry's file still hashes the same). Exits 5 naming the first problems.
+    entry's file still hashes the same). Exits 5 naming the first problems. --repair
+    rebuilds the ranking arrays (derived data) of files where they are damaged or missing.
 
     \b
     Example:
       shapeidx check --store parts.h5
       shapeidx check --store parts.h5 --files --json
+      shapeidx check --store parts.h5 --repair
     """
     from .store.check import check_store
 
     fmt = chosen_format(output_format, as_json)
+    if repair:
+        from .store import StoreLock
+        from .store.check import rebuild_ranking
+
+        path = _store_path(store)
+        check_store(path)  # no store, not a store: one line, before taking the lock
+        lock = StoreLock(path)
+        lock.acquire()
+        try:
+            for line in rebuild_ranking(path):
+                click.echo(line, err=True)
+        finally:
+            lock.release()
     report = check_store(_store_path(store), files=check_files)
     if fmt == "json":
         emit_json(report.to_dict())
@@ -646,6 +662,8 @@ def check(store, check_files, output_format, as_json):
             click.echo(f"problem: {problem.line()}", err=True)
         if len(report.problems) > 20:
             click.echo(f"problem: ... and {len(report.problems) - 20} more (--json lists all)", err=True)
+        for note in report.notes:
+            click.echo(f"note: {note}", err=True)
         click.echo(report.summary())
     if report.problems:
         sys.exit(exits.DAMAGED)

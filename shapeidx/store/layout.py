@@ -19,7 +19,10 @@ from ..signing.parameters import HISTOGRAMS
 
 #: Layout version of the files; a store with a newer one is refused. 2 added the size and
 #: handedness columns (:data:`SHAPE_COLUMNS`); files of layout 1 still open, those columns NaN.
-SCHEMA_VERSION = 2
+#: 3 added the memory-mapped ranking section ``rank/`` (shapeidx.store.rank) and journal
+#: segments that stay until a size-tiered merge (shapeidx.store.writer); files of layout 1
+#: and 2 still open and rank as before, and get the section when they are next rewritten.
+SCHEMA_VERSION = 3
 STATUS_OK, STATUS_FAILED = 0, 1
 #: Class fractions are stored as (N, 3) in this order.
 FRACTION_CLASSES = HISTOGRAMS[1:]
