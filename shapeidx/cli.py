@@ -651,7 +651,7 @@ def check(store, check_files, output_format, as_json):
         sys.exit(exits.DAMAGED)
 
 
-METRIC_LABELS = {"all": "ALL (plain D2)", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted": "Weighted", "combined": "combined"}
+METRIC_LABELS = {"all": "ALL (plain D2)", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted": "Weighted", "combined": "combined", "combined-angle": "combined-angle"}
 
 
 @main.command(context_settings=CONTEXT)
