@@ -42,7 +42,7 @@ COLLECTIONS = {
 }
 PAPER_D = "L1 / bins (the paper's D)"  # the row other histogram comparisons are measured against
 LABELS = {"all": "ALL (plain D2)", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted": "Weighted", "combined": "combined",
-          "combined-angle": "combined-angle"}
+          "combined-angle": "combined-angle", "all-angle": "all-angle (twins)"}
 
 
 def store_of(work: Path, name: str, directory: Path, points: int = 1024) -> Path:

@@ -136,3 +136,62 @@ def test_combined_angle_is_zero_for_a_part_and_positive_for_another():
     b = signature_of_solid(solid_of(sphere.vertices, sphere.faces))
     assert compare(a, a)["combined-angle"] == 0.0
     assert compare(a, b)["combined-angle"] > 0
+
+
+# --------------------------------------------------------------------------- store and ranking
+
+
+@pytest.fixture(scope="module")
+def small_store(data_dir, tmp_path_factory):
+    from storetools import build, small_kicad
+
+    tmp = tmp_path_factory.mktemp("angles")
+    tree = small_kicad(data_dir, tmp, ("Diode_SMD", "LED_SMD"))
+    store = tmp / "s.h5"
+    assert build(tree, store).exit_code == 0
+    return tree, store
+
+
+def test_store_ranking_equals_pairwise_compare(small_store):
+    from shapeidx.ranking import SignatureTable
+    from shapeidx.store import open_store
+
+    _, store = small_store
+    with open_store(store) as reader:
+        table = SignatureTable.load(reader)
+        signatures = [reader.signature(int(r)) for r in table.rows]
+    assert all(s.angles is not None and s.angles.sum(axis=1)[0] == s.histograms["all"].total for s in signatures)
+    for metric in ("combined-angle", "all-angle"):
+        ranked = table.distances(signatures[3], metric)
+        pairwise = [compare(signatures[3], s)[metric] for s in signatures]
+        np.testing.assert_array_equal(ranked, pairwise)
+    # all-angle is ALL's D plus the weighted angle term, computed here from the histograms
+    from shapeidx.distance.combined import ALL_ANGLE_WEIGHT
+
+    a, b = signatures[0], signatures[5]
+    by_hand = compare(a, b)["all"] + ALL_ANGLE_WEIGHT * np.abs(angle_probabilities(a.angles)[ALL] - angle_probabilities(b.angles)[ALL]).sum()
+    assert compare(a, b)["all-angle"] == pytest.approx(by_hand, rel=1e-12)
+
+
+def test_a_store_without_angles_refuses_only_the_angle_metrics(small_store, tmp_path):
+    import shutil
+
+    import h5py
+
+    from clitools import cli
+
+    tree, store = small_store
+    old = tmp_path / "old.h5"
+    shutil.copy(store, old)
+    with h5py.File(old, "a") as f:  # what a store written before the angle histograms holds
+        del f["entries/angles"]
+    part = next(tree.rglob("*.wrl"))
+    ok = cli("query", part, "--store", old, "--metric", "weighted", "--top", "2")
+    assert ok.exit_code == 0, ok.stderr
+    check = cli("check", "--store", old)
+    assert check.exit_code == 0, check.output + check.stderr
+    for metric in ("combined-angle", "all-angle"):
+        refused = cli("query", part, "--store", old, "--metric", metric)
+        assert refused.exit_code == 1
+        lines = refused.stderr.strip().splitlines()
+        assert len(lines) == 1 and "normal-angle histograms" in lines[0] and "Traceback" not in refused.stderr

@@ -25,6 +25,7 @@ METRIC_HISTOGRAMS = {
     "weighted": HISTOGRAMS[1:],
     "combined": HISTOGRAMS,
     "combined-angle": HISTOGRAMS,
+    "all-angle": ("all",),
 }
 #: Values per working block of :meth:`HistogramBank.distances`: small enough to stay in the
 #: CPU cache, so each stored probability is read from memory once per query.

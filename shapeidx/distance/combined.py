@@ -14,6 +14,11 @@ normal-angle histograms (:mod:`shapeidx.signing.angles`: all pairs, IN, OUT, MIX
 its own learned weights (``combined_angle_metric.json``). A store built before those
 histograms cannot serve it (its entries' angles are unknown).
 
+**all-angle**: for the same part from another exporter, not for parts of a kind. Plain D2
+(ALL) plus :data:`ALL_ANGLE_WEIGHT` times the L1 distance of the ALL angle histograms: no
+IN / OUT / MIXED class, which differs between exports of one part (open against closed
+meshes), and no learned weight.
+
 :func:`metric_values` turns features into every metric, the paper's four included, so one
 function serves a pair (:func:`compare`) and a whole store (:mod:`.bank`).
 """
@@ -32,7 +37,7 @@ from ..signing.parameters import HISTOGRAMS
 from .paper import PAPER_METRICS, histogram_distance, paper_distances
 
 #: Every metric, by the name ``--metric`` takes.
-METRICS = PAPER_METRICS + ("combined", "combined-angle")
+METRICS = PAPER_METRICS + ("combined", "combined-angle", "all-angle")
 #: The per-pair quantities all metrics are made of, in the order of the combined weights.
 FEATURES = tuple(f"d_{h}" for h in HISTOGRAMS) + tuple(f"gap_{c}" for c in HISTOGRAMS[1:]) + tuple(
     f"scale_{c}" for c in HISTOGRAMS[1:]
@@ -45,7 +50,10 @@ LEARNED = {
     "combined-angle": (FEATURES + ANGLE_FEATURES, "combined_angle_metric.json"),
 }
 #: Metrics that need the normal-angle histograms.
-ANGLE_METRICS = ("combined-angle",)
+ANGLE_METRICS = ("combined-angle", "all-angle")
+#: all-angle = D(ALL) + this times the L1 distance of the ALL angle histograms. Chosen on half A
+#: of the KiCad 2017 / KiCad 6 twin pairs (scripts/twin_study.py; docs/twins.md gives half B).
+ALL_ANGLE_WEIGHT = 5e-4
 #: A class with no pairs counts, in the scale features, as a mean this share of the ALL mean.
 EMPTY_CLASS_SCALE = 1e-3
 
@@ -71,6 +79,10 @@ def metric_values(features: dict, metrics=METRICS) -> dict:
     d = {h: features[f"d_{h}"] for h in HISTOGRAMS}
     gap = {c: features[f"gap_{c}"] for c in HISTOGRAMS[1:]}
     values = paper_distances(d, gap)
+    if "all-angle" in metrics:
+        if "angle_all" not in features:
+            raise ValueError("metric all-angle needs the normal-angle histograms, which are unknown here")
+        values["all-angle"] = features["d_all"] + ALL_ANGLE_WEIGHT * features["angle_all"]
     for metric in LEARNED:
         if metric in metrics:
             names, _ = LEARNED[metric]
@@ -116,8 +128,8 @@ def features_between(a: Signature, b: Signature) -> dict:
 
 
 def compare(a: Signature, b: Signature) -> dict:
-    """Every metric between two signatures: ``{"all", "avg3", "avg4", "weighted", "combined", "combined-angle"}``
-    (``combined-angle`` only when both carry normal-angle histograms)."""
+    """Every metric between two signatures: ``{"all", "avg3", "avg4", "weighted", "combined", "combined-angle",
+    "all-angle"}`` (the last two only when both carry normal-angle histograms)."""
     features = features_between(a, b)
     metrics = [m for m in METRICS if m not in ANGLE_METRICS or ANGLE_FEATURES[0] in features]
     return {name: float(value) for name, value in metric_values(features, metrics).items()}
