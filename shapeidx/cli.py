@@ -669,7 +669,8 @@ def check(store, check_files, repair, output_format, as_json):
         sys.exit(exits.DAMAGED)
 
 
-METRIC_LABELS = {"all": "ALL (plain D2)", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted": "Weighted", "combined": "combined"}
+METRIC_LABELS = {"all": "ALL (plain D2)", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted": "Weighted", "combined": "combined", "combined-angle": "combined-angle",
+                 "all-angle": "all-angle"}
 
 
 @main.command(context_settings=CONTEXT)

@@ -18,6 +18,8 @@ import numpy as np
 
 from .distance import METRIC_HISTOGRAMS, METRICS, HistogramBank, distances_to_many
 from .errors import StoreError
+from .distance import ANGLE_METRICS
+from .signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
 from .signing.histogram import Signature
 from .signing.parameters import HISTOGRAMS, SIGNATURE_VERSION
 from .store import STATUS_OK, StoreReader, open_store
@@ -39,6 +41,8 @@ class SignatureTable:
         IN, OUT, MIXED.
     means : (N, 4) float64
         Mean pair distance of each histogram, in ``HISTOGRAMS`` order.
+    angles : (N, 4, ANGLE_BINS) float64 or None
+        Normal-angle probabilities (NaN where unknown: entries of a store built before them).
     """
 
     paths: np.ndarray
@@ -46,6 +50,7 @@ class SignatureTable:
     banks: dict
     fractions: np.ndarray
     means: np.ndarray
+    angles: np.ndarray | None = None
 
     @classmethod
     def load(cls, reader: StoreReader, histograms=HISTOGRAMS) -> "SignatureTable":
@@ -53,7 +58,8 @@ class SignatureTable:
         rows = np.flatnonzero(reader.column("entries/status") == STATUS_OK)
         banks = {name: HistogramBank.from_counts(*reader.counts(name, rows)) for name in histograms}
         means = np.stack([reader.column(f"histograms/{name}/mean")[rows] for name in HISTOGRAMS], axis=1)
-        return cls(reader.paths[rows], rows, banks, reader.column("entries/fractions")[rows], means)
+        angles = reader.column("entries/angles")[rows].reshape(len(rows), len(ANGLE_HISTOGRAMS), ANGLE_BINS)
+        return cls(reader.paths[rows], rows, banks, reader.column("entries/fractions")[rows], means, angle_probabilities(angles))
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -65,7 +71,18 @@ class SignatureTable:
         missing = set(METRIC_HISTOGRAMS[metric]) - set(self.banks)
         if missing:
             raise ValueError(f"metric {metric} needs histograms not loaded: {', '.join(sorted(missing))}")
-        return distances_to_many(signature, self.banks, self.fractions, self.means, (metric,))[metric]
+        if metric in ANGLE_METRICS:
+            self.check_angles(signature, metric)
+        return distances_to_many(signature, self.banks, self.fractions, self.means, (metric,), self.angles)[metric]
+
+    def check_angles(self, signature: Signature, metric: str) -> None:
+        """Refuse, in one line, a metric that needs normal-angle histograms the store or query lacks."""
+        if self.angles is None or not np.isfinite(self.angles).all():
+            unknown = len(self) if self.angles is None else int((~np.isfinite(self.angles).all(axis=(1, 2))).sum())
+            raise StoreError(f"metric {metric} needs the normal-angle histograms, which {unknown} entr(y/ies) of this store"
+                             " lack (built before them): rebuild it with 'shapeidx build DIR --full'")
+        if signature.angles is None:
+            raise StoreError(f"metric {metric} needs the query's normal-angle histograms, which its signature lacks")
 
     def index_of(self, path: str) -> int | None:
         i = int(np.searchsorted(self.paths, path))

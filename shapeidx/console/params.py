@@ -11,7 +11,7 @@ import math
 import click
 
 #: = shapeidx.distance.METRICS
-METRICS = ("all", "avg3", "avg4", "weighted", "combined")
+METRICS = ("all", "avg3", "avg4", "weighted", "combined", "combined-angle", "all-angle")
 #: = shapeidx.signing.parameters.DEFAULT_POINTS, DEFAULT_SEED
 DEFAULT_POINTS = 1024
 DEFAULT_SEED = 20020101

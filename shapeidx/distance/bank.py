@@ -12,7 +12,8 @@ import numpy as np
 from ..ragged import offsets_of
 from ..signing.histogram import Signature
 from ..signing.parameters import HISTOGRAMS
-from .combined import class_scales, metric_values, signature_means
+from .combined import ANGLE_FEATURES, ANGLE_METRICS, angle_distances, class_scales, metric_values, signature_means
+from ..signing.angles import angle_probabilities
 from .paper import PAPER_METRICS
 
 
@@ -23,6 +24,8 @@ METRIC_HISTOGRAMS = {
     "avg4": HISTOGRAMS,
     "weighted": HISTOGRAMS[1:],
     "combined": HISTOGRAMS,
+    "combined-angle": HISTOGRAMS,
+    "all-angle": ("all",),
 }
 #: Values per working block of :meth:`HistogramBank.distances`: small enough to stay in the
 #: CPU cache, so each stored probability is read from memory once per query.
@@ -139,7 +142,7 @@ def _padded_l1(counts: np.ndarray, totals: np.ndarray, query_p: np.ndarray, widt
 
 
 def features_to_many(query: Signature, banks: dict, fractions: np.ndarray, means: np.ndarray | None = None, histograms=HISTOGRAMS,
-                     distances: dict | None = None) -> dict:
+                     distances: dict | None = None, angles: np.ndarray | None = None) -> dict:
     """The per-pair features (:data:`FEATURES`) from one signature to every row of a table.
 
     Parameters
@@ -155,6 +158,10 @@ def features_to_many(query: Signature, banks: dict, fractions: np.ndarray, means
         features are left out.
     distances : dict, optional
         Histogram name -> the ``D`` already computed for every row (then ``banks`` is not used).
+    angles : (N, 4, ANGLE_BINS) float64, optional
+        Each row's normal-angle probabilities (:func:`angle_probabilities`); with them and a
+        query that has its own, the angle features are added (NaN for rows whose angles are
+        unknown).
     """
     if distances is not None:
         features = {f"d_{h}": distances[h] if h in histograms else 0.0 for h in HISTOGRAMS}
@@ -167,13 +174,19 @@ def features_to_many(query: Signature, banks: dict, fractions: np.ndarray, means
         scale_gap = np.abs(class_scales(means) - class_scales(signature_means(query)))
         for i, c in enumerate(HISTOGRAMS[1:]):
             features[f"scale_{c}"] = scale_gap[:, i]
+    if angles is not None and query.angles is not None:
+        gaps = angle_distances(angle_probabilities(query.angles), angles)
+        for i, name in enumerate(ANGLE_FEATURES):
+            features[name] = gaps[:, i]
     return features
 
 
-def distances_to_many(query: Signature, banks: dict, fractions: np.ndarray, means: np.ndarray | None = None, metrics=PAPER_METRICS) -> dict:
+def distances_to_many(query: Signature, banks: dict, fractions: np.ndarray, means: np.ndarray | None = None, metrics=PAPER_METRICS,
+                      angles: np.ndarray | None = None) -> dict:
     """Distances from one signature to every row of a table, vectorised.
 
-    Parameters are those of :func:`features_to_many`; ``means`` is needed for ``combined``.
+    Parameters are those of :func:`features_to_many`; ``means`` is needed for ``combined``,
+    ``angles`` (and the query's own) for ``combined-angle``.
 
     Returns
     -------
@@ -181,5 +194,6 @@ def distances_to_many(query: Signature, banks: dict, fractions: np.ndarray, mean
         Metric name -> (N,) float64, each equal to :func:`compare` for that pair.
     """
     needed = {h for m in metrics for h in METRIC_HISTOGRAMS[m]}
-    features = features_to_many(query, banks, fractions, means, needed)
+    features = features_to_many(query, banks, fractions, means, needed,
+                                angles=angles if set(metrics) & set(ANGLE_METRICS) else None)
     return metric_values(features, metrics)

@@ -9,6 +9,16 @@ store keeps the means, so it costs nothing. The weights come from
 (neighbourhood component analysis on a labelled collection, with class-wise
 cross-validation figures recorded beside the weights).
 
+**combined-angle**: the same ten features and four more, the L1 distances of the
+normal-angle histograms (:mod:`shapeidx.signing.angles`: all pairs, IN, OUT, MIXED), with
+its own learned weights (``combined_angle_metric.json``). A store built before those
+histograms cannot serve it (its entries' angles are unknown).
+
+**all-angle**: for the same part from another exporter, not for parts of a kind. Plain D2
+(ALL) plus :data:`ALL_ANGLE_WEIGHT` times the L1 distance of the ALL angle histograms: no
+IN / OUT / MIXED class, which differs between exports of one part (open against closed
+meshes), and no learned weight.
+
 :func:`metric_values` turns features into every metric, the paper's four included, so one
 function serves a pair (:func:`compare`) and a whole store (:mod:`.bank`).
 """
@@ -21,16 +31,29 @@ from importlib import resources
 
 import numpy as np
 
+from ..signing.angles import ANGLE_HISTOGRAMS, angle_probabilities
 from ..signing.histogram import Signature
 from ..signing.parameters import HISTOGRAMS
 from .paper import PAPER_METRICS, histogram_distance, paper_distances
 
 #: Every metric, by the name ``--metric`` takes.
-METRICS = PAPER_METRICS + ("combined",)
+METRICS = PAPER_METRICS + ("combined", "combined-angle", "all-angle")
 #: The per-pair quantities all metrics are made of, in the order of the combined weights.
 FEATURES = tuple(f"d_{h}" for h in HISTOGRAMS) + tuple(f"gap_{c}" for c in HISTOGRAMS[1:]) + tuple(
     f"scale_{c}" for c in HISTOGRAMS[1:]
 )
+#: L1 distances of the normal-angle histograms (:mod:`shapeidx.signing.angles`), per histogram.
+ANGLE_FEATURES = tuple(f"angle_{h}" for h in ANGLE_HISTOGRAMS)
+#: The learned metrics: their features, in the order of their weights, and their weights' file.
+LEARNED = {
+    "combined": (FEATURES, "combined_metric.json"),
+    "combined-angle": (FEATURES + ANGLE_FEATURES, "combined_angle_metric.json"),
+}
+#: Metrics that need the normal-angle histograms.
+ANGLE_METRICS = ("combined-angle", "all-angle")
+#: all-angle = D(ALL) + this times the L1 distance of the ALL angle histograms. Chosen on half A
+#: of the KiCad 2017 / KiCad 6 twin pairs (scripts/twin_study.py; docs/twins.md gives half B).
+ALL_ANGLE_WEIGHT = 5e-4
 #: A class with no pairs counts, in the scale features, as a mean this share of the ALL mean.
 EMPTY_CLASS_SCALE = 1e-3
 
@@ -56,19 +79,39 @@ def metric_values(features: dict, metrics=METRICS) -> dict:
     d = {h: features[f"d_{h}"] for h in HISTOGRAMS}
     gap = {c: features[f"gap_{c}"] for c in HISTOGRAMS[1:]}
     values = paper_distances(d, gap)
-    if "combined" in metrics:
-        weights = combined_weights()["weights"]
-        values["combined"] = sum(weights[name] * features[name] for name in FEATURES)
+    if "all-angle" in metrics:
+        if "angle_all" not in features:
+            raise ValueError("metric all-angle needs the normal-angle histograms, which are unknown here")
+        values["all-angle"] = features["d_all"] + ALL_ANGLE_WEIGHT * features["angle_all"]
+    for metric in LEARNED:
+        if metric in metrics:
+            names, _ = LEARNED[metric]
+            missing = [name for name in names if name not in features]
+            if missing:
+                raise ValueError(f"metric {metric} needs the normal-angle histograms, which are unknown here")
+            weights = learned_weights(metric)["weights"]
+            values[metric] = sum(weights[name] * features[name] for name in names)
     return {m: values[m] for m in metrics}
 
 
-@lru_cache(maxsize=1)
+@lru_cache(maxsize=None)
+def learned_weights(metric: str = "combined") -> dict:
+    """The learned weights of a metric of :data:`LEARNED` and how they were obtained."""
+    names, file = LEARNED[metric]
+    data = json.loads(resources.files(__package__).joinpath(file).read_text())
+    if set(data["weights"]) != set(names):
+        raise ValueError(f"{file} does not match the features of metric {metric}")
+    return data
+
+
 def combined_weights() -> dict:
     """The learned weights of the combined metric and how they were obtained."""
-    data = json.loads(resources.files(__package__).joinpath("combined_metric.json").read_text())
-    if set(data["weights"]) != set(FEATURES):
-        raise ValueError("combined_metric.json does not match shapeidx.distance.FEATURES")
-    return data
+    return learned_weights("combined")
+
+
+def angle_distances(query: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """L1 distances of normal-angle histograms: (H, B) probabilities against (N, H, B); (N, H)."""
+    return np.abs(np.asarray(rows) - np.asarray(query)[None]).sum(axis=-1)
 
 
 def features_between(a: Signature, b: Signature) -> dict:
@@ -78,9 +121,15 @@ def features_between(a: Signature, b: Signature) -> dict:
     features.update({f"gap_{c}": abs(fa[c] - fb[c]) for c in HISTOGRAMS[1:]})
     scale_gap = np.abs(class_scales(signature_means(a)) - class_scales(signature_means(b)))
     features.update({f"scale_{c}": float(v) for c, v in zip(HISTOGRAMS[1:], scale_gap)})
+    if a.angles is not None and b.angles is not None:
+        gaps = angle_distances(angle_probabilities(a.angles), angle_probabilities(b.angles)[None])[0]
+        features.update({name: float(v) for name, v in zip(ANGLE_FEATURES, gaps)})
     return features
 
 
 def compare(a: Signature, b: Signature) -> dict:
-    """Every metric between two signatures: ``{"all", "avg3", "avg4", "weighted", "combined"}``."""
-    return {name: float(value) for name, value in metric_values(features_between(a, b)).items()}
+    """Every metric between two signatures: ``{"all", "avg3", "avg4", "weighted", "combined", "combined-angle",
+    "all-angle"}`` (the last two only when both carry normal-angle histograms)."""
+    features = features_between(a, b)
+    metrics = [m for m in METRICS if m not in ANGLE_METRICS or ANGLE_FEATURES[0] in features]
+    return {name: float(value) for name, value in metric_values(features, metrics).items()}

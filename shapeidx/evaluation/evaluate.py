@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..distance import FEATURES, METRICS, metric_values, features_to_many
+from ..distance import ANGLE_FEATURES, ANGLE_METRICS, FEATURES, LEARNED, METRICS, metric_values, features_to_many
 from ..errors import ShapeidxError
 from .learn import cross_validate
 from ..ranking import SignatureTable
@@ -29,6 +29,16 @@ class LabelledFeatures:
     labels: np.ndarray  # (n,) class of each model: its first folder
     features: np.ndarray  # (len(FEATURES), n, n)
     unlabelled: int  # ok entries outside any class folder, left out
+    angle_features: np.ndarray | None = None  # (len(ANGLE_FEATURES), n, n); None: a store without angles
+
+    def all_features(self) -> np.ndarray:
+        """``features`` and, when known, ``angle_features``: those of ``combined-angle``."""
+        return self.features if self.angle_features is None else np.concatenate([self.features, self.angle_features])
+
+    def named(self) -> dict:
+        """Feature name -> (n, n) matrix."""
+        names = FEATURES + (ANGLE_FEATURES if self.angle_features is not None else ())
+        return dict(zip(names, self.all_features()))
 
 
 def check_labelled_tree(directory, follow_outside_links: bool = False) -> None:
@@ -55,7 +65,7 @@ def check_labelled_tree(directory, follow_outside_links: bool = False) -> None:
         )
 
 
-def in_sample(reader: StoreReader, models: int, classes: int) -> dict | None:
+def in_sample(reader: StoreReader, models: int, classes: int, metric: str = "combined") -> dict | None:
     """``{"learned_on": name}`` when the combined metric's weights were learned on this collection.
 
     Judged by the indexed folder's name, or its size (models and classes) equal to the
@@ -63,9 +73,9 @@ def in_sample(reader: StoreReader, models: int, classes: int) -> dict | None:
     """
     from pathlib import PurePath
 
-    from ..distance import combined_weights
+    from ..distance import learned_weights
 
-    trained = combined_weights().get("trained_on", {})
+    trained = learned_weights(metric).get("trained_on", {})
     name = trained.get("collection")
     root = PurePath(str(reader.attrs.get("root", ""))).name
     if name and (root == name or (trained.get("models"), trained.get("classes")) == (models, classes)):
@@ -84,22 +94,26 @@ def labelled_features(reader: StoreReader) -> LabelledFeatures:
     table = SignatureTable.load(reader)
     classes = [class_of(str(p)) for p in table.paths]
     chosen = np.array([i for i, c in enumerate(classes) if c is not None], dtype=np.int64)
-    features = np.zeros((len(FEATURES), len(chosen), len(chosen)))
+    with_angles = table.angles is not None and np.isfinite(table.angles[chosen]).all()
+    names = FEATURES + (ANGLE_FEATURES if with_angles else ())
+    features = np.zeros((len(names), len(chosen), len(chosen)))
     for k, i in enumerate(chosen):
-        values = features_to_many(reader.signature(int(table.rows[i])), table.banks, table.fractions, table.means)
-        for f, name in enumerate(FEATURES):
+        values = features_to_many(reader.signature(int(table.rows[i])), table.banks, table.fractions, table.means,
+                                  angles=table.angles if with_angles else None)
+        for f, name in enumerate(names):
             features[f, k] = values[name][chosen]
     return LabelledFeatures(
         paths=table.paths[chosen],
         labels=np.array([classes[i] for i in chosen], dtype=object),
-        features=features,
+        features=features[: len(FEATURES)],
         unlabelled=len(table.paths) - len(chosen),
+        angle_features=features[len(FEATURES) :] if with_angles else None,
     )
 
 
 def distance_matrices(data: LabelledFeatures, metrics=METRICS) -> dict:
     """Metric name -> (n, n) distances between the labelled models."""
-    return metric_values({name: data.features[f] for f, name in enumerate(FEATURES)}, metrics)
+    return metric_values(data.named(), metrics)
 
 
 def per_class_scores(scores: dict, labels: np.ndarray) -> dict:
@@ -134,6 +148,8 @@ def evaluate(reader: StoreReader, metrics=METRICS, per_class: bool = False, cros
         ``models``, ``classes``, ``unlabelled``, ``points``, and ``metrics``: name -> scores.
     """
     data = labelled_features(reader)
+    if data.angle_features is None:  # a store built before the normal-angle histograms
+        metrics = [m for m in metrics if m not in ANGLE_METRICS]
     sizes = Counter(data.labels)
     if sum(size for size in sizes.values() if size > 1) < 2:
         raise ShapeidxError(
@@ -157,12 +173,15 @@ def evaluate(reader: StoreReader, metrics=METRICS, per_class: bool = False, cros
 
         entry.update(family_scores(matrices[name], data.labels))
         result["metrics"][name] = entry
-    if "combined" in result["metrics"]:
-        learned = in_sample(reader, result["models"], result["classes"])
-        result["metrics"]["combined"]["in_sample"] = learned is not None
-        if learned:
-            result["metrics"]["combined"].update(learned)
+    for metric in LEARNED:
+        if metric in result["metrics"]:
+            learned = in_sample(reader, result["models"], result["classes"], metric)
+            result["metrics"][metric]["in_sample"] = learned is not None
+            if learned:
+                result["metrics"][metric].update(learned)
     if cross_validated:
         result["metrics"]["combined (cross-validated)"] = cross_validate(data.features, data.labels)
+        if data.angle_features is not None and "combined-angle" in metrics:
+            result["metrics"]["combined-angle (cross-validated)"] = cross_validate(data.all_features(), data.labels)
     result["queries"] = int(retrieval_scores(matrices[metrics[0]], data.labels)["queries"]) if metrics else 0
     return result

@@ -86,6 +86,8 @@ def cross_validate(features: np.ndarray, labels, folds: int = 4, repeats: int = 
     return result
 
 
-def weights_by_name(weights: np.ndarray) -> dict:
-    """``{feature name: weight}`` in :data:`FEATURES` order."""
-    return {name: float(w) for name, w in zip(FEATURES, weights)}
+def weights_by_name(weights: np.ndarray, names=FEATURES) -> dict:
+    """``{feature name: weight}`` in the order of ``names`` (default :data:`FEATURES`)."""
+    if len(names) != len(weights):
+        raise ValueError(f"{len(weights)} weights for {len(names)} features")
+    return {name: float(w) for name, w in zip(names, weights)}

@@ -46,7 +46,7 @@ HNSW_EF_CONSTRUCTION = 200
 def _block_weights(metric: str) -> dict:
     """Weight of each embedding block for ``metric`` (a histogram's, the fractions', the scales')."""
     hists = METRIC_HISTOGRAMS[metric]
-    if metric == "combined":
+    if metric in ("combined", "combined-angle"):  # combined-angle: its angles are left to the exact re-ranking
         w = combined_weights()["weights"]
         weights = {h: w[f"d_{h}"] for h in HISTOGRAMS}
         weights["fractions"] = float(np.mean([w[f"gap_{c}"] for c in HISTOGRAMS[1:]]))

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..distance import FEATURES, METRIC_HISTOGRAMS, METRICS, metric_values
+from ..distance import ANGLE_FEATURES, ANGLE_METRICS, FEATURES, METRIC_HISTOGRAMS, METRICS, metric_values
+from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
 from ..distance.combined import class_scales
 from ..errors import StoreError
 from ..ragged import offsets_of
@@ -158,6 +159,7 @@ class FamilyTable:
     missing_columns: list
     bounds: np.ndarray | None = None
     moments: np.ndarray | None = None
+    angles: np.ndarray | None = None  # (N, 4, ANGLE_BINS) normal-angle probabilities, NaN where unknown
 
     @classmethod
     def load(cls, reader: StoreReader, histograms=HISTOGRAMS) -> "FamilyTable":
@@ -182,6 +184,7 @@ class FamilyTable:
             missing_columns=reader.missing_columns,
             bounds=reader.column("entries/bounds")[rows],
             moments=reader.column("entries/moments")[rows],
+            angles=angle_probabilities(reader.column("entries/angles")[rows].reshape(len(rows), len(ANGLE_HISTOGRAMS), ANGLE_BINS)),
         )
 
     def __len__(self) -> int:
@@ -207,7 +210,10 @@ class FamilyTable:
         gap = np.abs(scales[a] - scales[b])
         for i, c in enumerate(HISTOGRAMS[1:]):
             features[f"scale_{c}"] = gap[:, i]
-        assert set(features) == set(FEATURES)
+        if self.angles is not None:  # NaN for entries whose angles are unknown
+            angle_gap = np.abs(self.angles[a] - self.angles[b]).sum(axis=-1)
+            features.update({name: angle_gap[:, i] for i, name in enumerate(ANGLE_FEATURES)})
+        assert set(FEATURES) <= set(features)
         return features
 
     def pair_distances(self, a: np.ndarray, b: np.ndarray, metric: str = "combined") -> np.ndarray:
@@ -217,6 +223,9 @@ class FamilyTable:
         missing = set(METRIC_HISTOGRAMS[metric]) - set(self.histograms)
         if missing:
             raise ValueError(f"metric {metric} needs histograms not loaded: {', '.join(sorted(missing))}")
+        if metric in ANGLE_METRICS and (self.angles is None or not np.isfinite(self.angles).all()):
+            raise StoreError(f"metric {metric} needs the normal-angle histograms, which entries of this store lack"
+                             " (built before them): rebuild it with 'shapeidx build DIR --full'")
         features = self.pair_features(a, b, METRIC_HISTOGRAMS[metric])
         return np.asarray(metric_values(features, (metric,))[metric], dtype=np.float64)
 

@@ -92,6 +92,7 @@ def classify_pairs(
     watertight: bool,
     scene: OcclusionScene | None = None,
     threads: int = 1,
+    normals_out: list | None = None,
 ):
     """Distance and class of every pair of sample points.
 
@@ -109,6 +110,9 @@ def classify_pairs(
         Built from the normalised surface when not given (pass one to reuse it).
     threads : int
         Threads for the Embree queries (1 in build workers, which already use every core).
+    normals_out : list, optional
+        Receives the samples' outward unit normals ((m, 3) float64), which the normal-angle
+        histograms (:mod:`shapeidx.signing.angles`) need.
 
     Returns
     -------
@@ -124,6 +128,8 @@ def classify_pairs(
 
     if not watertight:
         normals = _orient_by_winding(points, normals, vertices, faces)
+    if normals_out is not None:
+        normals_out.append(normals)
 
     m = len(points)
     first, second = pair_indices(m)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -61,14 +61,19 @@ class Signature:
         Seed of the sampling.
     histograms : dict
         ``"all"``, ``"in"``, ``"out"``, ``"mixed"`` -> :class:`Histogram`.
+    angles : (4, ANGLE_BINS) int64 or None
+        Pair counts of the normal-angle histograms (:mod:`shapeidx.signing.angles`), rows in
+        ``ANGLE_HISTOGRAMS`` order; None where unknown (an entry of a store built before them).
     """
 
     points: int
     seed: int
     histograms: dict
+    angles: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     @classmethod
-    def from_pairs(cls, distances: np.ndarray, classes: np.ndarray, points: int, seed: int, divisor: int = BIN_DIVISOR):
+    def from_pairs(cls, distances: np.ndarray, classes: np.ndarray, points: int, seed: int, divisor: int = BIN_DIVISOR,
+                   angles: np.ndarray | None = None):
         """Build the four histograms from classified pair distances.
 
         The three class histograms come from one pass: each pair's bin in its own class's
@@ -87,7 +92,7 @@ class Signature:
             used = np.flatnonzero(table[code])
             counts = table[code, : used[-1] + 1] if len(used) else np.zeros(0, dtype=np.int64)
             histograms[name] = Histogram(counts, float(means[code]), float(widths[code]))
-        return cls(points=points, seed=seed, histograms=histograms)
+        return cls(points=points, seed=seed, histograms=histograms, angles=angles)
 
     @property
     def fractions(self) -> dict:

@@ -4,6 +4,7 @@
          --sampling.sample_surface--> points
          --classify.classify_pairs--> distances, classes
          --Signature.from_pairs--> Signature
+    (the same pairs and the samples' normals --angles.angle_histograms--> Signature.angles)
 """
 
 from __future__ import annotations
@@ -11,7 +12,8 @@ from __future__ import annotations
 import os
 
 from ..io import LoadLimits, load
-from .classify import classify_pairs
+from .angles import angle_histograms
+from .classify import classify_pairs, pair_indices
 from .histogram import Signature
 from .parameters import BIN_DIVISOR, DEFAULT_POINTS, DEFAULT_SEED
 from .sampling import sample_surface
@@ -32,8 +34,12 @@ def signature_of_solid(
     runs one signature per core instead).
     """
     samples, face_index = sample_surface(solid.vertices, solid.faces, points, seed)
-    distances, classes = classify_pairs(solid.vertices, solid.faces, samples, face_index, solid.watertight, threads=threads)
-    return Signature.from_pairs(distances, classes, points, seed, divisor)
+    normals = []
+    distances, classes = classify_pairs(solid.vertices, solid.faces, samples, face_index, solid.watertight, threads=threads,
+                                        normals_out=normals)
+    first, second = pair_indices(points)
+    angles = angle_histograms(normals[0], classes, first, second)
+    return Signature.from_pairs(distances, classes, points, seed, divisor, angles=angles)
 
 
 def signature_of_file(

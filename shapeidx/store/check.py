@@ -38,6 +38,7 @@ from .layout import (
     CONTENT_HASH,
     COUNT_DTYPE,
     ENTRY_COLUMNS,
+    OPTIONAL_COLUMNS,
     FRACTION_CLASSES,
     STATUS_FAILED,
     STATUS_OK,
@@ -156,7 +157,10 @@ def scan_file(path: Path, seq: int, points: int | None) -> FileScan:
             scan.problem("entries/size", f"missing or unreadable ({_first_line(exc)})", fatal=True)
             return scan
         scan.entries = n
+        expected = [name for name in ENTRY_COLUMNS if name in f or name not in OPTIONAL_COLUMNS]  # older files lack some
         for name, (dtype, _) in ENTRY_COLUMNS.items():
+            if name not in expected:
+                continue
             values = _scan_dataset(scan, f, name, dtype, n)
             if values is not None:
                 scan.columns[name] = values
@@ -173,7 +177,7 @@ def scan_file(path: Path, seq: int, points: int | None) -> FileScan:
                 scan.problem("entries/status", f"{len(odd)} status value(s) are neither ok nor failed", odd)
         for name in HISTOGRAMS:
             _scan_histogram(scan, f, name, n)
-        if len(scan.columns) < len(ENTRY_COLUMNS) or len(scan.counts) < len(HISTOGRAMS):
+        if len(scan.columns) < len(expected) or len(scan.counts) < len(HISTOGRAMS):
             scan.unusable = True  # a whole column lost: rebuild rather than guess
         _check_totals(scan, points)
         for group in ("touched", "removed"):
@@ -482,7 +486,7 @@ def _rewrite_main(store: Path, scan: FileScan, keep: np.ndarray, attrs: dict) ->
     from .layout import utc_now
     from .rank import write_rank
 
-    columns = {name: scan.columns[name][keep] for name in ENTRY_COLUMNS}
+    columns = {name: scan.columns[name][keep] for name in ENTRY_COLUMNS if name in scan.columns}
     counts = {}
     for name in HISTOGRAMS:
         flat, offsets = scan.counts[name]

@@ -14,6 +14,7 @@ import numpy as np
 from ..errors import StoreError
 from ..io.faceting import DEFAULT_ANGULAR_DEFLECTION, DEFAULT_LINEAR_DEFLECTION, Faceting
 from ..ragged import offsets_of
+from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS
 from ..signing.histogram import Histogram, Signature
 from ..signing.parameters import HISTOGRAMS
 
@@ -51,7 +52,13 @@ ENTRY_COLUMNS = {
 #: scale-free surface moments (area / sum r^2, |skewness| per axis). Absent from
 #: older files: read as NaN (``StoreReader.missing_columns`` names them).
 SHAPE_COLUMNS = {"entries/bounds": 6, "entries/extents": 3, "entries/handedness": 2, "entries/moments": 4}
-ENTRY_COLUMNS.update({name: (np.float64, np.float64) for name in SHAPE_COLUMNS})
+#: Later, in the same layout: the pair counts of the normal-angle histograms
+#: (shapeidx.signing.angles; rows all, in, out, mixed, laid end to end). Absent from older
+#: files, read as NaN like the columns above: the metrics that use them then refuse the store.
+ANGLE_COLUMNS = {"entries/angles": len(ANGLE_HISTOGRAMS) * ANGLE_BINS}
+#: Columns a file may lack (read as NaN).
+OPTIONAL_COLUMNS = {**SHAPE_COLUMNS, **ANGLE_COLUMNS}
+ENTRY_COLUMNS.update({name: (np.float64, np.float64) for name in OPTIONAL_COLUMNS})
 for _name in HISTOGRAMS:
     ENTRY_COLUMNS[f"histograms/{_name}/mean"] = (np.float64, np.float64)
     ENTRY_COLUMNS[f"histograms/{_name}/bin_width"] = (np.float64, np.float64)
@@ -166,6 +173,7 @@ class Entry:
     extents: tuple = (float("nan"),) * 3
     handedness: tuple = (float("nan"),) * 2
     moments: tuple = (float("nan"),) * 4
+    angles: tuple = (float("nan"),) * (len(ANGLE_HISTOGRAMS) * ANGLE_BINS)
 
     @classmethod
     def indexed(cls, path, hash, size, mtime_ns, signature: Signature, facts: dict, shape: dict | None = None) -> "Entry":
@@ -182,6 +190,7 @@ class Entry:
             fractions=tuple(signature.fractions[c] for c in FRACTION_CLASSES),
             histograms=dict(signature.histograms),
             **{k: tuple(float(v) for v in shape[k]) for k in ("bounds", "extents", "handedness", "moments") if k in (shape or {})},
+            **({} if signature.angles is None else {"angles": tuple(float(v) for v in np.ravel(signature.angles))}),
         )
 
     @classmethod
@@ -206,7 +215,7 @@ def entries_to_columns(entries: list[Entry]) -> tuple[dict, dict]:
         "entries/watertight": np.array([e.watertight for e in entries], dtype=np.bool_),
         "entries/fractions": np.array([e.fractions for e in entries], dtype=np.float64).reshape(n, 3),
     }
-    for name, width in SHAPE_COLUMNS.items():
+    for name, width in OPTIONAL_COLUMNS.items():
         key = name.split("/")[1]
         columns[name] = np.array([getattr(e, key) for e in entries], dtype=np.float64).reshape(n, width)
     counts = {}
@@ -236,7 +245,7 @@ def _as_counts(values: np.ndarray) -> np.ndarray:
 def write_columns(f: h5py.File, columns: dict) -> None:
     """Write every per-entry column (dataset name -> array) with its file dtype."""
     for name, (_, file_dtype) in ENTRY_COLUMNS.items():
-        data = columns[name] if name in columns or name not in SHAPE_COLUMNS else missing_column(name, _rows(columns))
+        data = columns[name] if name in columns or name not in OPTIONAL_COLUMNS else missing_column(name, _rows(columns))
         # HDF5 filters no variable-length data: strings are covered by their content hash
         options = {} if file_dtype is _STR else checked(np.shape(data))
         dataset = f.create_dataset(name, data=data, dtype=file_dtype, **options)
@@ -246,7 +255,7 @@ def write_columns(f: h5py.File, columns: dict) -> None:
 
 def missing_column(name: str, rows: int) -> np.ndarray:
     """A layout-2 column an older file lacks, as NaN: (rows, width)."""
-    return np.full((rows, SHAPE_COLUMNS[name]), np.nan)
+    return np.full((rows, OPTIONAL_COLUMNS[name]), np.nan)
 
 
 def _rows(columns: dict) -> int:

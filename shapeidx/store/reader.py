@@ -18,6 +18,7 @@ import numpy as np
 from ..errors import StoreDamagedError, StoreError
 from ..ragged import offsets_of, take_ragged
 from ..signing.histogram import Histogram, Signature
+from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS
 from ..signing.parameters import HISTOGRAMS
 from .files import batch_files, journal_dir, lock_path
 from .layout import (
@@ -26,6 +27,7 @@ from .layout import (
     DEFAULT_STORE,
     ENTRY_COLUMNS,
     SCHEMA_VERSION,
+    OPTIONAL_COLUMNS,
     SHAPE_COLUMNS,
     STORE_ENV,
     StoreParams,
@@ -101,7 +103,7 @@ class _SourceFile:
         """Every column holds one row per entry (cheap: shapes only)."""
         n = len(self)
         for name in ENTRY_COLUMNS:
-            if name in SHAPE_COLUMNS and name not in self.file:
+            if name in OPTIONAL_COLUMNS and name not in self.file:
                 continue  # a file of layout 1: these columns read as NaN
             shape = self.dataset(name).shape
             if not shape or shape[0] != n:
@@ -126,7 +128,7 @@ class _SourceFile:
 
     def column(self, name: str) -> np.ndarray:
         if name not in self._columns:
-            if name in SHAPE_COLUMNS and name not in self.file:  # a file of layout 1
+            if name in OPTIONAL_COLUMNS and name not in self.file:  # a file of layout 1
                 self._columns[name] = missing_column(name, len(self))
             else:
                 self._columns[name] = self._read(name, ENTRY_COLUMNS[name][0])
@@ -382,7 +384,9 @@ class StoreReader:
             mean = float(self.column(f"histograms/{name}/mean")[index])
             width = float(self.column(f"histograms/{name}/bin_width")[index])
             histograms[name] = Histogram(counts.astype(np.int64), mean, width)
-        return Signature(points=self.params.points, seed=self.params.seed, histograms=histograms)
+        angles = self.column("entries/angles")[index]
+        angles = angles.reshape(len(ANGLE_HISTOGRAMS), ANGLE_BINS).astype(np.int64) if np.isfinite(angles).all() else None
+        return Signature(points=self.params.points, seed=self.params.seed, histograms=histograms, angles=angles)
 
     def size_on_disk(self) -> int:
         """Bytes of the main file and the journal."""
