@@ -19,6 +19,7 @@ import numpy as np
 from .distance import METRIC_HISTOGRAMS, METRICS, HistogramBank, distances_to_many
 from .errors import StoreError
 from .distance import ANGLE_METRICS
+from .distance.combined import require_angles
 from .signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
 from .signing.histogram import Signature
 from .signing.parameters import HISTOGRAMS, SIGNATURE_VERSION
@@ -77,12 +78,7 @@ class SignatureTable:
 
     def check_angles(self, signature: Signature, metric: str) -> None:
         """Refuse, in one line, a metric that needs normal-angle histograms the store or query lacks."""
-        if self.angles is None or not np.isfinite(self.angles).all():
-            unknown = len(self) if self.angles is None else int((~np.isfinite(self.angles).all(axis=(1, 2))).sum())
-            raise StoreError(f"metric {metric} needs the normal-angle histograms, which {unknown} entr(y/ies) of this store"
-                             " lack (built before them): rebuild it with 'shapeidx build DIR --full'")
-        if signature.angles is None:
-            raise StoreError(f"metric {metric} needs the query's normal-angle histograms, which its signature lacks")
+        require_angles(self.angles, signature, metric)
 
     def index_of(self, path: str) -> int | None:
         i = int(np.searchsorted(self.paths, path))
@@ -250,7 +246,7 @@ def _query_view(reader: StoreReader, view, part, entry, top, metric, threads, fi
             return top_hits(distances[kept], paths.take(chosen[kept]), top, int(at_first[0]) if len(at_first) else None)
     distances = view.distances(signature, metric)
     if scale != "invariant":
-        from .families.scale import apply_scale
+        from .distance.scale import apply_scale
 
         distances = apply_scale(distances, signature.histograms["all"].mean, view.means[:, 0], scale)
     keep = np.isfinite(distances)

@@ -8,6 +8,7 @@ the same signatures laid out as :class:`~shapeidx.distance.HistogramBank` ranks 
     rank/rows          (M,) int64      the file rows of its M ok entries, increasing: "rank positions"
     rank/fractions     (M, 3) float64  IN, OUT, MIXED fractions of those entries
     rank/means         (M, H) float64  mean pair distance of each histogram (``histograms`` order)
+    rank/angles        (M, A) float64  the normal-angle pair counts (``entries/angles``; NaN where unknown)
     rank/H/counts      (sum,) uint32   histogram H of every ok entry, grouped by bin count (ascending),
                                        row order within a group: group g is a dense (n_g, bins_g) block
     rank/H/groups      (G, 2) int64    bins_g, n_g per group
@@ -36,6 +37,7 @@ import h5py
 import numpy as np
 
 from ..ragged import offsets_of, take_ragged
+from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS
 
 RANK = "rank"
 #: Attribute of every ranking dataset: CRC-32 of its raw bytes (C order, as stored); zlib
@@ -43,7 +45,7 @@ RANK = "rank"
 CHECKSUM = "crc32"
 #: Arrays a query verifies by their CRC-32 as it maps them. The counts, by far the largest,
 #: are verified as they are ranked instead: each row must add up to its (CRC-checked) total.
-CRC_ON_MAP = ("path_key", "rows", "fractions", "means", "groups", "order", "totals")
+CRC_ON_MAP = ("path_key", "rows", "fractions", "means", "angles", "groups", "order", "totals")
 #: Dtype of the stored counts (the canonical counts' dtype).
 COUNT_DTYPE = np.uint32
 #: Bins summed into one bin of the coarse histograms (``rank/H/coarse``). By the triangle
@@ -51,6 +53,8 @@ COUNT_DTYPE = np.uint32
 #: ranking reads 1/COARSE of the counts to bound every entry's distance from below and
 #: computes exact distances only where the bound does not rule an entry out.
 COARSE = 8
+#: Values per entry of ``rank/angles``: the normal-angle histograms laid end to end.
+ANGLE_WIDTH = len(ANGLE_HISTOGRAMS) * ANGLE_BINS
 
 
 def path_keys(paths) -> np.ndarray:
@@ -135,7 +139,13 @@ def write_rank_entries(f: h5py.File, columns: dict, histograms) -> np.ndarray:
     _write(f, f"{RANK}/fractions", np.asarray(columns["entries/fractions"], dtype=np.float64)[ok].reshape(-1, 3))
     means = np.stack([np.asarray(columns[f"histograms/{h}/mean"], dtype=np.float64)[ok] for h in histograms], axis=1)
     _write(f, f"{RANK}/means", means.reshape(len(ok), len(histograms)))
+    _write(f, f"{RANK}/angles", _angles_of(columns, ok))
     return ok
+
+
+def _angles_of(columns: dict, ok: np.ndarray) -> np.ndarray:
+    angles = np.asarray(columns["entries/angles"], dtype=np.float64)
+    return angles[ok].reshape(len(ok), ANGLE_WIDTH)
 
 
 def write_rank_histogram(f: h5py.File, h: str, flat: np.ndarray, lengths: np.ndarray, ok: np.ndarray) -> None:
@@ -161,6 +171,7 @@ def expected_rank(columns: dict, counts: dict, histograms):
     yield "fractions", np.asarray(columns["entries/fractions"], dtype=np.float64)[ok].reshape(-1, 3)
     yield "means", np.stack([np.asarray(columns[f"histograms/{h}/mean"], dtype=np.float64)[ok] for h in histograms],
                             axis=1).reshape(len(ok), len(histograms))
+    yield "angles", _angles_of(columns, ok)
     for h in histograms:
         flat, lengths = counts[h]
         flat, lengths = take_ragged(np.asarray(flat, dtype=COUNT_DTYPE), offsets_of(lengths), ok)
@@ -171,7 +182,7 @@ def expected_rank(columns: dict, counts: dict, histograms):
 
 def rank_datasets(histograms) -> list:
     """Every dataset name of a ``rank/`` section holding ``histograms``."""
-    names = [f"{RANK}/{n}" for n in ("path_key", "rows", "fractions", "means")]
+    names = [f"{RANK}/{n}" for n in ("path_key", "rows", "fractions", "means", "angles")]
     return names + [f"{RANK}/{h}/{n}" for h in histograms for n in ("counts", "groups", "order", "totals", "coarse")]
 
 
@@ -221,6 +232,8 @@ class RankSection:
             raise ValueError("ranking arrays of the wrong shape")
         if self.array("means").shape != (m, len(self.histograms)):
             raise ValueError("ranking means of the wrong shape")
+        if self.array("angles").shape != (m, ANGLE_WIDTH):
+            raise ValueError("ranking angles of the wrong shape")
         if m and (self.rows[0] < 0 or self.rows[-1] >= n):
             raise ValueError("ranking rows out of bounds")
         self.groups = {}

@@ -20,7 +20,8 @@ from contextlib import contextmanager
 import numpy as np
 
 from ..distance.bank import features_to_many
-from ..distance.combined import metric_values
+from ..distance.combined import ANGLE_METRICS, metric_values, require_angles
+from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
 from ..signing.histogram import Histogram, Signature
 from ..signing.parameters import CLASS_NAMES, HISTOGRAMS
 from .layout import STATUS_OK
@@ -110,6 +111,12 @@ class RankedView:
         """(N, H) mean pair distance of each histogram, in :data:`HISTOGRAMS` order."""
         return self._gather("means")
 
+    @property
+    def angles(self) -> np.ndarray:
+        """(N, 4, ANGLE_BINS) normal-angle probabilities of each entry (NaN where unknown)."""
+        counts = self._gather("angles")
+        return angle_probabilities(counts.reshape(len(counts), len(ANGLE_HISTOGRAMS), ANGLE_BINS))
+
     def histogram_distances(self, h: str, query_p: np.ndarray, pool=None) -> np.ndarray:
         """``D`` of histogram ``h`` from ``query_p`` to every live entry."""
         outs, jobs = [], []
@@ -146,7 +153,10 @@ class RankedView:
                 pool.shutdown()
         with self._checked(None):
             fractions, means = self.fractions, self.means
-        features = features_to_many(signature, None, fractions, means, needed, distances=d)
+            angles = self.angles if metric in ANGLE_METRICS else None
+        if angles is not None:
+            require_angles(angles, signature, metric)
+        features = features_to_many(signature, None, fractions, means, needed, distances=d, angles=angles)
         return metric_values(features, (metric,))[metric]
 
     # -- the nearest entries, with exact distances only where a lower bound cannot rule them out
@@ -313,7 +323,9 @@ class RankedView:
         classes = sum(int(histograms[c].counts.sum()) for c in CLASS_NAMES)
         if int(histograms["all"].counts.sum()) != pairs or classes != pairs:
             raise source.damaged(f"histograms of {source.path_at(row)} do not hold {pairs} pairs")
-        return Signature(points=params.points, seed=params.seed, histograms=histograms)
+        angles = np.asarray(source.value_at("entries/angles", row), dtype=np.float64)
+        angles = angles.reshape(len(ANGLE_HISTOGRAMS), ANGLE_BINS).astype(np.int64) if np.isfinite(angles).all() else None
+        return Signature(points=params.points, seed=params.seed, histograms=histograms, angles=angles)
 
 
 def _halves(groups: list, query_bins: int) -> list:

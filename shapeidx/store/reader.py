@@ -202,7 +202,7 @@ class _SourceFile:
 
     def value_at(self, name: str, row: int):
         """One row of a numeric column, read alone."""
-        if name in SHAPE_COLUMNS and name not in self.file:
+        if name in OPTIONAL_COLUMNS and name not in self.file:
             return missing_column(name, 1)[0]
         return self._read(name, ENTRY_COLUMNS[name][0], np.s_[int(row)])
 
