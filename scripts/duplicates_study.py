@@ -46,13 +46,16 @@ from shapeidx.signing.pipeline import solid_of_file
 from shapeidx.store import open_store
 
 KICAD6 = DATA / "kicad6"
+KICAD6_STEP = DATA / "kicad6-step"
 NOISE_SEED = 7
 #: ``same`` = the 99th percentile of the re-sampling distances times this margin.
 SAME_MARGIN = 1.5
 #: ``near`` = this many times ``same``.
 NEAR_FACTOR = 2.0
-VARIANTS = ("copy", "rotated", "rescaled", "mirrored", "refaceted")
+VARIANTS = ("copy", "rotated", "rescaled", "mirrored", "refaceted", "step")
 RESCALE = 25.4
+#: KiCad's VRML is in units of 0.1 inch, its STEP in millimetres: a STEP twin is 2.54 times larger.
+STEP_SCALE = 2.54
 THRESHOLDS = REPO / "shapeidx" / "families" / "thresholds.json"
 
 
@@ -83,32 +86,72 @@ def subdivided(vertices: np.ndarray, faces: np.ndarray):
     return tris.reshape(-1, 3), np.arange(len(tris) * 3).reshape(-1, 3)
 
 
-def make_parts(work: Path) -> Path:
-    """WORK/parts: each kicad6 part's original and copies (see the module docstring)."""
-    parts = work / "parts"
-    done = parts / ".complete"
-    if done.exists():
-        return parts
-    rng = np.random.default_rng(11)
+#: Where the parts' files go under WORK/parts: the quick subset an earlier, smaller run built
+#: first (the first three parts of each class folder that it took, and the family pairs) is in
+#: ``0-priority``, the other kicad6 parts in ``1-rest``, the extra family members from Debian's
+#: library in ``2-family``. The split changes no figure; it only lets a store built from the
+#: subset be brought up to date instead of signed again.
+GROUPS = ("0-priority", "1-rest", "2-family")
+#: Debian's whole KiCad 6 library (read-only), for family members kicad6 lacks.
+DEBIAN_3D = Path("/work/debian/root/usr/share/kicad/3dmodels")
+#: Members of one family that kicad6 does not hold (a 1x02, 1x03, 1x04 pin header, resistor
+#: sizes): with kicad6's R_0603_1608Metric they must never be called the same part.
+DEBIAN_FAMILY = (
+    "Connector_PinHeader_2.54mm/PinHeader_1x02_P2.54mm_Vertical",
+    "Connector_PinHeader_2.54mm/PinHeader_1x03_P2.54mm_Vertical",
+    "Connector_PinHeader_2.54mm/PinHeader_1x04_P2.54mm_Vertical",
+    "Resistor_SMD/R_0402_1005Metric",
+    "Resistor_SMD/R_0805_2012Metric",
+    "Resistor_SMD/R_1206_3216Metric",
+)
+
+
+def _sources() -> list:
+    """(group, relative part name without suffix, .wrl source, .step source or None)."""
+    out = []
     for source in sorted(KICAD6.rglob("*.wrl")):
-        rel = source.relative_to(KICAD6)
-        folder = parts / rel.parent
-        folder.mkdir(parents=True, exist_ok=True)
-        stem = rel.name[: -len(".wrl")]
-        original = folder / rel.name
-        if not original.exists():
+        rel = str(source.relative_to(KICAD6))[: -len(".wrl")]
+        step = KICAD6_STEP / f"{rel}.step"
+        out.append(("1-rest", rel, source, step if step.exists() else None))
+    for rel in DEBIAN_FAMILY:
+        folder, name = rel.split("/")
+        source = DEBIAN_3D / f"{folder}.3dshapes" / f"{name}.wrl"
+        if source.exists():
+            step = source.with_suffix(".step")
+            out.append(("2-family", rel, source, step if step.exists() else None))
+    return out
+
+
+def make_parts(work: Path) -> Path:
+    """WORK/parts: each part's original and copies (see the module docstring and GROUPS).
+
+    Files already there (in any group) are kept, so a run that stopped goes on where it was.
+    """
+    parts = work / "parts"
+    rng = np.random.default_rng(11)
+    for group, rel, source, step in _sources():
+        here = next((parts / g / rel for g in GROUPS if (parts / g / f"{rel}.wrl").is_symlink()), None)
+        base = here or parts / group / rel
+        base.parent.mkdir(parents=True, exist_ok=True)
+        original = base.parent / f"{base.name}.wrl"
+        if not original.is_symlink():
             original.symlink_to(source)
-        shutil.copyfile(source, folder / f"{stem}.copy.wrl")
+        if step is not None and not (base.parent / f"{base.name}.step").is_symlink():
+            (base.parent / f"{base.name}.step").symlink_to(step)
+        copies = {v: base.parent / f"{base.name}.{v}{'.wrl' if v == 'copy' else '.stl'}" for v in VARIANTS if v != "step"}
+        rotations = [random_rotation(rng) for _ in range(4)]  # drawn always: the same per part on a rerun
+        if all(c.exists() for c in copies.values()):
+            continue
+        shutil.copyfile(source, copies["copy"])
         solid = solid_of_file(source)
         v, f = solid.vertices, solid.faces
         mirror = np.diag([-1.0, 1.0, 1.0])
-        write_stl(folder / f"{stem}.rotated.stl", v @ random_rotation(rng).T, f)
-        write_stl(folder / f"{stem}.rescaled.stl", (v * RESCALE) @ random_rotation(rng).T, f)
+        write_stl(copies["rotated"], v @ rotations[0].T, f)
+        write_stl(copies["rescaled"], (v * RESCALE) @ rotations[1].T, f)
         # a mirroring reverses the winding: flip it back so the file's normals stay outward
-        write_stl(folder / f"{stem}.mirrored.stl", v @ (random_rotation(rng) @ mirror).T, f[:, ::-1])
+        write_stl(copies["mirrored"], v @ (rotations[2] @ mirror).T, f[:, ::-1])
         sv, sf = subdivided(v, f)
-        write_stl(folder / f"{stem}.refaceted.stl", sv @ random_rotation(rng).T, sf)
-    done.touch()
+        write_stl(copies["refaceted"], sv @ rotations[3].T, sf)
     return parts
 
 
@@ -120,6 +163,8 @@ def origin_of(path: str) -> tuple[str, str]:
             tail = f".{variant}{suffix}"
             if name.endswith(tail):
                 return f"{folder}/{name[: -len(tail)]}", variant
+    if name.endswith(".step"):  # the part's STEP file: faceted by OpenCASCADE, not by the exporter
+        return f"{folder}/{name[: -len('.step')]}", "step"
     return f"{folder}/{name[: -len('.wrl')]}", "original"
 
 
@@ -209,7 +254,7 @@ def evaluate_groups(groups: list, table: FamilyTable) -> dict:
     expected_tier = {"copy": "identical"}
     stats = {}
     for variant in VARIANTS:
-        suffix = ".wrl" if variant == "copy" else ".stl"
+        suffix = {"copy": ".wrl", "step": ".step"}.get(variant, ".stl")
         grouped = right_tier = right_ratio = right_flag = total = 0
         flag_truth, flag_said = [], []
         for original in originals:
@@ -225,7 +270,7 @@ def evaluate_groups(groups: list, table: FamilyTable) -> dict:
             pair, original_first = pair
             right_tier += pair["tier"] == expected_tier.get(variant, "same")
             ratio = pair["size_ratio"] if original_first else 1 / pair["size_ratio"]
-            want = RESCALE if variant == "rescaled" else 1.0
+            want = {"rescaled": RESCALE, "step": STEP_SCALE}.get(variant, 1.0)
             right_ratio += abs(ratio / want - 1) < 0.01
             should = variant == "mirrored" and chiral.get(a, False)
             flag_truth.append(should)
@@ -299,7 +344,8 @@ def main(argv=None) -> int:
     noise_data = json.loads(THRESHOLDS.read_text())
     parts = make_parts(args.work)
     started = time.monotonic()
-    store = quiet_build(parts, args.work / "parts.h5")
+    # the originals are links to the shared data, outside WORK/parts
+    store = quiet_build(parts, args.work / "parts.h5", follow_outside_links=True, workers=args.workers)
     build_seconds = time.monotonic() - started
     with open_store(store) as reader:
         table = FamilyTable.load(reader)
