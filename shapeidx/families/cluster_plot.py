@@ -201,7 +201,7 @@ def embedding_figure(result: dict, table, metric: str):
     FigureCanvasAgg(fig)
     ax = fig.add_axes((0.08, 0.07, 0.88, 0.84))
     colours = np.array(PALETTE)[(labels - 1) % len(PALETTE)]
-    dot = float(np.clip(4000.0 / max(n, 1), 0.5, 12.0))
+    dot = float(np.clip(4000.0 / max(n, 1), 1.0, 12.0))
     # the largest clusters last, so that they are not hidden under the many small ones
     order = np.argsort(-labels, kind="stable")
     ax.scatter(xy[order, 0], xy[order, 1], s=dot, c=colours[order], linewidths=0, alpha=0.8, rasterized=True)
