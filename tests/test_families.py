@@ -3,6 +3,8 @@ candidates, agreement figures. Real parts from kicad6, real builds, the real com
 
 from __future__ import annotations
 
+import json
+
 
 import h5py
 import numpy as np
@@ -271,6 +273,80 @@ def test_cluster_rows_and_both_roads_agree_on_clear_families(dup_store):
     assert len(set(graph["clusters"][members])) == 1
     csv = cli("cluster", "--store", store, "--csv", "--clusters", "3").stdout.splitlines()
     assert csv[0] == "path,cluster,distance" and len(csv) == len(rows) + 1
+
+
+def _svg_labels(svg: str) -> dict:
+    """Text of the SVG's text elements -> their fill colour (matplotlib keeps text as text)."""
+    import re
+
+    out = {}
+    for style, text in re.findall(r'<text style="([^"]*)"[^>]*>([^<]*)</text>', svg):
+        fill = re.search(r"fill: (#[0-9a-f]{6})", style)
+        out[text] = fill.group(1) if fill else "#000000"
+    return out
+
+
+def test_cluster_plot_draws_the_dendrogram_with_every_entry_coloured_by_its_cluster(dup_store, tmp_path):
+    _, store = dup_store
+    svg = tmp_path / "families.svg"
+    result = cli("cluster", "--store", store, "--clusters", "4", "--plot", svg, "--json")
+    assert result.exit_code == 0, result.output + result.stderr
+    rows = json.loads(result.stdout)  # stdout is still the rows alone
+    assert f"wrote {svg} (dendrogram of {len(rows)} entries, every entry a leaf)" in result.stderr
+    labels = _svg_labels(svg.read_text())
+    colour = {}
+    for row in rows:
+        name = row["path"].rsplit("/", 1)[-1].rsplit(".", 1)[0]
+        assert name in labels, name  # every entry is a named leaf
+        colour.setdefault(row["cluster"], set()).add(labels[name])
+    assert all(len(c) == 1 for c in colour.values()), colour  # one colour per cluster
+    assert len(set.union(*colour.values())) == 4  # and four clusters, four colours
+    png = tmp_path / "families.png"
+    assert cli("cluster", "--store", store, "--clusters", "4", "--plot", png).exit_code == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_cluster_plot_of_many_entries_has_one_leaf_per_cluster(dup_store, tmp_path, monkeypatch):
+    import shapeidx.families.cluster_plot as cluster_plot
+
+    _, store = dup_store
+    monkeypatch.setattr(cluster_plot, "LEAF_LIMIT", 10)  # the store has more entries than that
+    rows = cli_json("cluster", "--store", store, "--clusters", "3")
+    result = cli("cluster", "--store", store, "--clusters", "3", "--plot", tmp_path / "c.svg")
+    assert "one leaf per cluster" in result.stderr
+    labels = _svg_labels((tmp_path / "c.svg").read_text())
+    for c in (1, 2, 3):
+        members = [r for r in rows if r["cluster"] == c]
+        medoid = min(members, key=lambda r: r["distance"])["path"].rsplit("/", 1)[-1].rsplit(".", 1)[0]
+        size = f"{len(members)} parts" if len(members) > 1 else "1 part"
+        assert f"{c}: {size}, {medoid}" in labels
+
+
+def test_cluster_plot_beyond_the_matrix_is_an_embedding_whose_plane_keeps_planar_distances(dup_store, tmp_path):
+    from shapeidx.families.cluster_plot import plot_clusters, principal_plane
+
+    _, store = dup_store
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader)
+    graph = cluster_store(table, clusters=4, road="graph")
+    assert "tree" not in graph
+    said = plot_clusters(graph, table, tmp_path / "e.png", "combined")
+    assert said == f"embedding of {len(table)} entries in 4 clusters on two principal axes"
+    assert (tmp_path / "e.png").read_bytes()[:4] == b"\x89PNG"
+    # classical MDS: points on a plane of a 6-D space keep their distances in the picture
+    rng = np.random.default_rng(3)
+    flat = rng.normal(size=(40, 2)) * (5.0, 1.0)
+    basis, _ = np.linalg.qr(rng.normal(size=(6, 2)))
+    xy, share = principal_plane(flat @ basis.T + 7.0)
+    d = lambda p: np.linalg.norm(p[:, None] - p[None], axis=-1)
+    assert np.allclose(d(xy), d(flat), atol=1e-9) and share.sum() == pytest.approx(1.0)
+
+
+def test_cluster_plot_refuses_an_unknown_picture_format_before_the_work(dup_store, tmp_path):
+    _, store = dup_store
+    result = cli("cluster", "--store", store, "--plot", tmp_path / "c.gif")
+    assert result.exit_code == 1 and result.stdout == ""
+    assert "unknown picture format '.gif'" in result.stderr and len(result.stderr.strip().splitlines()) == 1
 
 
 def test_candidates_find_the_exact_nearest_neighbours(dup_store):
