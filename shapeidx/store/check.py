@@ -149,7 +149,7 @@ def scan_file(path: Path, seq: int, points: int | None) -> FileScan:
             scan.problem("entries/size", f"missing or unreadable ({_first_line(exc)})", fatal=True)
             return scan
         scan.entries = n
-        expected = [name for name in ENTRY_COLUMNS if name in f or name not in OPTIONAL_COLUMNS]  # older files lack some
+        expected = [name for name in ENTRY_COLUMNS if name not in OPTIONAL_COLUMNS or _present(f, name)]  # older files lack some
         for name, (dtype, _) in ENTRY_COLUMNS.items():
             if name not in expected:
                 continue
@@ -179,6 +179,14 @@ def scan_file(path: Path, seq: int, points: int | None) -> FileScan:
             for name in ("touched/size", "touched/mtime_ns"):
                 _scan_dataset(scan, f, name, np.int64, None, whole_file=True)
     return scan
+
+
+def _present(f: h5py.File, name: str) -> bool:
+    """Whether ``f`` has ``name``; a lookup the damage makes fail counts as present (its scan reports it)."""
+    try:
+        return name in f
+    except (KeyError, OSError, RuntimeError, ValueError):
+        return True
 
 
 def _scan_dataset(scan: FileScan, f: h5py.File, name: str, dtype, n: int | None, whole_file: bool = False):
