@@ -43,10 +43,11 @@ from shapeidx.ragged import offsets_of
 from shapeidx.signing.histogram import Histogram
 from shapeidx.signing.parameters import CLASS_NAMES, HISTOGRAMS
 from shapeidx.store import STATUS_OK, Batch, Entry, StoreWriter, open_store
-from shapeidx.store.layout import SHAPE_COLUMNS
+from shapeidx.store.layout import OPTIONAL_COLUMNS
 
-#: The size and handedness facts of an entry (copied from its source entry, unperturbed).
-SHAPE_FIELDS = tuple(name.split("/", 1)[1] for name in SHAPE_COLUMNS)
+#: The size, handedness and normal-angle facts of an entry (copied from its source entry,
+#: unperturbed: the perturbed D2 histograms already make every entry unlike the others).
+SHAPE_FIELDS = tuple(name.split("/", 1)[1] for name in OPTIONAL_COLUMNS)
 
 #: Entries generated and committed per journal batch (bounds the generator's memory).
 CHUNK = 50_000

@@ -146,7 +146,7 @@ class TestFormatsOfOtherCommands:
         tree, path = store
         cube = data_dir / CUBE
         rows = list(csv.DictReader(io.StringIO(cli("compare", cube, cube, "--points", 64, "--format", "csv").stdout)))
-        assert {r["metric"] for r in rows} == {"all", "avg3", "avg4", "weighted", "combined"}
+        assert {r["metric"] for r in rows} == {"all", "avg3", "avg4", "weighted", "combined", "combined-angle", "all-angle"}
         assert all(float(r["distance"]) == 0 for r in rows)
         stats = cli("stats", "--store", path, "--format", "tsv")
         assert stats.exit_code == 0 and stats.stdout.splitlines()[0] == "count\treason"

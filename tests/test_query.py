@@ -55,7 +55,7 @@ class TestRankingEqualsCompare:
             signatures = [reader.signature(int(i)) for i in table.rows]
         assert len(table) == 30
         for i, query in enumerate(signatures):
-            ranked = distances_to_many(query, table.banks, table.fractions, table.means, METRICS)
+            ranked = distances_to_many(query, table.banks, table.fractions, table.means, METRICS, table.angles)
             for j, other in enumerate(signatures):
                 expected = compare(query, other)
                 assert {m: ranked[m][j] for m in METRICS} == expected, (i, j)

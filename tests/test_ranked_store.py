@@ -103,7 +103,7 @@ def test_query_by_entry_finds_the_same_hits_as_the_full_table(real_store):
 def _entry_like(path, signature):
     return Entry(path=path, hash="a" * 64, size=1, mtime_ns=1, triangles=12, area=1.0, watertight=True,
                  fractions=tuple(signature.fractions[c] for c in ("in", "out", "mixed")),
-                 histograms=dict(signature.histograms))
+                 histograms=dict(signature.histograms), angles=tuple(np.ravel(signature.angles).tolist()))
 
 
 def test_journal_segments_supersede_main_rows_and_rank_as_the_full_view(real_store, tmp_path):

@@ -157,7 +157,7 @@ def scan_file(path: Path, seq: int, points: int | None) -> FileScan:
             scan.problem("entries/size", f"missing or unreadable ({_first_line(exc)})", fatal=True)
             return scan
         scan.entries = n
-        expected = [name for name in ENTRY_COLUMNS if name in f or name not in OPTIONAL_COLUMNS]  # older files lack some
+        expected = [name for name in ENTRY_COLUMNS if name not in OPTIONAL_COLUMNS or _present(f, name)]  # older files lack some
         for name, (dtype, _) in ENTRY_COLUMNS.items():
             if name not in expected:
                 continue
@@ -210,11 +210,19 @@ def _scan_ranking(scan: FileScan, f: h5py.File) -> None:
     if not wrong and not scan.problems and len(scan.counts) == len(HISTOGRAMS) and len(scan.columns) == len(ENTRY_COLUMNS):
         counts = {name: (flat, np.diff(offsets)) for name, (flat, offsets) in scan.counts.items()}
         for name, values in expected_rank(scan.columns, counts, section.histograms):
-            if not np.array_equal(section.array(name), values):
+            if not np.array_equal(section.array(name), values, equal_nan=True):  # NaN: unknown angles
                 wrong.append(f"{RANK}/{name} disagrees with the entries it is made from")
     for text in wrong:
         scan.problem(RANK, f"{text} ('shapeidx check --repair' rebuilds the ranking arrays)")
         scan.rank_damaged = True
+
+
+def _present(f: h5py.File, name: str) -> bool:
+    """Whether ``f`` has ``name``; a lookup the damage makes fail counts as present (its scan reports it)."""
+    try:
+        return name in f
+    except (KeyError, OSError, RuntimeError, ValueError):
+        return True
 
 
 def _scan_dataset(scan: FileScan, f: h5py.File, name: str, dtype, n: int | None, whole_file: bool = False):
