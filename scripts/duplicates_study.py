@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """How well ``shapeidx duplicates`` finds copies of every kicad6 part; writes docs/duplicates.md.
 
-    python scripts/duplicates_study.py --work /tmp/dup-study [--noise] [--output docs/duplicates.md]
+    python scripts/duplicates_study.py --work /tmp/dup-study [--noise] [--workers 1] [--no-held-out] \
+        [--output docs/duplicates.md]
 
 1. ``--noise``: the re-sampling noise. kicad6 is signed again with another seed (7 instead of
    the store's fixed 20020101); the distance between the two signatures of one part, per
@@ -10,17 +11,25 @@
    percentile of those distances times :data:`SAME_MARGIN`; ``near`` is :data:`NEAR_FACTOR`
    times ``same``.
    Written to shapeidx/families/thresholds.json.
-2. The copies. For every kicad6 part (its cleaned Solid, as the store signs it), in
-   ``WORK/parts``: the original (a link), a byte copy, and as binary STL written here: rotated
-   (a random rotation), rescaled (x 25.4, as inches to millimetres, and rotated), mirrored (a
-   determinant -1 transform: x -> -x, then rotated) and re-faceted (every triangle split in
-   four at its edge midpoints, and rotated). ``kicad6-step`` (the same parts re-faceted by a
-   STEP exporter) is used when this branch reads ``.step``.
-3. The store of all of these is built with ``shapeidx build`` and ``find_duplicates`` run on
-   it. Expected: each copy in the original's group with the right tier (copy: identical;
-   the others: same), size ratio (25.4 for rescaled, 1 otherwise, within 1%) and mirrored
-   flag (true for the mirrored copy of a part whose handedness is measurable, else false);
-   no two different kicad6 parts in one tier ``same``. Precision and recall per variant.
+2. The copies. For every kicad6 part (its cleaned Solid, as the store signs it), and six
+   more members of its families from Debian's KiCad 6 library (:data:`DEBIAN_FAMILY`), in
+   ``WORK/parts/GROUP`` (:data:`GROUPS`): the original (a link), a byte copy, and as binary
+   STL written here: rotated (a random rotation), rescaled (x 25.4, as inches to
+   millimetres, and rotated), mirrored (a determinant -1 transform: x -> -x, then rotated)
+   and re-faceted (every triangle split in four at its edge midpoints, and rotated); and a
+   link to the part's STEP file where there is one (``kicad6-step``, Debian's): the same part
+   faceted by another program, 2.54 times larger (KiCad's VRML unit is 0.1 inch).
+3. The store of all of these is built (``shapeidx build``, one worker by default, existing
+   entries reused) and ``find_duplicates`` run on it. Expected: each copy in the original's
+   group (recall), with the right tier (copy: identical; the others: same), size ratio
+   (25.4 for rescaled, 2.54 for STEP, 1 otherwise, within 1%) and mirrored flag (true for the
+   mirrored copy of a part whose handedness is measurable and chiral, else false), as
+   ``pair_tiers`` gives them for the pair; no two different parts in a tier ``same``
+   (precision per tier; each wrong pair judged without the tool: identical files, identical
+   meshes, or one shape at another size); the family pairs (:data:`FAMILY_PAIRS`) in no tier.
+4. Unless ``--no-held-out``: the same copies of every part of the other KiCad libraries of
+   ``vrml-wild`` (:data:`HELD_OUT`, never used to set the thresholds), one store each, with
+   recall split by watertight and open parts, and precision.
 """
 
 from __future__ import annotations
