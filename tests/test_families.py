@@ -201,6 +201,26 @@ def test_duplicates_finds_the_copies_with_their_tier_size_and_mirror(dup_store):
         assert len(originals) <= 1 or all(p["tier"] == "near" for p in g["pairs"] if p["a"] in originals and p["b"] in originals)
 
 
+def test_pair_tiers_asked_directly_agree_with_every_pair_the_groups_list(dup_store):
+    from shapeidx.families.duplicates import find_duplicates, pair_tiers
+
+    _, store = dup_store
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader)
+    listed = [p for g in find_duplicates(table) for p in g["pairs"]]
+    a = np.array([table.index_of(p["a"]) for p in listed])
+    b = np.array([table.index_of(p["b"]) for p in listed])
+    said = pair_tiers(table, a, b)
+    assert list(said["tier"]) == [p["tier"] for p in listed]
+    assert np.allclose(said["distance"], [p["distance"] for p in listed])
+    assert list(said["mirrored"]) == [p["mirrored"] for p in listed]
+    # and a pair of two different parts that no group holds gets no tier
+    grouped = {m for g in find_duplicates(table) for m in g["members"]}
+    loners = [i for i, p in enumerate(table.paths) if p not in grouped][:2]
+    assert len(loners) == 2
+    assert pair_tiers(table, np.array(loners[:1]), np.array(loners[1:]))["tier"][0] == ""
+
+
 def test_duplicates_scale_sensitive_keeps_the_rescaled_copy_apart_and_csv_has_a_row_per_pair(dup_store):
     _, store = dup_store
     groups = cli_json("duplicates", "--store", store, "--scale", "sensitive")

@@ -215,9 +215,12 @@ def embedding_figure(result: dict, table, metric: str):
     ax.set_ylabel(f"second principal axis ({100 * share[1]:.0f}%)", fontsize=8)
     ax.tick_params(labelsize=7)
     ax.grid(alpha=0.2)
-    ax.set_title(f"{n} entries in {count} clusters (single linkage on the {metric} neighbour graph);"
-                 f" numbered: the {min(count, LABELLED_CLUSTERS)} largest (their sizes)", fontsize=9)
-    return fig, f"embedding of {n} entries in {count} clusters on two principal axes"
+    entries = "1 entry" if n == 1 else f"{n} entries"
+    clusters = "1 cluster" if count == 1 else f"{count} clusters"
+    how = f"single linkage on the {metric} neighbour graph" if result.get("road") == "graph" else metric
+    ax.set_title(f"{entries} in {clusters} ({how}); numbered: the {min(count, LABELLED_CLUSTERS)} largest (their sizes)",
+                 fontsize=9)
+    return fig, f"embedding of {entries} in {clusters} on two principal axes"
 
 
 def principal_plane(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -202,6 +202,40 @@ class _UnionFind:
             self.parent[max(ra, rb)] = min(ra, rb)
 
 
+def _geometry_tiers(table, a, b, d, limits: dict, scale: str):
+    """(same, near) masks of pairs ``a``-``b`` at distances ``d`` (different files)."""
+    gap = fingerprint_gap(table, a, b)
+    unknown = np.isnan(gap)
+    same = (d <= limits["same"]) & (unknown | (gap <= FINGERPRINT_SAME))
+    near = ~same & (d <= limits["near"]) & (unknown | (gap <= FINGERPRINT_NEAR))
+    if scale == "sensitive":
+        band = ratio_within_band(table.size_ratios(a, b))
+        same, near = same & band, near & band
+    return same, near
+
+
+def pair_tiers(table, a: np.ndarray, b: np.ndarray, metric: str = DEFAULT_METRIC, scale: str = "invariant",
+               limits: dict | None = None) -> dict:
+    """The tier :func:`find_duplicates` gives the pairs ``a``-``b`` (rows of ``table``), asked directly.
+
+    Returns
+    -------
+    dict
+        Arrays aligned with the pairs: ``tier`` ("identical", "same", "near" or "" for
+        none), ``distance``, ``size_ratio`` (b over a), ``mirrored``.
+    """
+    check_scale(scale)
+    limits = limits or thresholds(metric)
+    a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+    d = table.pair_distances(a, b, metric) if len(a) else np.zeros(0)
+    hashes = table.hashes
+    identical = (hashes[a] == hashes[b]) & np.array([len(h) > 0 for h in hashes[a]], dtype=bool)
+    same, near = _geometry_tiers(table, a, b, d, limits, scale)
+    tier = np.where(identical, "identical", np.where(same, "same", np.where(near, "near", "")))
+    return {"tier": tier, "distance": np.where(identical, 0.0, d), "size_ratio": table.size_ratios(a, b),
+            "mirrored": mirror_relation(table.handedness[a], table.handedness[b])}
+
+
 def find_duplicates(table, metric: str = DEFAULT_METRIC, scale: str = "invariant", k: int = DEFAULT_NEIGHBOURS,
                     method: str = "auto", threads: int | None = None, limits: dict | None = None) -> list[dict]:
     """Duplicate groups of a :class:`~shapeidx.families.table.FamilyTable`.
@@ -235,13 +269,7 @@ def find_duplicates(table, metric: str = DEFAULT_METRIC, scale: str = "invariant
         a, b, d = _candidates(table, metric, min(k, n - 1), method, threads)
         keep = (d <= limits["near"]) & (hashes[a] != hashes[b])
         a, b, d = a[keep], b[keep], d[keep]
-        gap = fingerprint_gap(table, a, b)
-        unknown = np.isnan(gap)
-        same = (d <= limits["same"]) & (unknown | (gap <= FINGERPRINT_SAME))
-        near = ~same & (unknown | (gap <= FINGERPRINT_NEAR))
-        if scale == "sensitive":
-            band = ratio_within_band(table.size_ratios(a, b))
-            same, near = same & band, near & band
+        same, near = _geometry_tiers(table, a, b, d, limits, scale)
         take = same | near
         pairs_a += list(a[take])
         pairs_b += list(b[take])
