@@ -17,7 +17,8 @@ store's median to the first store's.
 entries, for existing paths) per round, through shapeidx's own :class:`StoreWriter`: the
 time of the commit (a journal batch) and of the size-tiered merge after it
 (:meth:`StoreWriter.compact`), over ``--rounds`` rounds, and the journal's segments after
-them. THE STORES ARE CHANGED: run it on copies made with scripts/make_store.py.
+them; ``--full`` merges everything into the main file instead (what every merge did before
+layout 3). THE STORES ARE CHANGED: run it on copies made with scripts/make_store.py.
 
 Both print a Markdown table and the load average before and after.
 """
@@ -77,7 +78,7 @@ def bench_query(part: Path, stores: list, repeat: int, top: int) -> None:
               f" | {median / base:.2f} |")
 
 
-def bench_commit(stores: list, files: int, rounds: int) -> None:
+def bench_commit(stores: list, files: int, rounds: int, full: bool = False) -> None:
     from shapeidx.store import Batch, Entry, StoreWriter, open_store
     from shapeidx.store.files import batch_files
 
@@ -105,7 +106,7 @@ def bench_commit(stores: list, files: int, rounds: int) -> None:
                 t0 = time.perf_counter()
                 writer.commit(Batch(entries=entries))
                 t1 = time.perf_counter()
-                writer.compact()
+                writer.merge() if full else writer.compact()  # --full: what every merge did before layout 3
                 t2 = time.perf_counter()
                 commits.append(t1 - t0)
                 merges.append(t2 - t1)
@@ -134,13 +135,15 @@ def main() -> int:
     c.add_argument("stores", type=Path, nargs="+")
     c.add_argument("--files", type=int, default=100)
     c.add_argument("--rounds", type=int, default=10)
+    c.add_argument("--full", action="store_true", help="merge everything into the main file after each commit"
+                   " (the merge of layout 2), for comparison")
     args = parser.parse_args()
     print(f"machine: {os.uname().machine}, {os.cpu_count()} cores, {os.uname().sysname} {os.uname().release},"
           f" Python {sys.version.split()[0]}, numpy {np.__version__}")
     if args.what == "query":
         bench_query(args.part, args.stores, args.repeat, args.top)
     else:
-        bench_commit(args.stores, args.files, args.rounds)
+        bench_commit(args.stores, args.files, args.rounds, args.full)
     return 0
 
 
