@@ -5,6 +5,7 @@ Usage::
 
     python scripts/bench_store.py query PART STORE... [--repeat R] [--top K]
     python scripts/bench_store.py commit STORE... [--files 100] [--rounds R]
+    python scripts/bench_store.py recall STORE [--queries Q] [--top K] [--metric M]
 
 ``query`` times the whole ``shapeidx query PART --store STORE`` command (a fresh process:
 Python's start, the imports, the query part's signature, opening the store, ranking and
@@ -17,9 +18,14 @@ store's median to the first store's.
 entries, for existing paths) per round, through shapeidx's own :class:`StoreWriter`: the
 time of the commit (a journal batch) and of the size-tiered merge after it
 (:meth:`StoreWriter.compact`), over ``--rounds`` rounds, and the journal's segments after
-them. THE STORES ARE CHANGED: run it on copies made with scripts/make_store.py.
+them; ``--full`` merges everything into the main file instead (what every merge did before
+layout 3). THE STORES ARE CHANGED: run it on copies made with scripts/make_store.py.
 
-Both print a Markdown table and the load average before and after.
+``recall`` checks the pruned ranking (lower bounds, then exact distances) against the full
+exact ranking of every entry, with entries of the store as queries: recall@K (1.0 is what
+the bounds guarantee), whether the distances are equal bit for bit, and both times.
+
+All print a Markdown table and the load average before and after.
 """
 
 from __future__ import annotations
@@ -77,7 +83,7 @@ def bench_query(part: Path, stores: list, repeat: int, top: int) -> None:
               f" | {median / base:.2f} |")
 
 
-def bench_commit(stores: list, files: int, rounds: int) -> None:
+def bench_commit(stores: list, files: int, rounds: int, full: bool = False) -> None:
     from shapeidx.store import Batch, Entry, StoreWriter, open_store
     from shapeidx.store.files import batch_files
 
@@ -105,7 +111,7 @@ def bench_commit(stores: list, files: int, rounds: int) -> None:
                 t0 = time.perf_counter()
                 writer.commit(Batch(entries=entries))
                 t1 = time.perf_counter()
-                writer.compact()
+                writer.merge() if full else writer.compact()  # --full: what every merge did before layout 3
                 t2 = time.perf_counter()
                 commits.append(t1 - t0)
                 merges.append(t2 - t1)
@@ -122,6 +128,43 @@ def bench_commit(stores: list, files: int, rounds: int) -> None:
               f" {opened:.1f} |")
 
 
+def bench_recall(store: Path, queries: int, top: int, metric: str) -> None:
+    """The pruned query's top ``top`` against the full exact ranking of every entry, for
+    ``queries`` entries of the store as queries: recall, equal distances, time of each."""
+    from shapeidx.ranking import top_hits
+    from shapeidx.store import open_store
+    from shapeidx.store.ranked import ranked_view
+
+    print(f"load average before: {_load()}", flush=True)
+    found = total = 0
+    same = True
+    pruned_s, full_s, exact_n = [], [], []
+    with open_store(store) as reader:
+        view = ranked_view(reader)
+        rng = np.random.default_rng(11)
+        for position in rng.choice(len(view), queries, replace=False).tolist():
+            signature = view.signature(view.locate(position), reader.params)
+            t0 = time.perf_counter()
+            chosen, exact = view.nearest(signature, metric, top)
+            t1 = time.perf_counter()
+            everything = view.distances(signature, metric)
+            t2 = time.perf_counter()
+            best = set(np.argsort(everything, kind="stable")[:top].tolist())
+            mine = set(chosen[np.argsort(exact, kind="stable")[:top]].tolist())
+            found += len(best & mine)
+            total += top
+            same &= bool(np.array_equal(everything[chosen], exact))
+            pruned_s.append(t1 - t0)
+            full_s.append(t2 - t1)
+            exact_n.append(len(chosen))
+    print(f"load average after: {_load()}\n")
+    print(f"| store | entries | queries | recall@{top} | distances equal | pruned ranking, median (s) |"
+          " full exact ranking, median (s) | exact distances computed, median |")
+    print("|---|---|---|---|---|---|---|---|")
+    print(f"| {store.name} | {len(view):,} | {queries} | {found / total:.4f} | {'yes' if same else 'NO'} |"
+          f" {statistics.median(pruned_s):.2f} | {statistics.median(full_s):.2f} | {int(statistics.median(exact_n)):,} |")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="what", required=True)
@@ -134,13 +177,22 @@ def main() -> int:
     c.add_argument("stores", type=Path, nargs="+")
     c.add_argument("--files", type=int, default=100)
     c.add_argument("--rounds", type=int, default=10)
+    c.add_argument("--full", action="store_true", help="merge everything into the main file after each commit"
+                   " (the merge of layout 2), for comparison")
+    r = sub.add_parser("recall")
+    r.add_argument("store", type=Path)
+    r.add_argument("--queries", type=int, default=10)
+    r.add_argument("--top", type=int, default=10)
+    r.add_argument("--metric", default="weighted")
     args = parser.parse_args()
     print(f"machine: {os.uname().machine}, {os.cpu_count()} cores, {os.uname().sysname} {os.uname().release},"
           f" Python {sys.version.split()[0]}, numpy {np.__version__}")
     if args.what == "query":
         bench_query(args.part, args.stores, args.repeat, args.top)
+    elif args.what == "recall":
+        bench_recall(args.store, args.queries, args.top, args.metric)
     else:
-        bench_commit(args.stores, args.files, args.rounds)
+        bench_commit(args.stores, args.files, args.rounds, args.full)
     return 0
 
 

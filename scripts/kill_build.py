@@ -79,12 +79,20 @@ def gone_within(pids: list, seconds: float) -> bool:
 
 
 def merge_in_progress(store: Path, pid: int) -> bool:
-    """Process ``pid`` writing a new main file over an existing one (not the first, empty one).
+    """Process ``pid`` writing a new main file over an existing one (not the first, empty one),
+    or a merged journal segment over an existing one (a commit writes a segment of a new number).
 
     The temporary file's name carries the writer's pid: one left by an earlier killed build
     does not count.
     """
-    return store.exists() and store.with_name(f"{store.name}.tmp-{pid}").exists()
+    if store.exists() and store.with_name(f"{store.name}.tmp-{pid}").exists():
+        return True
+    journal = store.with_name(store.name + ".journal")
+    try:
+        return any(tmp.name.split(".tmp-")[0] and (journal / tmp.name.split(".tmp-")[0]).exists()
+                   for tmp in journal.glob(f"batch-*.h5.tmp-{pid}"))
+    except OSError:
+        return False
 
 
 class Moment:

@@ -214,3 +214,22 @@ def test_a_layout_2_store_ranks_the_old_way_and_check_repair_adds_the_arrays(rea
     with open_store(store) as reader:
         assert ranked_view(reader) is not None
         assert query_store(reader, signature, top=5, metric="avg4") == before
+
+
+def test_a_layout_2_store_gains_the_arrays_at_its_next_merge(real_store, tmp_path):
+    _, _, made = real_store
+    store = tmp_path / "s.h5"
+    store.write_bytes(made.read_bytes())
+    with h5py.File(store, "r+") as f:
+        del f["rank"]
+        f.attrs["schema_version"] = 2
+    with open_store(store) as reader:
+        params, root = reader.params, reader.attrs["root"]
+        donor = reader.signature(1)
+    with StoreWriter(store, params, root) as writer:
+        writer.commit(Batch(entries=[_entry_like("new/one.wrl", donor)]))
+        writer.compact()  # a tiered merge would leave the main file alone; without arrays it is rewritten
+    assert not batch_files(store)
+    with open_store(store) as reader:
+        assert reader.attrs["schema_version"] == 3 and len(reader) == 3001
+        assert_ranks_as_the_table(reader, queries=1)

@@ -1,9 +1,12 @@
-"""The signature store: one HDF5 file of entries, plus a journal of committed batches.
+"""The signature store: one HDF5 file of entries, plus a journal of committed segments.
 
     layout.py   the schema: per-entry columns, histogram counts as CSR, parameters
     files.py    the files (main, journal, lock) and atomic writes
     reader.py   a consistent view of main file + journal (open_store)
-    writer.py   the single writer: lock, commit a batch, merge the journal
+    writer.py   the single writer: lock, commit a batch, size-tiered merges of the journal
+    rank.py     the memory-mapped ranking arrays of every file (rank/)
+    ranked.py   a query ranked straight from them (lower bounds, then exact distances)
+    check.py    shapeidx check: checksums, offsets, totals, ranking arrays; repairs
     stats.py    what ``shapeidx stats`` reports
 """
 

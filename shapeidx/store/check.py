@@ -142,8 +142,9 @@ def usable_store_path(store) -> Path:
     return path
 
 
-def scan_file(path: Path, seq: int, points: int | None) -> FileScan:
-    """Read and check every dataset of one store file; see the module docstring."""
+def scan_file(path: Path, seq: int, points: int | None, derived: bool = True) -> FileScan:
+    """Read and check every dataset of one store file; see the module docstring. ``derived``:
+    also rebuild the ranking arrays in memory and compare (else only their checksums)."""
     scan = FileScan(path, seq)
     try:
         f = h5py.File(path, "r")
@@ -186,11 +187,11 @@ def scan_file(path: Path, seq: int, points: int | None) -> FileScan:
         if "touched" in f:
             for name in ("touched/size", "touched/mtime_ns"):
                 _scan_dataset(scan, f, name, np.int64, None, whole_file=True)
-        _scan_ranking(scan, f)
+        _scan_ranking(scan, f, derived)
     return scan
 
 
-def _scan_ranking(scan: FileScan, f: h5py.File) -> None:
+def _scan_ranking(scan: FileScan, f: h5py.File, derived: bool = True) -> None:
     """The ``rank/`` section: its checksums, and that it is what the checked canonical data make."""
     from .rank import RANK, RankSection, expected_rank
 
@@ -207,7 +208,7 @@ def _scan_ranking(scan: FileScan, f: h5py.File) -> None:
         wrong = section.verify()
     except (KeyError, OSError, RuntimeError, ValueError) as exc:
         wrong = [f"{RANK} cannot be used ({_first_line(exc)})"]
-    if not wrong and not scan.problems and len(scan.counts) == len(HISTOGRAMS) and len(scan.columns) == len(ENTRY_COLUMNS):
+    if derived and not wrong and not scan.problems and len(scan.counts) == len(HISTOGRAMS) and len(scan.columns) == len(ENTRY_COLUMNS):
         counts = {name: (flat, np.diff(offsets)) for name, (flat, offsets) in scan.counts.items()}
         for name, values in expected_rank(scan.columns, counts, section.histograms):
             if not np.array_equal(section.array(name), values, equal_nan=True):  # NaN: unknown angles
@@ -405,7 +406,7 @@ def refuse_damaged(store: Path) -> None:
     if not store.exists():
         return
     _, points, attrs = _store_files(store)
-    scan = scan_file(store, 0, points)
+    scan = scan_file(store, 0, points, derived=False)  # every checksum; the full comparison is check's
     if scan.problems:
         first = scan.problems[0]
         more = f" and {len(scan.problems) - 1} more" if len(scan.problems) > 1 else ""

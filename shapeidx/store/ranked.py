@@ -161,7 +161,7 @@ class RankedView:
 
     # -- the nearest entries, with exact distances only where a lower bound cannot rule them out
     def nearest(self, signature: Signature, metric: str, top: int, first: int | None = None,
-                exclude: int | None = None, max_distance: float | None = None):
+                exclude: int | None = None, max_distance: float | None = None, threads: int = RANK_THREADS):
         """Positions and exact distances of a set of live entries that holds every entry a
         ``top``-nearest answer can contain: the ``top`` nearest (not ``exclude``, within
         ``max_distance``), every entry tied with the last of them, and ``first``.
@@ -183,7 +183,12 @@ class RankedView:
         needed = METRIC_HISTOGRAMS[metric]
         with self._checked(None):
             fractions, means = self.fractions, self.means
-            bounds = {h: self._lower_bounds(h, signature.histograms[h].p) for h in needed}
+            if threads > 1 and len(needed) > 1:  # one histogram per thread: numpy releases the GIL
+                with ThreadPoolExecutor(threads) as pool:
+                    values = list(pool.map(lambda h: self._lower_bounds(h, signature.histograms[h].p), needed))
+                bounds = dict(zip(needed, values))
+            else:
+                bounds = {h: self._lower_bounds(h, signature.histograms[h].p) for h in needed}
         features = features_to_many(signature, None, fractions, means, needed, distances=bounds)
         # room for rounding: the bound and the distance are sums of different float terms
         bound = metric_values(features, (metric,))[metric] * (1 - 1e-9) - 1e-15

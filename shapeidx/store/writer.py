@@ -299,7 +299,8 @@ class StoreWriter:
                 self.uncompacted = 0
                 return  # a main file of layout 2 or older is rewritten by a full merge: it gains rank/
             sizes = [_rows_of(source) for source in reader._sources]
-            first = 0 if full else _merge_from(sizes)
+            # a file of layout 2 or older has no ranking arrays: the first merge rewrites everything, once
+            first = 0 if full or any(source.rank is None for source in reader._sources) else _merge_from(sizes)
             if first is None:
                 self.uncompacted = 0
                 return
