@@ -10,7 +10,8 @@ child process of the Dask worker, so a file past ``--timeout`` or one that crash
 process is recorded as failed, as locally, and never holds a Dask worker.
 
 A Dask worker that dies (kill -9, a lost node) loses nothing: the scheduler gives its files
-to other workers. A file whose workers died more often than the scheduler's
+to other workers, and a file it had finished whose result died with it (the future is
+"lost") is submitted again, up to :data:`LOST_RETRIES` times. A file whose workers died more often than the scheduler's
 ``distributed.scheduler.allowed-failures`` (default 3) is recorded as failed, with that
 reason, and retried by the next build only with ``--retry-failed``, as any failed file.
 
@@ -39,6 +40,8 @@ from .workers import DEFAULT_TIMEOUT, START_TIMEOUT, Outcome, Task, _failure, on
 IN_FLIGHT_PER_THREAD = 4
 #: Seconds between asking the scheduler how many threads its workers have.
 RESIZE_EVERY = 5.0
+#: Times a file is redone because its finished result was lost with a worker that died.
+LOST_RETRIES = 3
 
 
 def _distributed():
@@ -113,6 +116,17 @@ class DaskPool:
         pending, number = iter(tasks), 0
         exhausted = False
         window, resized = IN_FLIGHT_PER_THREAD * self._threads(), time.monotonic()
+        lost: dict = {}  # task path -> times its result was lost with a dead worker
+
+        def submit(task: Task) -> None:
+            nonlocal number
+            future = self.client.submit(index_on_worker, self._on_worker(task), self.params,
+                                        self.worker_root, self.timeout, key=f"shapeidx-index-{build}-{number}",
+                                        pure=False)
+            self.running[future] = task
+            future.add_done_callback(finished.put)
+            number += 1
+
         try:
             while True:
                 while not exhausted and len(self.running) < window:
@@ -120,12 +134,7 @@ class DaskPool:
                     if task is None:
                         exhausted = True
                         break
-                    future = self.client.submit(index_on_worker, self._on_worker(task), self.params,
-                                                self.worker_root, self.timeout, key=f"shapeidx-index-{build}-{number}",
-                                                pure=False)
-                    self.running[future] = task
-                    future.add_done_callback(finished.put)
-                    number += 1
+                    submit(task)
                 if not self.running:
                     return
                 try:
@@ -137,8 +146,15 @@ class DaskPool:
                     done.append(finished.get_nowait())
                 for future in done:
                     task = self.running.pop(future, None)
-                    if task is not None:  # (a callback that fires twice hands a file on once)
-                        yield self._outcome_of(future, task)
+                    if task is None:  # (a callback that fires twice hands a file on once)
+                        continue
+                    if future.status == "lost" and lost.get(task.path, 0) < LOST_RETRIES:
+                        # the file was done, but its result died with its worker before it
+                        # reached us: do it again elsewhere (as for a worker that died mid-file)
+                        lost[task.path] = lost.get(task.path, 0) + 1
+                        submit(task)
+                        continue
+                    yield self._outcome_of(future, task)
                 if time.monotonic() - resized > RESIZE_EVERY:  # workers come and go
                     window = IN_FLIGHT_PER_THREAD * self._threads(window // IN_FLIGHT_PER_THREAD)
                     resized = time.monotonic()
