@@ -12,9 +12,12 @@ perturbed so that no two entries are alike, while every entry stays a consistent
 * each IN, OUT and MIXED histogram: its last 0 to 5 bins dropped (so bin counts vary as in
   real stores; trailing empty bins trimmed, as a real histogram has none), every count
   scaled by its own random factor in [0.9, 1.1] (empty bins stay empty);
-* the class fractions are the three classes' new pair totals over their sum;
-* the ALL histogram is perturbed in the same way and then rescaled so that it holds as
-  many pairs as the three classes together;
+* the three classes then share the ``points * (points - 1) / 2`` pairs in proportion to
+  their perturbed totals (each histogram rescaled to its share and rounded, the residual in
+  its fullest bin), so that, as in a real signature, they hold every pair together and pass
+  ``shapeidx check``; the class fractions are these shares over the pairs;
+* the ALL histogram is perturbed in the same way and then rescaled so that it holds all
+  the pairs;
 * each class's mean distance is scaled by a random factor in [0.98, 1.02]; the ALL mean is
   the fraction-weighted mean of the class means (the mean over all pairs); every bin width
   is its mean over the store's bin divisor, as :meth:`Histogram.of` makes it.
@@ -40,10 +43,11 @@ from shapeidx.ragged import offsets_of
 from shapeidx.signing.histogram import Histogram
 from shapeidx.signing.parameters import CLASS_NAMES, HISTOGRAMS
 from shapeidx.store import STATUS_OK, Batch, Entry, StoreWriter, open_store
-from shapeidx.store.layout import SHAPE_COLUMNS
+from shapeidx.store.layout import OPTIONAL_COLUMNS
 
-#: The size and handedness facts of an entry (copied from its source entry, unperturbed).
-SHAPE_FIELDS = tuple(name.split("/", 1)[1] for name in SHAPE_COLUMNS)
+#: The size, handedness and normal-angle facts of an entry (copied from its source entry,
+#: unperturbed: the perturbed D2 histograms already make every entry unlike the others).
+SHAPE_FIELDS = tuple(name.split("/", 1)[1] for name in OPTIONAL_COLUMNS)
 
 #: Entries generated and committed per journal batch (bounds the generator's memory).
 CHUNK = 50_000
@@ -117,6 +121,13 @@ def _round_to_totals(flat: np.ndarray, lengths: np.ndarray, totals: np.ndarray) 
     return counts
 
 
+def _shares_of(weights: np.ndarray, totals: np.ndarray) -> np.ndarray:
+    """Integers proportional to each row of ``weights`` that sum to ``totals`` (residual to the largest)."""
+    shares = np.rint(weights / weights.sum(axis=1, keepdims=True) * totals[:, None]).astype(np.int64)
+    shares[np.arange(len(shares)), np.argmax(weights, axis=1)] += totals - shares.sum(axis=1)
+    return shares
+
+
 def synthetic_chunk(real: dict, picks: np.ndarray, rng) -> dict:
     """Perturbed signatures of the source entries ``picks`` (see the module docstring).
 
@@ -124,18 +135,23 @@ def synthetic_chunk(real: dict, picks: np.ndarray, rng) -> dict:
     (n, 3) fractions.
     """
     divisor = real["params"].bin_divisor
-    out, totals, means = {}, [], []
+    points = real["params"].points
+    out, perturbed, totals, means = {}, {}, [], []
     for name in CLASS_NAMES:
         base_counts, base_lengths, base_means = real[name]
         flat, lengths = perturbed_histograms(base_counts, base_lengths, picks, rng)
-        counts = np.rint(flat).astype(np.int64)  # a count >= 1 scaled by >= 0.9 rounds to >= 1: bins keep their emptiness
-        mean = base_means[picks] * rng.uniform(0.98, 1.02, len(picks))
-        out[name] = (counts, lengths, mean, mean / divisor)
-        totals.append(np.bincount(_segments(lengths), weights=counts, minlength=len(picks)))
-        means.append(mean)
-    totals = np.stack(totals, axis=1)
-    pairs = totals.sum(axis=1)
-    fractions = totals / pairs[:, None]
+        perturbed[name] = (flat, lengths)
+        totals.append(np.bincount(_segments(lengths), weights=flat, minlength=len(picks)))
+        means.append(base_means[picks] * rng.uniform(0.98, 1.02, len(picks)))
+    # the classes share the point pairs as perturbed, and together hold all of them, as a real
+    # signature does (shapeidx check verifies it)
+    pairs = np.full(len(picks), points * (points - 1) // 2, dtype=np.int64)
+    class_totals = _shares_of(np.stack(totals, axis=1), pairs)
+    for k, name in enumerate(CLASS_NAMES):
+        flat, lengths = perturbed[name]
+        counts = _round_to_totals(flat, lengths, class_totals[:, k])
+        out[name] = (counts, lengths, means[k], means[k] / divisor)
+    fractions = class_totals / pairs[:, None]
     base_counts, base_lengths, _ = real["all"]
     flat, lengths = perturbed_histograms(base_counts, base_lengths, picks, rng)
     all_mean = np.sum(fractions * np.stack(means, axis=1), axis=1)

@@ -411,7 +411,7 @@ def families(lines, work):
     from shapeidx.families.agreement import ari, nmi
     from shapeidx.families.classify import DEFAULT_K, leave_one_out
     from shapeidx.families.cluster import APART, cluster_matrix
-    from shapeidx.families.scale import SIZE_BAND
+    from shapeidx.distance.scale import SIZE_BAND
     from shapeidx.families.scores import family_scores
 
     lines += [

@@ -200,6 +200,12 @@ def markdown(args, build_seconds, ranks, step_scores, vrml_scores, timings, base
             lines.append(f"| {metric} | {name} | " + " | ".join(f"{s[k]:.3f}" for k in ("nn", "ft", "st", "e", "dcg")) + " |")
         gap = {k: 100 * (step_scores[metric][k] - vrml_scores[metric][k]) for k in ("nn", "ft")}
         lines.append(f"| {metric} | STEP - VRML (points) | {gap['nn']:+.1f} | {gap['ft']:+.1f} | | | |")
+    lines += [
+        "",
+        "These are one seed per store, and drawing other points moves one store's NN by up to 5 points (one NN"
+        " point is 3.4 parts). docs/step-seeds.md (`scripts/step_seeds_study.py`) compares the two formats as means"
+        " over five seeds each: there the differences are at most 1 NN point and within their errors.",
+    ]
     step_t = np.array([t[0] for t in timings])
     vrml_t = np.array([t[1] for t in timings])
     lines += [

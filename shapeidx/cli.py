@@ -623,19 +623,35 @@ main.add_command(click.Command("info", callback=stats.callback, params=stats.par
 @main.command(context_settings=CONTEXT)
 @store_option
 @click.option("--files", "check_files", is_flag=True, help="Also hash every entry's file and compare with the store.")
+@click.option("--repair", is_flag=True, help="Rebuild damaged or missing ranking arrays (written before layout 3) from the checked entries; takes the store's lock.")
 @format_options
-def check(store, check_files, output_format, as_json):
+def check(store, check_files, repair, output_format, as_json):
     """Verify a store: structure, offsets, totals, checksums (and with --files, that every
-    entry's file still hashes the same). Exits 5 naming the first problems.
+    entry's file still hashes the same). Exits 5 naming the first problems. --repair
+    rebuilds the ranking arrays (derived data) of files where they are damaged or missing.
 
     \b
     Example:
       shapeidx check --store parts.h5
       shapeidx check --store parts.h5 --files --json
+      shapeidx check --store parts.h5 --repair
     """
     from .store.check import check_store
 
     fmt = chosen_format(output_format, as_json)
+    if repair:
+        from .store import StoreLock
+        from .store.check import rebuild_ranking
+
+        path = _store_path(store)
+        check_store(path)  # no store, not a store: one line, before taking the lock
+        lock = StoreLock(path)
+        lock.acquire()
+        try:
+            for line in rebuild_ranking(path):
+                click.echo(line, err=True)
+        finally:
+            lock.release()
     report = check_store(_store_path(store), files=check_files)
     if fmt == "json":
         emit_json(report.to_dict())
@@ -646,6 +662,8 @@ def check(store, check_files, output_format, as_json):
             click.echo(f"problem: {problem.line()}", err=True)
         if len(report.problems) > 20:
             click.echo(f"problem: ... and {len(report.problems) - 20} more (--json lists all)", err=True)
+        for note in report.notes:
+            click.echo(f"note: {note}", err=True)
         click.echo(report.summary())
     if report.problems:
         sys.exit(exits.DAMAGED)
@@ -812,22 +830,35 @@ def classify(parts, store, k, metric, label_depth, labels_file, scale, output_fo
 @click.option("--metric", type=click.Choice(METRICS), default="combined", show_default=True, help="The distance.")
 @scale_option
 @click.option("--csv", "as_csv", is_flag=True, help="Rows of path,cluster,distance.")
+@click.option("--plot", "plot_output", metavar="OUT", type=click.Path(dir_okay=False, path_type=str),
+              help="Also draw the clusters to OUT (.png, .svg or .pdf): the dendrogram, or beyond the exact"
+                   " matrix's size a 2-D embedding.")
 @format_options
-def cluster(store, clusters, threshold, metric, scale, as_csv, output_format, as_json):
+def cluster(store, clusters, threshold, metric, scale, as_csv, plot_output, output_format, as_json):
     """Group the whole store into families of similar parts.
 
     \b
     Example:
       shapeidx cluster --store parts.h5 --clusters 50
       shapeidx cluster --store parts.h5 --threshold 0.05 --format csv
+      shapeidx cluster --store parts.h5 --plot families.png
     """
     from .families.cluster import cluster_store
     from .system import available_cores
 
+    if plot_output:
+        from .pictures.plot import check_format
+
+        check_format(plot_output)  # before the work, not after it
     table = _family_table(store)
     if len(table) == 0:
         raise _empty_store_error(store)
     result = cluster_store(table, metric, clusters, threshold, scale, threads=available_cores())
+    if plot_output:
+        from .families.cluster_plot import plot_clusters
+
+        drawn = plot_clusters(result, table, plot_output, metric)
+        click.echo(f"wrote {plot_output} ({drawn})", err=True)  # stderr: stdout stays the rows
     rows = [{"path": str(p), "cluster": int(c), "distance": float(d)}
             for p, c, d in sorted(zip(result["paths"], result["clusters"], result["distances"]), key=lambda r: (r[1], r[2], r[0]))]
     fmt = "csv" if as_csv and output_format is None else chosen_format(output_format, as_json)

@@ -19,6 +19,7 @@ import numpy as np
 from .distance import METRIC_HISTOGRAMS, METRICS, HistogramBank, distances_to_many
 from .errors import StoreError
 from .distance import ANGLE_METRICS
+from .distance.combined import require_angles
 from .signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
 from .signing.histogram import Signature
 from .signing.parameters import HISTOGRAMS, SIGNATURE_VERSION
@@ -77,12 +78,7 @@ class SignatureTable:
 
     def check_angles(self, signature: Signature, metric: str) -> None:
         """Refuse, in one line, a metric that needs normal-angle histograms the store or query lacks."""
-        if self.angles is None or not np.isfinite(self.angles).all():
-            unknown = len(self) if self.angles is None else int((~np.isfinite(self.angles).all(axis=(1, 2))).sum())
-            raise StoreError(f"metric {metric} needs the normal-angle histograms, which {unknown} entr(y/ies) of this store"
-                             " lack (built before them): rebuild it with 'shapeidx build DIR --full'")
-        if signature.angles is None:
-            raise StoreError(f"metric {metric} needs the query's normal-angle histograms, which its signature lacks")
+        require_angles(self.angles, signature, metric)
 
     def index_of(self, path: str) -> int | None:
         i = int(np.searchsorted(self.paths, path))
@@ -147,7 +143,7 @@ def query_store(
         of the store's tree)
     max_distance : leave out hits farther than this
     scale : "invariant" (the paper's) or "sensitive": entries whose size differs from the
-        part's by more than :data:`shapeidx.families.scale.SIZE_BAND` are left out
+        part's by more than :data:`shapeidx.distance.scale.SIZE_BAND` are left out
 
     Raises
     ------
@@ -167,6 +163,11 @@ def query_store(
 def _query_reader(reader: StoreReader, part, entry, top, metric, threads, file_type, exclude_self=False,
                   max_distance=None, scale="invariant") -> list[dict]:
     check_usable(reader)
+    from .store.ranked import ranked_view
+
+    view = ranked_view(reader, METRIC_HISTOGRAMS[metric])
+    if view is not None:
+        return _query_view(reader, view, part, entry, top, metric, threads, file_type, exclude_self, max_distance, scale)
     table = SignatureTable.load(reader, METRIC_HISTOGRAMS[metric])
     if entry is not None:
         first = _entry_index(reader, table, entry)
@@ -177,7 +178,7 @@ def _query_reader(reader: StoreReader, part, entry, top, metric, threads, file_t
         first = table.index_of(own) if own is not None else None
     distances = table.distances(signature, metric)
     if scale != "invariant":
-        from .families.scale import apply_scale
+        from .distance.scale import apply_scale
 
         distances = apply_scale(distances, signature.histograms["all"].mean, table.means[:, 0], scale)
     keep = np.isfinite(distances)  # a scale-sensitive search leaves out parts of another size
@@ -190,6 +191,85 @@ def _query_reader(reader: StoreReader, part, entry, top, metric, threads, file_t
     kept = np.flatnonzero(keep)
     first_kept = None if first is None or not keep[first] else int(np.searchsorted(kept, first))
     return top_hits(distances[kept], table.paths[kept], top, first_kept)
+
+
+class LazyPaths:
+    """The paths of a :class:`~shapeidx.store.ranked.RankedView`'s entries, each read when asked
+    for: ``top_hits`` asks only for the hits' (and their ties')."""
+
+    def __init__(self, view, positions: np.ndarray | None = None):
+        self.view = view
+        self.positions = positions
+
+    def take(self, indices: np.ndarray) -> "LazyPaths":
+        positions = np.asarray(indices) if self.positions is None else self.positions[indices]
+        return LazyPaths(self.view, positions)
+
+    def __getitem__(self, key):
+        if np.ndim(key) == 0:
+            return self.view.path_at(int(key if self.positions is None else self.positions[key]))
+        from .store.layout import object_array
+
+        return object_array([self[int(k)] for k in np.asarray(key)])
+
+
+def _query_view(reader: StoreReader, view, part, entry, top, metric, threads, file_type, exclude_self=False,
+                max_distance=None, scale="invariant") -> list[dict]:
+    """:func:`_query_reader` over the store's memory-mapped ranking sections (same hits, same distances)."""
+    if entry is not None:
+        found = view.find(resolve_entry_in_view(reader, view, entry))
+        if found is None:
+            raise StoreError(
+                f"no entry {entry!r} in {reader.path} (give a path inside {reader.attrs.get('root')},"
+                " absolute or relative to it)"
+            )
+        status, reason = view.status_of(found)
+        if status != STATUS_OK:
+            raise StoreError(f"entry {resolve_entry_in_view(reader, view, entry)!r} failed to index: {reason}")
+        first = view.position_of(found)
+        signature = view.signature(found, reader.params)
+    else:
+        signature = signature_with_params(part, reader.params, threads, file_type)
+        own = entry_path_of(part, reader) if isinstance(part, (str, os.PathLike)) else None
+        found = view.find(own) if own is not None else None
+        first = view.position_of(found) if found is not None else None
+    paths = LazyPaths(view)
+    if scale == "invariant":
+        near = view.nearest(signature, metric, top, first, first if exclude_self else None, max_distance)
+        if near is not None:  # exact distances of the entries that can be hits (and ``first``)
+            chosen, distances = near
+            keep = np.isfinite(distances) & ((chosen != first) if exclude_self and first is not None else True)
+            if max_distance is not None:
+                keep &= distances <= max_distance
+            kept = np.flatnonzero(keep)
+            at_first = np.flatnonzero(chosen[kept] == first) if first is not None else []
+            return top_hits(distances[kept], paths.take(chosen[kept]), top, int(at_first[0]) if len(at_first) else None)
+    distances = view.distances(signature, metric)
+    if scale != "invariant":
+        from .distance.scale import apply_scale
+
+        distances = apply_scale(distances, signature.histograms["all"].mean, view.means[:, 0], scale)
+    keep = np.isfinite(distances)
+    if exclude_self and first is not None:
+        keep[first] = False
+    if max_distance is not None:
+        keep &= distances <= max_distance
+    if keep.all():
+        return top_hits(distances, paths, top, first)
+    kept = np.flatnonzero(keep)
+    first_kept = None if first is None or not keep[first] else int(np.searchsorted(kept, first))
+    return top_hits(distances[kept], paths.take(kept), top, first_kept)
+
+
+def resolve_entry_in_view(reader: StoreReader, view, entry) -> str:
+    """:func:`resolve_entry` without the full path list: one binary search per file."""
+    text = os.fspath(entry)
+    if view.find(text) is not None:
+        return text
+    inside = entry_path_of(text, reader)
+    if inside is not None and view.find(inside) is not None:
+        return inside
+    return text
 
 
 def signature_with_params(part, params, threads: int = 1, file_type: str | None = None) -> Signature:

@@ -181,8 +181,10 @@ def test_a_store_without_angles_refuses_only_the_angle_metrics(small_store, tmp_
     tree, store = small_store
     old = tmp_path / "old.h5"
     shutil.copy(store, old)
-    with h5py.File(old, "a") as f:  # what a store written before the angle histograms holds
+    with h5py.File(old, "a") as f:  # what a store written before the angle histograms holds (layout 2)
         del f["entries/angles"]
+        del f["rank"]
+        f.attrs["schema_version"] = 2
     part = next(tree.rglob("*.wrl"))
     ok = cli("query", part, "--store", old, "--metric", "weighted", "--top", "2")
     assert ok.exit_code == 0, ok.stderr

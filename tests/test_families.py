@@ -3,6 +3,8 @@ candidates, agreement figures. Real parts from kicad6, real builds, the real com
 
 from __future__ import annotations
 
+import json
+
 
 import h5py
 import numpy as np
@@ -15,7 +17,8 @@ from storetools import copy_tree
 from shapeidx.distance import METRICS, compare
 from shapeidx.families.agreement import ari, nmi
 from shapeidx.families.candidates import candidate_pairs
-from shapeidx.families.chirality import mirror_relation, shape_facts, surface_moments
+from shapeidx.families.chirality import mirror_relation
+from shapeidx.signing.moments import shape_facts, surface_moments
 from shapeidx.families.cluster import cluster_store
 from shapeidx.families.table import FamilyTable
 from shapeidx.io import load as load_polygons
@@ -127,7 +130,7 @@ def dup_store(tmp_path_factory, data_dir):
 def test_the_store_keeps_each_parts_size_and_handedness(dup_store):
     tree, store = dup_store
     with open_store(store) as reader:
-        assert reader.attrs["schema_version"] == 2 and reader.missing_columns == []
+        assert reader.attrs["schema_version"] >= 2 and reader.missing_columns == []  # the size columns came in layout 2
         table = FamilyTable.load(reader)
     i, j = table.index_of("copies/rgb-inches.stl"), table.index_of(CHIRAL)
     bounds = table.bounds[j]
@@ -196,6 +199,26 @@ def test_duplicates_finds_the_copies_with_their_tier_size_and_mirror(dup_store):
                       and not p["a"].startswith("copies/") and not p["b"].startswith("copies/")]
         assert not same_pairs, same_pairs
         assert len(originals) <= 1 or all(p["tier"] == "near" for p in g["pairs"] if p["a"] in originals and p["b"] in originals)
+
+
+def test_pair_tiers_asked_directly_agree_with_every_pair_the_groups_list(dup_store):
+    from shapeidx.families.duplicates import find_duplicates, pair_tiers
+
+    _, store = dup_store
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader)
+    listed = [p for g in find_duplicates(table) for p in g["pairs"]]
+    a = np.array([table.index_of(p["a"]) for p in listed])
+    b = np.array([table.index_of(p["b"]) for p in listed])
+    said = pair_tiers(table, a, b)
+    assert list(said["tier"]) == [p["tier"] for p in listed]
+    assert np.allclose(said["distance"], [p["distance"] for p in listed])
+    assert list(said["mirrored"]) == [p["mirrored"] for p in listed]
+    # and a pair of two different parts that no group holds gets no tier
+    grouped = {m for g in find_duplicates(table) for m in g["members"]}
+    loners = [i for i, p in enumerate(table.paths) if p not in grouped][:2]
+    assert len(loners) == 2
+    assert pair_tiers(table, np.array(loners[:1]), np.array(loners[1:]))["tier"][0] == ""
 
 
 def test_duplicates_scale_sensitive_keeps_the_rescaled_copy_apart_and_csv_has_a_row_per_pair(dup_store):
@@ -270,6 +293,80 @@ def test_cluster_rows_and_both_roads_agree_on_clear_families(dup_store):
     assert len(set(graph["clusters"][members])) == 1
     csv = cli("cluster", "--store", store, "--csv", "--clusters", "3").stdout.splitlines()
     assert csv[0] == "path,cluster,distance" and len(csv) == len(rows) + 1
+
+
+def _svg_labels(svg: str) -> dict:
+    """Text of the SVG's text elements -> their fill colour (matplotlib keeps text as text)."""
+    import re
+
+    out = {}
+    for style, text in re.findall(r'<text style="([^"]*)"[^>]*>([^<]*)</text>', svg):
+        fill = re.search(r"fill: (#[0-9a-f]{6})", style)
+        out[text] = fill.group(1) if fill else "#000000"
+    return out
+
+
+def test_cluster_plot_draws_the_dendrogram_with_every_entry_coloured_by_its_cluster(dup_store, tmp_path):
+    _, store = dup_store
+    svg = tmp_path / "families.svg"
+    result = cli("cluster", "--store", store, "--clusters", "4", "--plot", svg, "--json")
+    assert result.exit_code == 0, result.output + result.stderr
+    rows = json.loads(result.stdout)  # stdout is still the rows alone
+    assert f"wrote {svg} (dendrogram of {len(rows)} entries, every entry a leaf)" in result.stderr
+    labels = _svg_labels(svg.read_text())
+    colour = {}
+    for row in rows:
+        name = row["path"].rsplit("/", 1)[-1].rsplit(".", 1)[0]
+        assert name in labels, name  # every entry is a named leaf
+        colour.setdefault(row["cluster"], set()).add(labels[name])
+    assert all(len(c) == 1 for c in colour.values()), colour  # one colour per cluster
+    assert len(set.union(*colour.values())) == 4  # and four clusters, four colours
+    png = tmp_path / "families.png"
+    assert cli("cluster", "--store", store, "--clusters", "4", "--plot", png).exit_code == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_cluster_plot_of_many_entries_has_one_leaf_per_cluster(dup_store, tmp_path, monkeypatch):
+    import shapeidx.families.cluster_plot as cluster_plot
+
+    _, store = dup_store
+    monkeypatch.setattr(cluster_plot, "LEAF_LIMIT", 10)  # the store has more entries than that
+    rows = cli_json("cluster", "--store", store, "--clusters", "3")
+    result = cli("cluster", "--store", store, "--clusters", "3", "--plot", tmp_path / "c.svg")
+    assert "one leaf per cluster" in result.stderr
+    labels = _svg_labels((tmp_path / "c.svg").read_text())
+    for c in (1, 2, 3):
+        members = [r for r in rows if r["cluster"] == c]
+        medoid = min(members, key=lambda r: r["distance"])["path"].rsplit("/", 1)[-1].rsplit(".", 1)[0]
+        size = f"{len(members)} parts" if len(members) > 1 else "1 part"
+        assert f"{c}: {size}, {medoid}" in labels
+
+
+def test_cluster_plot_beyond_the_matrix_is_an_embedding_whose_plane_keeps_planar_distances(dup_store, tmp_path):
+    from shapeidx.families.cluster_plot import plot_clusters, principal_plane
+
+    _, store = dup_store
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader)
+    graph = cluster_store(table, clusters=4, road="graph")
+    assert "tree" not in graph
+    said = plot_clusters(graph, table, tmp_path / "e.png", "combined")
+    assert said == f"embedding of {len(table)} entries in 4 clusters on two principal axes"
+    assert (tmp_path / "e.png").read_bytes()[:4] == b"\x89PNG"
+    # classical MDS: points on a plane of a 6-D space keep their distances in the picture
+    rng = np.random.default_rng(3)
+    flat = rng.normal(size=(40, 2)) * (5.0, 1.0)
+    basis, _ = np.linalg.qr(rng.normal(size=(6, 2)))
+    xy, share = principal_plane(flat @ basis.T + 7.0)
+    d = lambda p: np.linalg.norm(p[:, None] - p[None], axis=-1)
+    assert np.allclose(d(xy), d(flat), atol=1e-9) and share.sum() == pytest.approx(1.0)
+
+
+def test_cluster_plot_refuses_an_unknown_picture_format_before_the_work(dup_store, tmp_path):
+    _, store = dup_store
+    result = cli("cluster", "--store", store, "--plot", tmp_path / "c.gif")
+    assert result.exit_code == 1 and result.stdout == ""
+    assert "unknown picture format '.gif'" in result.stderr and len(result.stderr.strip().splitlines()) == 1
 
 
 def test_candidates_find_the_exact_nearest_neighbours(dup_store):

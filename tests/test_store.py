@@ -106,7 +106,7 @@ class TestRoundTrip:
         """The README's recipe: row i's histogram is counts[offsets[i]:offsets[i+1]]."""
         entries, signatures = real_entries
         with h5py.File(merged_store(tmp_path, entries), "r") as f:
-            assert f.attrs["schema_version"] == 2 and f.attrs["points"] == 64 and f.attrs["seed_policy"] == "fixed"
+            assert f.attrs["schema_version"] == 3 and f.attrs["points"] == 64 and f.attrs["seed_policy"] == "fixed"
             paths = list(f["entries/path"].asstr()[()])
             i = paths.index(PARTS[0])
             sig, _ = signatures[PARTS[0]]

@@ -3,6 +3,7 @@
     paper.py     the paper's D and its four distances: ALL, AvgOf3, AvgOf4, Weighted (3.2.5)
     combined.py  the learned combined distances (combined, combined-angle), every metric from per-pair features
     bank.py      one query against many signatures at once (what ranking a store runs)
+    scale.py     --scale invariant | sensitive: a size band that keeps parts of other sizes apart
 """
 
 from .bank import METRIC_HISTOGRAMS, HistogramBank, distances_to_many, features_to_many

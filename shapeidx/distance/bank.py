@@ -97,18 +97,30 @@ class HistogramBank:
         -------
         (len(self),) float64
         """
-        query_p = np.asarray(query_p, dtype=np.float64)
         out = np.zeros(self.size)
-        for bins, rows, counts, totals in self.groups:
-            width = max(bins, len(query_p))
-            if width:
-                out[rows] = _padded_l1(counts, totals, query_p, width) / width
+        self.distances_into(query_p, out, self.groups)
         return out
 
+    def distances_into(self, query_p: np.ndarray, out: np.ndarray, groups, verify: bool = False) -> None:
+        """:meth:`distances` of the rows of ``groups`` (some of :attr:`groups`) into ``out``:
+        disjoint groups can be ranked by several threads (numpy releases the GIL).
 
-def _padded_l1(counts: np.ndarray, totals: np.ndarray, query_p: np.ndarray, width: int) -> np.ndarray:
+        ``verify``: also check, block by block while it is in the cache, that each row's
+        counts add up to its total (raises ValueError otherwise): counts mapped from a file
+        without a filter checksum cannot change a bit unnoticed.
+        """
+        query_p = np.asarray(query_p, dtype=np.float64)
+        for bins, rows, counts, totals in groups:
+            width = max(bins, len(query_p))
+            if width:
+                out[rows] = _padded_l1(counts, totals, query_p, width, verify) / width
+            elif verify and np.any(totals != 1):
+                raise ValueError("histogram counts disagree with their totals")
+
+
+def _padded_l1(counts: np.ndarray, totals: np.ndarray, query_p: np.ndarray, width: int, verify: bool = False) -> np.ndarray:
     """Row sums of ``|counts / total - query|`` over ``width`` bins, both zero-padded, in
-    blocks small enough to stay in the CPU cache."""
+    blocks small enough to stay in the CPU cache (``verify``: see :meth:`HistogramBank.distances_into`)."""
     bins = counts.shape[1]
     query = np.zeros(width)
     query[: len(query_p)] = query_p
@@ -119,6 +131,8 @@ def _padded_l1(counts: np.ndarray, totals: np.ndarray, query_p: np.ndarray, widt
     for start in range(0, len(counts), step):
         part = slice(start, start + step)
         n = len(counts[part])
+        if verify and not np.array_equal(np.maximum(counts[part].sum(axis=1, dtype=np.int64), 1), totals[part]):
+            raise ValueError("histogram counts disagree with their totals")
         diff = work[:n, :bins]
         np.divide(counts[part], totals[part, None], out=diff)  # the probabilities, as Histogram.p
         np.subtract(diff, query[:bins], out=diff)
@@ -128,7 +142,7 @@ def _padded_l1(counts: np.ndarray, totals: np.ndarray, query_p: np.ndarray, widt
 
 
 def features_to_many(query: Signature, banks: dict, fractions: np.ndarray, means: np.ndarray | None = None, histograms=HISTOGRAMS,
-                     angles: np.ndarray | None = None) -> dict:
+                     distances: dict | None = None, angles: np.ndarray | None = None) -> dict:
     """The per-pair features (:data:`FEATURES`) from one signature to every row of a table.
 
     Parameters
@@ -142,12 +156,17 @@ def features_to_many(query: Signature, banks: dict, fractions: np.ndarray, means
     means : (N, 4) float64, optional
         Each row's histogram means in :data:`HISTOGRAMS` order; without them the scale
         features are left out.
+    distances : dict, optional
+        Histogram name -> the ``D`` already computed for every row (then ``banks`` is not used).
     angles : (N, 4, ANGLE_BINS) float64, optional
         Each row's normal-angle probabilities (:func:`angle_probabilities`); with them and a
         query that has its own, the angle features are added (NaN for rows whose angles are
         unknown).
     """
-    features = {f"d_{h}": banks[h].distances(query.histograms[h].p) if h in histograms else 0.0 for h in HISTOGRAMS}
+    if distances is not None:
+        features = {f"d_{h}": distances[h] if h in histograms else 0.0 for h in HISTOGRAMS}
+    else:
+        features = {f"d_{h}": banks[h].distances(query.histograms[h].p) if h in histograms else 0.0 for h in HISTOGRAMS}
     query_fractions = query.fractions
     for i, c in enumerate(HISTOGRAMS[1:]):
         features[f"gap_{c}"] = np.abs(fractions[:, i] - query_fractions[c])
@@ -175,5 +194,6 @@ def distances_to_many(query: Signature, banks: dict, fractions: np.ndarray, mean
         Metric name -> (N,) float64, each equal to :func:`compare` for that pair.
     """
     needed = {h for m in metrics for h in METRIC_HISTOGRAMS[m]}
-    features = features_to_many(query, banks, fractions, means, needed, angles if set(metrics) & set(ANGLE_METRICS) else None)
+    features = features_to_many(query, banks, fractions, means, needed,
+                                angles=angles if set(metrics) & set(ANGLE_METRICS) else None)
     return metric_values(features, metrics)

@@ -58,6 +58,22 @@ ALL_ANGLE_WEIGHT = 5e-4
 EMPTY_CLASS_SCALE = 1e-3
 
 
+def require_angles(angles, signature: Signature, metric: str) -> None:
+    """Refuse, in one line, a metric that needs normal-angle histograms the store or query lacks.
+
+    ``angles``: the store's (N, 4, bins) probabilities (NaN rows: entries built before them), or None.
+    """
+    from ..errors import StoreError
+
+    unknown = None if angles is None else int((~np.isfinite(angles).all(axis=(1, 2))).sum())
+    if unknown is None or unknown:
+        which = "the entries" if unknown is None else f"{unknown} entr{'y' if unknown == 1 else 'ies'}"
+        raise StoreError(f"metric {metric} needs the normal-angle histograms, which {which} of this store"
+                         " lack (built before them): rebuild it with 'shapeidx build DIR --full'")
+    if signature.angles is None:
+        raise StoreError(f"metric {metric} needs the query's normal-angle histograms, which its signature lacks")
+
+
 def class_scales(means: np.ndarray) -> np.ndarray:
     """``ln(class mean / ALL mean)`` for IN, OUT, MIXED from means in :data:`HISTOGRAMS` order.
 

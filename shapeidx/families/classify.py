@@ -15,7 +15,7 @@ from collections import defaultdict
 import numpy as np
 
 from ..errors import ShapeidxError
-from .scale import apply_scale
+from ..distance.scale import apply_scale
 
 #: Voters (measured by leave-one-out on kicad6, docs/results.md).
 DEFAULT_K = 3
@@ -106,7 +106,7 @@ def classify_parts(reader, parts, labels: np.ndarray, k: int = DEFAULT_K, metric
         part that is itself in the store does not vote for itself.
     labels : (len(reader),) object
         Label of every store entry (None: not a voter), in the reader's order.
-    k, metric, scale : see :func:`vote` and :mod:`shapeidx.families.scale`
+    k, metric, scale : see :func:`vote` and :mod:`shapeidx.distance.scale`
 
     Returns
     -------

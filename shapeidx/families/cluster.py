@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import ShapeidxError
 from .candidates import candidate_pairs
-from .scale import check_scale, ratio_within_band
+from ..distance.scale import check_scale, ratio_within_band
 
 #: Largest store clustered from the full distance matrix (N^2 / 2 exact distances).
 MATRIX_LIMIT = 4000
@@ -108,15 +108,18 @@ def _numbered_by_size(labels: np.ndarray) -> np.ndarray:
 
 
 def cluster_matrix(matrix: np.ndarray, clusters: int | None = None, threshold: float | None = None,
-                   method: str = "ward") -> np.ndarray:
-    """Hierarchical clustering of a distance matrix: cluster numbers (1 = largest)."""
+                   method: str = "ward", tree: np.ndarray | None = None) -> np.ndarray:
+    """Hierarchical clustering of a distance matrix: cluster numbers (1 = largest).
+
+    ``tree``: scipy's linkage of ``matrix`` by ``method``, when already made.
+    """
     from scipy.cluster.hierarchy import fcluster, linkage
     from scipy.spatial.distance import squareform
 
     n = len(matrix)
     if n == 1:
         return np.ones(1, dtype=np.int64)
-    tree = linkage(squareform(matrix, checks=False), method)
+    tree = linkage(squareform(matrix, checks=False), method) if tree is None else tree
     if threshold is not None:
         labels = fcluster(tree, threshold, "distance")
     else:
@@ -190,7 +193,8 @@ def cluster_store(table, metric: str = DEFAULT_METRIC, clusters: int | None = No
     -------
     dict
         ``paths``, ``clusters`` (numbers, 1 the largest), ``distances`` (to the medoid),
-        ``road``, ``count`` (clusters made).
+        ``road``, ``count`` (clusters made); on the matrix road of more than one entry also
+        ``tree`` (scipy's Ward linkage, for :func:`shapeidx.families.cluster_plot.plot_clusters`).
     """
     n = len(table)
     if n == 0:
@@ -203,9 +207,16 @@ def cluster_store(table, metric: str = DEFAULT_METRIC, clusters: int | None = No
     if n == 1:
         labels, distances = np.ones(1, dtype=np.int64), np.zeros(1)
     elif road == "matrix":
+        from scipy.cluster.hierarchy import linkage
+        from scipy.spatial.distance import squareform
+
         matrix = distance_matrix(table, metric, scale)
-        labels = cluster_matrix(matrix, clusters, threshold)
+        tree = linkage(squareform(matrix, checks=False), "ward")
+        labels = cluster_matrix(matrix, clusters, threshold, tree=tree)
         distances = medoid_distances(matrix, labels)
     else:
         labels, distances = cluster_graph(table, metric, clusters, threshold, scale, threads=threads)
-    return {"paths": table.paths, "clusters": labels, "distances": distances, "road": road, "count": int(labels.max())}
+    result = {"paths": table.paths, "clusters": labels, "distances": distances, "road": road, "count": int(labels.max())}
+    if road == "matrix" and n > 1:
+        result["tree"] = tree  # scipy's linkage: the dendrogram of ``cluster --plot``
+    return result

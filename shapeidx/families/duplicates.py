@@ -16,7 +16,7 @@ Each pair also says ``size_ratio`` (size of ``b`` over size of ``a``; sizes are 
 distances in file units, so a copy saved in inches shows 1/25.4) and ``mirrored`` (one is the
 mirror image of the other, by :func:`shapeidx.families.chirality.mirror_relation`; always
 false for parts that are their own mirror image). With ``scale="sensitive"`` a pair whose
-sizes differ by more than :data:`~shapeidx.families.scale.SIZE_BAND` is no duplicate.
+sizes differ by more than :data:`~shapeidx.distance.scale.SIZE_BAND` is no duplicate.
 
 Candidates come from :func:`shapeidx.families.candidates.candidate_pairs`, twice: each
 entry's nearest neighbours in the D2 embedding, and in the space of its exact moments
@@ -37,7 +37,7 @@ import numpy as np
 from ..errors import ShapeidxError
 from .candidates import OVERFETCH as OVERFETCH_MOMENTS, candidate_pairs
 from .chirality import mirror_relation
-from .scale import check_scale, ratio_within_band
+from ..distance.scale import check_scale, ratio_within_band
 
 TIERS = ("identical", "same", "near")
 DEFAULT_METRIC = "combined"
@@ -202,6 +202,40 @@ class _UnionFind:
             self.parent[max(ra, rb)] = min(ra, rb)
 
 
+def _geometry_tiers(table, a, b, d, limits: dict, scale: str):
+    """(same, near) masks of pairs ``a``-``b`` at distances ``d`` (different files)."""
+    gap = fingerprint_gap(table, a, b)
+    unknown = np.isnan(gap)
+    same = (d <= limits["same"]) & (unknown | (gap <= FINGERPRINT_SAME))
+    near = ~same & (d <= limits["near"]) & (unknown | (gap <= FINGERPRINT_NEAR))
+    if scale == "sensitive":
+        band = ratio_within_band(table.size_ratios(a, b))
+        same, near = same & band, near & band
+    return same, near
+
+
+def pair_tiers(table, a: np.ndarray, b: np.ndarray, metric: str = DEFAULT_METRIC, scale: str = "invariant",
+               limits: dict | None = None) -> dict:
+    """The tier :func:`find_duplicates` gives the pairs ``a``-``b`` (rows of ``table``), asked directly.
+
+    Returns
+    -------
+    dict
+        Arrays aligned with the pairs: ``tier`` ("identical", "same", "near" or "" for
+        none), ``distance``, ``size_ratio`` (b over a), ``mirrored``.
+    """
+    check_scale(scale)
+    limits = limits or thresholds(metric)
+    a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+    d = table.pair_distances(a, b, metric) if len(a) else np.zeros(0)
+    hashes = table.hashes
+    identical = (hashes[a] == hashes[b]) & np.array([len(h) > 0 for h in hashes[a]], dtype=bool)
+    same, near = _geometry_tiers(table, a, b, d, limits, scale)
+    tier = np.where(identical, "identical", np.where(same, "same", np.where(near, "near", "")))
+    return {"tier": tier, "distance": np.where(identical, 0.0, d), "size_ratio": table.size_ratios(a, b),
+            "mirrored": mirror_relation(table.handedness[a], table.handedness[b])}
+
+
 def find_duplicates(table, metric: str = DEFAULT_METRIC, scale: str = "invariant", k: int = DEFAULT_NEIGHBOURS,
                     method: str = "auto", threads: int | None = None, limits: dict | None = None) -> list[dict]:
     """Duplicate groups of a :class:`~shapeidx.families.table.FamilyTable`.
@@ -235,13 +269,7 @@ def find_duplicates(table, metric: str = DEFAULT_METRIC, scale: str = "invariant
         a, b, d = _candidates(table, metric, min(k, n - 1), method, threads)
         keep = (d <= limits["near"]) & (hashes[a] != hashes[b])
         a, b, d = a[keep], b[keep], d[keep]
-        gap = fingerprint_gap(table, a, b)
-        unknown = np.isnan(gap)
-        same = (d <= limits["same"]) & (unknown | (gap <= FINGERPRINT_SAME))
-        near = ~same & (unknown | (gap <= FINGERPRINT_NEAR))
-        if scale == "sensitive":
-            band = ratio_within_band(table.size_ratios(a, b))
-            same, near = same & band, near & band
+        same, near = _geometry_tiers(table, a, b, d, limits, scale)
         take = same | near
         pairs_a += list(a[take])
         pairs_b += list(b[take])

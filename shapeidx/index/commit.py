@@ -2,6 +2,8 @@
 
 Every outcome goes to the :class:`Committer`, which writes a journal batch at least every
 ``commit_interval`` seconds, so a killed build that is run again redoes at most that much.
+Merges are size-tiered (:meth:`StoreWriter.compact`): they rewrite the newest segments of
+the journal, and the main file only once the journal holds about as many rows as it does.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from .workers import Outcome
 DEFAULT_COMMIT_INTERVAL = 60.0
 #: Entries a batch holds at most (bounds the builder's memory, whatever the tree's size).
 BATCH_ENTRIES = 500
-#: Journal batches that trigger a merge into the main file before the build ends.
+#: Journal batches that trigger a (size-tiered) merge before the build ends.
 MERGE_AFTER = 64
 
 
@@ -24,7 +26,8 @@ class Committer:
 
     A batch is committed when it holds :data:`BATCH_ENTRIES` records or when
     ``interval`` seconds passed since the last commit; the journal is merged into the main
-    file once it holds ``merge_after`` batches, and by :meth:`finish`.
+    file once it holds ``merge_after`` new batches, and by :meth:`finish`; a merge is
+    size-tiered (:meth:`StoreWriter.compact`), so it costs about what the batches hold.
     """
 
     def __init__(self, writer: StoreWriter, interval: float, merge_after: int, reporter):
@@ -52,7 +55,7 @@ class Committer:
         if len(self.batch) >= BATCH_ENTRIES or (due and len(self.batch)):
             self.commit()
             if self.writer.pending_batches >= self.merge_after:
-                self.writer.merge()
+                self.writer.compact()
                 self.reporter.merged()
 
     def commit(self) -> None:
@@ -65,5 +68,5 @@ class Committer:
     def finish(self) -> None:
         self.commit()
         if self.writer.pending_batches:
-            self.writer.merge()
+            self.writer.compact()
             self.reporter.merged()

@@ -102,7 +102,7 @@ def reason_of(error: LoadError, absolute: str) -> str:
 
 def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
     """Hash and, unless the content is known, sign one file. Never raises for a bad file."""
-    from ..families.chirality import shape_facts
+    from ..signing.moments import shape_facts
     from ..io import LoadLimits
     from ..signing.pipeline import signature_of_solid, solid_of_file
 

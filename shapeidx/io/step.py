@@ -17,6 +17,11 @@ everything downstream is the same as for a mesh format.
   file's own unit is reported by :func:`faceting_report`).
 * **Faceting**: the linear deflection is relative to the part's bounding-box diagonal,
   the angular one in radians (defaults and the study behind them: ``docs/faceting.md``).
+* **Faces that do not tessellate**: ``BRepMesh`` reports such a face by leaving it without
+  a triangulation (a face of zero area, a there-and-back boundary, ...). The other faces are
+  kept and the mesh carries one warning ("1 of 7 faces could not be tessellated and are
+  left out"), which ``inspect`` prints: a partial result, not an error. A file none of
+  whose faces tessellate is an error.
 * **Bad files** (not STEP or IGES, truncated, no geometry, nothing that tessellates) raise
   one :class:`~shapeidx.errors.LoadError` line. A file that crashes or hangs OpenCASCADE
   itself is contained by the build's worker processes (:mod:`shapeidx.index.workers`).

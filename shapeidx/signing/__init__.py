@@ -6,6 +6,7 @@
     classify.py    -> distances and IN / OUT / MIXED classes of every pair (3.2.2, 3.2.3)
     occlusion.py      the ray queries classify needs, through Embree
     histogram.py   -> Signature: four D2 histograms and the class fractions (3.2.4)
+    moments.py     beside it: size, principal radii, handedness, moments (exact integrals)
     pipeline.py    the road above in three functions: solid_of_file, signature_of_solid,
                    signature_of_file
     parameters.py  the defaults and names (points, seed, bin divisor, classes, version)
@@ -25,6 +26,7 @@ _NAMES = {
     "Signature": ".histogram",
     "Solid": ".solid",
     "make_solid": ".solid",
+    "shape_facts": ".moments",
     "sample_surface": ".sampling",
     "classify_pairs": ".classify",
     "solid_of_file": ".pipeline",

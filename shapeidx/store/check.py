@@ -81,6 +81,14 @@ class FileScan:
     checksummed: bool = True
     columns: dict = field(default_factory=dict)
     counts: dict = field(default_factory=dict)  # name -> (flat counts, offsets), bad chunks zeroed
+    #: The ranking section (derived data) is damaged / absent (a file of layout 2 or older).
+    rank_damaged: bool = False
+    rank_missing: bool = False
+
+    @property
+    def only_ranking(self) -> bool:
+        """Whether every problem is in the ranking section (rebuilt from the sound entries)."""
+        return bool(self.problems) and all(p.what == "rank" for p in self.problems)
 
     def problem(self, what: str, text: str, rows=None, fatal: bool = False) -> None:
         self.problems.append(Problem(self.path.name, what, text))
@@ -178,7 +186,35 @@ def scan_file(path: Path, seq: int, points: int | None) -> FileScan:
         if "touched" in f:
             for name in ("touched/size", "touched/mtime_ns"):
                 _scan_dataset(scan, f, name, np.int64, None, whole_file=True)
+        _scan_ranking(scan, f)
     return scan
+
+
+def _scan_ranking(scan: FileScan, f: h5py.File) -> None:
+    """The ``rank/`` section: its checksums, and that it is what the checked canonical data make."""
+    from .rank import RANK, RankSection, expected_rank
+
+    version = int(f.attrs.get("schema_version", 0))
+    if RANK not in f:
+        if version >= 3:
+            scan.problem(RANK, "missing (the ranking arrays: 'shapeidx check --repair' rebuilds them)")
+            scan.rank_damaged = True
+        else:
+            scan.rank_missing = True
+        return
+    try:
+        section = RankSection(f, scan.path)
+        wrong = section.verify()
+    except (KeyError, OSError, RuntimeError, ValueError) as exc:
+        wrong = [f"{RANK} cannot be used ({_first_line(exc)})"]
+    if not wrong and not scan.problems and len(scan.counts) == len(HISTOGRAMS) and len(scan.columns) == len(ENTRY_COLUMNS):
+        counts = {name: (flat, np.diff(offsets)) for name, (flat, offsets) in scan.counts.items()}
+        for name, values in expected_rank(scan.columns, counts, section.histograms):
+            if not np.array_equal(section.array(name), values, equal_nan=True):  # NaN: unknown angles
+                wrong.append(f"{RANK}/{name} disagrees with the entries it is made from")
+    for text in wrong:
+        scan.problem(RANK, f"{text} ('shapeidx check --repair' rebuilds the ranking arrays)")
+        scan.rank_damaged = True
 
 
 def _present(f: h5py.File, name: str) -> bool:
@@ -316,9 +352,12 @@ def check_store(store, files: bool = False) -> CheckReport:
         report.problems.extend(scan.problems)
         report.entries += scan.entries
         report.checksummed &= scan.checksummed
+    if any(scan.rank_missing for scan in scans):
+        report.notes.append("some files have no ranking arrays (written before layout 3): queries read them"
+                            " the slow way until 'shapeidx check --repair' adds them")
     if not report.checksummed:
         report.notes.append("some datasets have no checksums (written by an older shapeidx): a build's next"
-                            " merge adds them")
+                            " merge that rewrites the main file adds them (build --full does)")
     if files and not report.problems:
         _check_files(store, attrs.get("root"), report)
     return report
@@ -386,11 +425,15 @@ def repair_store(store: Path) -> list[str]:
     done = []
     for seq, path in sources[1:]:
         scan = scan_file(path, seq, points)
-        if scan.problems:
+        if scan.only_ranking:
+            done.extend(rebuild_ranking(store, [scan]))
+        elif scan.problems:
             path.unlink(missing_ok=True)
             done.append(f"repair: dropped the damaged journal batch {path.name} ({scan.problems[0].problem});"
                         " its files are indexed again")
     main = scan_file(store, 0, points)
+    if main.only_ranking:
+        return done + rebuild_ranking(store, [main])
     if not main.problems:
         return done
     if main.unusable or not attrs:
@@ -408,9 +451,48 @@ def repair_store(store: Path) -> list[str]:
     return done
 
 
+def rebuild_ranking(store: Path, scans: list | None = None) -> list[str]:
+    """Rewrite every file of the store whose ranking section is damaged or missing (layout 2
+    or older) with a fresh one made from its checked entries; returns what was done.
+
+    The caller holds the store's lock (``check --repair``, ``build --repair``). A file whose
+    entries themselves fail a check is left alone (``build --repair`` drops those entries).
+    """
+    store = Path(store)
+    if scans is None:
+        sources, points, _ = _store_files(store)
+        scans = [scan_file(path, seq, points) for seq, path in sources]
+    done = []
+    for scan in scans:
+        if not (scan.rank_missing or (scan.rank_damaged and scan.only_ranking)) or not scan.path.exists():
+            continue
+        _rewrite_ranking(scan)
+        why = "none: written before layout 3" if scan.rank_missing else scan.problems[0].problem
+        done.append(f"repair: rebuilt the ranking arrays of {scan.path.name} ({why})")
+    return done
+
+
+def _rewrite_ranking(scan: FileScan) -> None:
+    """``scan.path`` again, atomically: every group but ``rank/`` copied as it is, a new ``rank/``."""
+    from .rank import RANK, write_rank
+
+    counts = {name: (flat, np.diff(offsets)) for name, (flat, offsets) in scan.counts.items()}
+
+    def fill(f):
+        with h5py.File(scan.path, "r") as old:
+            f.attrs.update(dict(old.attrs))
+            for name in old:
+                if name != RANK:
+                    old.copy(old[name], f, name=name)
+        write_rank(f, scan.columns, counts, HISTOGRAMS)
+
+    write_atomically(scan.path, fill, 3 * scan.path.stat().st_size)
+
+
 def _rewrite_main(store: Path, scan: FileScan, keep: np.ndarray, attrs: dict) -> None:
     """The main file again with only the rows ``keep`` (all of them checked), atomically."""
     from .layout import utc_now
+    from .rank import write_rank
 
     columns = {name: scan.columns[name][keep] for name in ENTRY_COLUMNS if name in scan.columns}
     counts = {}
@@ -425,8 +507,9 @@ def _rewrite_main(store: Path, scan: FileScan, keep: np.ndarray, attrs: dict) ->
         write_columns(f, columns)
         for name, (values, lengths) in counts.items():
             write_counts(f, name, values, lengths)
+        write_rank(f, columns, counts, HISTOGRAMS)
 
-    write_atomically(store, fill, store.stat().st_size)
+    write_atomically(store, fill, 2 * store.stat().st_size)
 
 
 def _first_line(exc: BaseException) -> str:
@@ -434,4 +517,5 @@ def _first_line(exc: BaseException) -> str:
     return text[0][:200] if text else type(exc).__name__
 
 
-__all__ = ["CheckReport", "Problem", "check_store", "repair_store", "scan_file", "usable_store_path", "checked"]
+__all__ = ["CheckReport", "Problem", "check_store", "rebuild_ranking", "repair_store", "scan_file", "usable_store_path",
+           "checked"]

@@ -20,7 +20,10 @@ from ..signing.parameters import HISTOGRAMS
 
 #: Layout version of the files; a store with a newer one is refused. 2 added the size and
 #: handedness columns (:data:`SHAPE_COLUMNS`); files of layout 1 still open, those columns NaN.
-SCHEMA_VERSION = 2
+#: 3 added the memory-mapped ranking section ``rank/`` (shapeidx.store.rank) and journal
+#: segments that stay until a size-tiered merge (shapeidx.store.writer); files of layout 1
+#: and 2 still open and rank as before, and get the section when they are next rewritten.
+SCHEMA_VERSION = 3
 STATUS_OK, STATUS_FAILED = 0, 1
 #: Class fractions are stored as (N, 3) in this order.
 FRACTION_CLASSES = HISTOGRAMS[1:]
@@ -44,7 +47,7 @@ ENTRY_COLUMNS = {
     "entries/watertight": (np.bool_, np.bool_),
     "entries/fractions": (np.float64, np.float64),
 }
-#: Added in layout 2 (shapeidx.families.chirality.shape_facts): bounding box (min xyz, max
+#: Added in layout 2 (shapeidx.signing.moments.shape_facts): bounding box (min xyz, max
 #: xyz) and principal radii in file units, the two handedness pseudo-scalars and four
 #: scale-free surface moments (area / sum r^2, |skewness| per axis). Absent from
 #: older files: read as NaN (``StoreReader.missing_columns`` names them).
@@ -175,7 +178,7 @@ class Entry:
     @classmethod
     def indexed(cls, path, hash, size, mtime_ns, signature: Signature, facts: dict, shape: dict | None = None) -> "Entry":
         """An ok entry: a signature, the mesh facts of :meth:`shapeidx.signing.solid.Solid.describe`
-        and the size and handedness of :func:`shapeidx.families.chirality.shape_facts` (``shape``)."""
+        and the size and handedness of :func:`shapeidx.signing.moments.shape_facts` (``shape``)."""
         return cls(
             path=path,
             hash=hash,

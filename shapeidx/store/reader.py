@@ -38,6 +38,12 @@ from .layout import (
 )
 
 
+#: Journal files of at most this many entries (a build's batches) are read whole and verified
+#: when a store is opened, so a damaged one is left out; larger ones (segments merged from
+#: batches) are checked as the main file is: shapes at opening, checksums as they are read.
+VERIFY_ROWS = 4096
+
+
 def damaged(store: Path, what: str, root: str | None = None) -> StoreDamagedError:
     """The one-line error of a damaged store: what is wrong, and how to recover."""
     folder = root or "DIR"
@@ -155,7 +161,54 @@ class _SourceFile:
             return object_array([])
         return self._read(f"{group}/path", object)
 
+    @property
+    def first_seq(self) -> int:
+        """The oldest journal batch this file holds (a segment merged from batches first_seq..seq)."""
+        return int(self.file.attrs.get("first_seq", self.seq))
+
+    @property
+    def rank(self):
+        """The file's memory-mapped ranking section (:class:`~shapeidx.store.rank.RankSection`), or None
+        for a file written before layout 3."""
+        if not hasattr(self, "_rank"):
+            from .rank import RANK, RankSection
+
+            self._rank = None
+            if RANK in self.file:
+                try:
+                    self._rank = RankSection(self.file, self.path)
+                except (KeyError, OSError, RuntimeError, ValueError) as exc:
+                    raise self.damaged(f"its ranking arrays cannot be used: {_first_line(exc)}") from None
+        return self._rank
+
+    def path_at(self, row: int) -> str:
+        """The path of one row, read alone (no other path is decoded)."""
+        try:
+            value = self.dataset("entries/path")[int(row)]
+            return value.decode("utf-8", "surrogatepass") if isinstance(value, bytes) else str(value)
+        except (OSError, RuntimeError, ValueError, UnicodeDecodeError) as exc:
+            raise self.damaged(f"entries/path cannot be read: {_first_line(exc)}") from None
+
+    def find(self, path: str) -> int | None:
+        """The row holding ``path`` (paths are sorted), by binary search over single reads."""
+        lo, hi = 0, len(self)
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if self.path_at(mid) < path:
+                lo = mid + 1
+            else:
+                hi = mid
+        return lo if lo < len(self) and self.path_at(lo) == path else None
+
+    def value_at(self, name: str, row: int):
+        """One row of a numeric column, read alone."""
+        if name in OPTIONAL_COLUMNS and name not in self.file:
+            return missing_column(name, 1)[0]
+        return self._read(name, ENTRY_COLUMNS[name][0], np.s_[int(row)])
+
     def close(self) -> None:
+        if getattr(self, "_rank", None) is not None:
+            self._rank.close()
         self.file.close()
 
 
@@ -190,15 +243,36 @@ class StoreReader:
         self.params = StoreParams.from_attrs(self.attrs)
         self.journal = len(batches)
         self._sources = [main] + batches
-        self._assemble()
+        self._assembled = False
 
-    # -- assembly: which row of which file holds each live entry
+    # -- assembly: which row of which file holds each live entry; done on first use, so that a
+    # query that ranks the files' own arrays (shapeidx.store.ranked) never decodes every path
+    @property
+    def source(self) -> np.ndarray:
+        """The file (index into the main file and batches) of each live entry."""
+        self._assemble()
+        return self._source
+
+    @property
+    def row(self) -> np.ndarray:
+        """The row within its file of each live entry."""
+        self._assemble()
+        return self._row
+
+    @property
+    def _overrides(self) -> dict:
+        self._assemble()
+        return self._touched
+
     def _assemble(self) -> None:
+        if self._assembled:
+            return
+        self._assembled = True
         main = self._sources[0]
         if len(self._sources) == 1:
-            self.source = np.zeros(len(main), dtype=np.int64)
-            self.row = np.arange(len(main), dtype=np.int64)
-            self._overrides = {}
+            self._source = np.zeros(len(main), dtype=np.int64)
+            self._row = np.arange(len(main), dtype=np.int64)
+            self._touched = {}
             return
         main_paths = main.column("entries/path")
         alive = np.ones(len(main), dtype=bool)
@@ -222,20 +296,20 @@ class StoreReader:
                 size, mtime = batch.file["touched/size"][()], batch.file["touched/mtime_ns"][()]
                 touched.update((p, (int(s), int(m))) for p, s, m in zip(batch.paths_of("touched"), size, mtime))
         self._merge_order(main_paths, alive, latest)
-        self._overrides = touched
+        self._touched = touched
 
     def _merge_order(self, main_paths, alive, latest) -> None:
         kept = np.flatnonzero(alive)
         new_paths = object_array(sorted(latest))
         insert_at = np.searchsorted(main_paths[kept], new_paths) + np.arange(len(new_paths))
         n = len(kept) + len(new_paths)
-        self.source = np.zeros(n, dtype=np.int64)
-        self.row = np.zeros(n, dtype=np.int64)
+        self._source = np.zeros(n, dtype=np.int64)
+        self._row = np.zeros(n, dtype=np.int64)
         from_main = np.ones(n, dtype=bool)
         from_main[insert_at] = False
-        self.row[from_main] = kept
+        self._row[from_main] = kept
         refs = np.array([latest[p] for p in new_paths], dtype=np.int64).reshape(-1, 2)
-        self.source[insert_at], self.row[insert_at] = refs[:, 0], refs[:, 1]
+        self._source[insert_at], self._row[insert_at] = refs[:, 0], refs[:, 1]
 
     # -- columns
     def __len__(self) -> int:
@@ -366,6 +440,7 @@ def open_store(path: str | os.PathLike, attempts: int = 20) -> StoreReader:
                     else:
                         raise FileNotFoundError(batch)  # it vanished: a merge finished meanwhile
             if _same_file(path, main):  # no merge replaced the main file while the batches were listed
+                batches = _drop_covered(batches)
                 return StoreReader(path, main, batches, skipped)
         except FileNotFoundError:  # a batch went: a merge finished meanwhile
             pass
@@ -420,7 +495,10 @@ def _open_batch(store: Path, batch: Path, seq: int):
             return None, None
         return None, f"cannot be opened: {_first_line(exc)}"
     try:
-        source.verify_all()
+        if len(source) <= VERIFY_ROWS:
+            source.verify_all()
+        else:  # a merged segment: checked like the main file (shapes now, checksums as it is read)
+            source.check_shapes()
     except StoreDamagedError as exc:
         source.close()
         if not batch.exists():
@@ -428,6 +506,20 @@ def _open_batch(store: Path, batch: Path, seq: int):
         text = str(exc)
         return None, text[text.index("(") + 1 : text.index(" of batch-")] if " of batch-" in text else "damaged"
     return source, None
+
+
+def _drop_covered(batches: list) -> list:
+    """Leave out (and close) batches that a later merged segment holds: a merge of batches
+    a..b writes ``batch-b`` (attribute ``first_seq`` = a) and then deletes a..b-1; killed in
+    between, those are still there, and applying them too would give the same view, only slower."""
+    ranges = [(batch.first_seq, batch.seq) for batch in batches]
+    kept = []
+    for batch in batches:
+        if any(lo <= batch.seq < hi for lo, hi in ranges):
+            batch.close()
+        else:
+            kept.append(batch)
+    return kept
 
 
 def _same_file(path: Path, source: _SourceFile) -> bool:

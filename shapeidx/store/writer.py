@@ -1,9 +1,23 @@
 """The one writer of a store: its lock, its commits (journal batches) and its merges.
 
-A build commits its progress as a new batch file in the journal; a merge writes a fresh main
-file holding the main and every batch, renames it over the old one, and only then deletes the
-batches. The main file records the last batch it holds (``journal_seq``), so batches that
-outlive a kill between that rename and their deletion are ignored, never applied twice.
+A build commits its progress as a new batch file in the journal. The journal's files are
+*segments*, oldest first, each applied on top of the ones before it (and of the main file); a
+merge combines the newest ones, size-tiered like an LSM tree, so that a commit and its merge
+cost what changed, not the size of the store:
+
+* the newest segments are merged into one as long as the one before them holds at most
+  :data:`GROWTH` times as many rows as they do together: segments grow geometrically from
+  the newest to the oldest, there are O(log N) of them, and each entry is rewritten
+  O(log N) times over its life;
+* a merge of batches a..b writes the segment ``batch-b`` (attribute ``first_seq`` = a),
+  renames it over the old ``batch-b``, and only then deletes a..b-1; a reader that still
+  sees them gets the same view (the new segment supersedes everything they hold), and
+  :func:`~shapeidx.store.reader.open_store` leaves them out;
+* when the cascade reaches the main file (or the journal holds :data:`MAX_SEGMENTS`
+  segments) a fresh main file holding everything is written and renamed over the old one,
+  and only then are the segments deleted. The main file records the last batch it holds
+  (``journal_seq``), so segments that outlive a kill between that rename and their deletion
+  are ignored, never applied twice.
 """
 
 from __future__ import annotations
@@ -37,7 +51,14 @@ from .layout import (
     write_int64,
     checked,
 )
+from .rank import write_rank, write_rank_entries, write_rank_histogram
 from .reader import StoreReader, check_params, check_root, open_store
+
+#: A run of the newest segments is merged into the segment before it while that one holds at
+#: most GROWTH times their rows (see the module docstring).
+GROWTH = 2
+#: Segments the journal holds at most: beyond, everything is merged into the main file.
+MAX_SEGMENTS = 32
 
 
 class StoreLock:
@@ -177,6 +198,7 @@ class StoreWriter:
             self.on_warning(f"dropped the damaged journal batch {batch.name} ({reason}); its files are indexed again")
             batch.unlink(missing_ok=True)
         self.next_seq = max([self.merged_seq] + [seq for seq, _ in batch_files(self.path)]) + 1
+        self.uncompacted = len(batch_files(self.path))  # a killed build's batches are merged at the next finish
 
     def _remove_leftovers(self) -> None:
         """Temporary files of killed writers, and batches already in the main file."""
@@ -195,6 +217,7 @@ class StoreWriter:
             for seq, batch in batch_files(self.path):
                 if seq <= merged:
                     batch.unlink(missing_ok=True)
+            _remove_covered(self.path)
 
     def _main_attrs(self, journal_seq: int, extra: dict | None = None) -> dict:
         attrs = {
@@ -218,12 +241,14 @@ class StoreWriter:
             write_columns(f, columns)
             for name, (flat, lengths) in counts.items():
                 write_counts(f, name, flat, lengths)
+            write_rank(f, columns, counts, HISTOGRAMS)
 
         write_atomically(self.path, fill)
 
     @property
     def pending_batches(self) -> int:
-        return self.next_seq - 1 - self.merged_seq
+        """Batches committed since the last merge (the journal also holds older, merged segments)."""
+        return self.uncompacted
 
     def commit(self, batch: Batch) -> int:
         """Write ``batch`` to the journal (atomically); return its sequence number."""
@@ -242,34 +267,82 @@ class StoreWriter:
             write_columns(f, columns)
             for name, (flat, lengths) in counts.items():
                 write_counts(f, name, flat, lengths)
+            write_rank(f, columns, counts, HISTOGRAMS)
             write_paths(f, "touched/path", [t[0] for t in touched])
             write_int64(f, "touched/size", [t[1] for t in touched])
             write_int64(f, "touched/mtime_ns", [t[2] for t in touched])
             write_paths(f, "removed/path", sorted(batch.removed))
 
-        write_atomically(folder / f"batch-{seq:010d}.h5", fill, _bytes_of(columns, counts, batch))
+        write_atomically(folder / f"batch-{seq:010d}.h5", fill, 2 * _bytes_of(columns, counts, batch))
         self.next_seq += 1
+        self.uncompacted += 1
         return seq
 
     def merge(self) -> None:
-        """Write a fresh main file holding every entry, rename it into place, drop the journal.
+        """Merge every segment into a fresh main file, rename it into place, drop the journal.
 
-        Nothing is written when the journal is empty: a build that changed nothing costs
-        no rewrite of a large store.
+        Nothing is written when the journal is empty (and the main file has its ranking
+        arrays): a build that changed nothing costs no rewrite of a large store.
+        """
+        self.compact(full=True)
+
+    def compact(self, full: bool = False) -> None:
+        """Merge the newest journal segments, size-tiered (see the module docstring); ``full``:
+        everything into the main file, as :meth:`merge`.
+
+        Nothing is written when no run of segments is due: a build that changed nothing
+        costs no rewrite, and one that changed 100 files rewrites about 100 entries.
         """
         with open_store(self.path) as reader:
-            if reader.journal == 0:
+            segments = reader._sources[1:]
+            if not segments and not (full and reader._sources[0].rank is None):
+                self.uncompacted = 0
+                return  # a main file of layout 2 or older is rewritten by a full merge: it gains rank/
+            sizes = [_rows_of(source) for source in reader._sources]
+            first = 0 if full else _merge_from(sizes)
+            if first is None:
+                self.uncompacted = 0
                 return
-            through = max(source.seq for source in reader._sources)
-            attrs = self._main_attrs(through, {"created": reader.attrs.get("created", utc_now())})
-            # the merged file holds no more than the files it merges (and their checksums)
-            estimate = int(reader.size_on_disk() * 1.1)
-            write_atomically(self.path, lambda f: _write_snapshot(f, reader, attrs), estimate)
+            if first == 0:
+                self._merge_all(reader)
+            else:
+                self._merge_segments(reader, first)
+        self.uncompacted = 0
+
+    def _merge_all(self, reader: StoreReader) -> None:
+        """A fresh main file holding every entry, renamed into place; then the journal goes."""
+        through = max(source.seq for source in reader._sources)
+        attrs = self._main_attrs(through, {"created": reader.attrs.get("created", utc_now())})
+        # the merged file holds no more than the files it merges, their checksums and ranking arrays
+        estimate = int(reader.size_on_disk() * 2.2)
+        write_atomically(self.path, lambda f: _write_snapshot(f, reader, attrs), estimate)
         self.merged_seq = through
         for seq, batch in batch_files(self.path):
             if seq <= through:
                 batch.unlink(missing_ok=True)
         remove_if_empty(journal_dir(self.path))
+
+    def _merge_segments(self, reader: StoreReader, first: int) -> None:
+        """Segments ``reader._sources[first:]`` (a..b) into one ``batch-b``; then a..b-1 go."""
+        run = reader._sources[first:]
+        view = StoreReader(self.path, run[0], run[1:])  # the run's entries, applied in order
+        view.attrs = dict(reader.attrs)
+        removed, touched = _run_removed_and_touched(run, set(view.paths))
+        seq, first_seq = run[-1].seq, run[0].first_seq
+        attrs = {"seq": seq, "first_seq": first_seq, "schema_version": SCHEMA_VERSION, **self.params.as_attrs()}
+        estimate = int(sum(_size_of(source.path) for source in run) * 2.2)
+
+        def fill(f):
+            _write_snapshot(f, view, attrs)
+            write_paths(f, "touched/path", [t[0] for t in touched])
+            write_int64(f, "touched/size", [t[1] for t in touched])
+            write_int64(f, "touched/mtime_ns", [t[2] for t in touched])
+            write_paths(f, "removed/path", removed)
+
+        write_atomically(journal_dir(self.path) / f"batch-{seq:010d}.h5", fill, estimate)
+        for old_seq, batch in batch_files(self.path):
+            if first_seq <= old_seq < seq:
+                batch.unlink(missing_ok=True)
 
     def close(self) -> None:
         self.lock.release()
@@ -290,10 +363,76 @@ def _bytes_of(columns: dict, counts: dict, batch: Batch) -> int:
     return 2 * total
 
 
+def _remove_covered(store: Path) -> None:
+    """Delete the batches a merged segment holds (left by a merge killed before deleting them)."""
+    ranges = []
+    for seq, batch in batch_files(store):
+        try:
+            with h5py.File(batch, "r") as f:
+                ranges.append((int(f.attrs.get("first_seq", seq)), seq))
+        except (OSError, KeyError, ValueError):
+            continue  # a damaged batch: open_store reports it, repair drops it
+    for seq, batch in batch_files(store):
+        if any(lo <= seq < hi for lo, hi in ranges):
+            batch.unlink(missing_ok=True)
+
+
+def _rows_of(source) -> int:
+    """What merging a file costs: its entries, touched and removed paths (at least 1)."""
+    extra = sum(int(source.file[g].shape[0]) for g in ("touched/path", "removed/path") if g in source.file)
+    return max(1, len(source) + extra)
+
+
+def _size_of(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except FileNotFoundError:
+        return 0
+
+
+def _merge_from(sizes: list) -> int | None:
+    """Where the run of segments to merge starts (0: the main file too), or None: nothing is due.
+
+    ``sizes``: rows of the main file and of each segment, oldest first. The newest segments
+    are taken while the one before them holds at most :data:`GROWTH` times their rows.
+    """
+    if len(sizes) - 1 >= MAX_SEGMENTS:
+        return 0
+    first, run = len(sizes) - 1, sizes[-1]
+    while first > 0 and sizes[first - 1] <= GROWTH * run:
+        first -= 1
+        run += sizes[first]
+    return None if first == len(sizes) - 1 else first
+
+
+def _run_removed_and_touched(run: list, kept: set) -> tuple[list, list]:
+    """The removed paths and the touched (path, size, mtime_ns) a merged run of segments keeps:
+    those that still apply to the files below it (see :class:`Batch`)."""
+    removed: set = set()
+    touched: dict = {}
+    for source in run:
+        gone = source.paths_of("removed")
+        removed.update(gone)
+        for p in gone:
+            touched.pop(p, None)
+        for p in source.column("entries/path"):
+            touched.pop(p, None)  # an entry of the run supersedes the touch of the one below
+        if "touched" in source.file:
+            size, mtime = source.file["touched/size"][()], source.file["touched/mtime_ns"][()]
+            for p, s, m in zip(source.paths_of("touched"), size, mtime):
+                if p not in kept:  # the run's own entries already carry their new times
+                    touched[p] = (p, int(s), int(m))
+    return sorted(removed - kept), [touched[p] for p in sorted(touched)]
+
+
 def _write_snapshot(f: h5py.File, reader: StoreReader, attrs: dict) -> None:
-    """Every live entry of ``reader`` into ``f``; histogram counts copied in bounded steps."""
+    """Every live entry of ``reader`` into ``f``; histogram counts copied in bounded steps,
+    then the ranking section (one histogram at a time)."""
     f.attrs.update(attrs)
-    write_columns(f, {name: reader.column(name) for name in ENTRY_COLUMNS})
+    columns = {name: reader.column(name) for name in ENTRY_COLUMNS}
+    write_columns(f, columns)
+    ok = write_rank_entries(f, columns, HISTOGRAMS)
+    del columns
     for name in HISTOGRAMS:
         lengths = np.zeros(len(reader), dtype=np.int64)
         for source_index, source in enumerate(reader._sources):
@@ -307,3 +446,6 @@ def _write_snapshot(f: h5py.File, reader: StoreReader, attrs: dict) -> None:
             rows = np.arange(start, min(start + MERGE_ROWS, len(reader)))
             flat, _ = reader.counts(name, rows)
             counts[offsets[rows[0]] : offsets[rows[-1] + 1]] = flat
+        flat, _ = reader.counts(name, np.arange(len(reader)))
+        write_rank_histogram(f, name, flat, lengths, ok)
+        del flat

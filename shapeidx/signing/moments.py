@@ -1,0 +1,132 @@
+"""A part's absolute size, proportions and handedness: what D2 cannot see, from exact surface moments.
+
+D2 histograms are made of point-pair distances, which a mirror image keeps; the paper's
+normalisation by the mean distance also throws away the part's size. Both matter when a
+data manager asks "is this the same part?": a left and a right bracket are different
+parts, and so are a part and its drawing at 25.4 times the size. :func:`shape_facts`
+computes, once per part at build time, the quantities the store keeps for that:
+
+* ``bounds``: the axis-aligned bounding box in file units (min x, y, z, max x, y, z);
+* ``extents``: the principal radii, ``sqrt`` of the eigenvalues of the area-weighted
+  covariance of the surface, largest first: the part's size along its own axes, the same
+  in every orientation;
+* ``handedness``: two pseudo-scalars made of third-order surface moments in the
+  principal-axes frame; each is unchanged by any rotation (and translation and uniform
+  scaling) and changes sign under a mirroring;
+* ``moments``: a fingerprint unchanged by rotation, mirroring and scaling: the area over
+  ``r1^2 + r2^2 + r3^2``, and the absolute skewnesses ``|T_111|, |T_222|, |T_333|`` (NaN
+  where the axes are undefined). With the proportions ``r2/r1, r3/r1`` it tells apart parts
+  whose D2 signatures are within sampling noise of each other (docs/duplicates.md).
+
+Handedness. Let ``e1, e2, e3`` be the principal axes and ``T_ijk`` the third central
+moments of the surface along them, divided by ``sigma_i sigma_j sigma_k`` (so they do not
+depend on size). An eigenvector is only defined up to its sign; flipping ``e_k`` flips
+every ``T`` with an odd number of indices ``k`` and flips ``det[e1 e2 e3]``. Hence
+
+    h1 = det(E) * T_111 * T_222 * T_333     (the product of the three axial skewnesses)
+    h2 = det(E) * T_123                     (the fully mixed moment)
+
+do not depend on the sign choices, so they are invariant under rotations. A mirroring
+keeps the axes' moments (up to those signs) but reverses the frame's orientation, so both
+change sign. A part with a mirror plane through its centroid has both equal to zero. The
+moments are integrated exactly (a 7-point quadrature rule, exact for cubic polynomials on
+a triangle), not from random samples, so a rotated copy gives the same values to rounding
+and a re-faceted one nearly the same.
+
+Where the axes are not defined (two principal radii within :data:`AXIS_GAP` of each
+other: a square pin, a cylinder) the frame can turn freely in their plane and the values
+mean nothing; :func:`shape_facts` then returns NaN handedness and the part counts as of
+unknown handedness (:mod:`shapeidx.families.chirality` never calls it mirrored).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Two principal variances closer than this share of the largest make the axes undefined.
+AXIS_GAP = 0.02
+#: The facts :func:`shape_facts` returns for a part it cannot measure.
+UNKNOWN = {"bounds": (np.nan,) * 6, "extents": (np.nan,) * 3, "handedness": (np.nan,) * 2, "moments": (np.nan,) * 4}
+
+# Degree-3 rule on a triangle: vertices 3/60, edge midpoints 8/60, centroid 27/60.
+_BARY = np.array(
+    [[1, 0, 0], [0, 1, 0], [0, 0, 1], [0.5, 0.5, 0], [0, 0.5, 0.5], [0.5, 0, 0.5], [1 / 3, 1 / 3, 1 / 3]]
+)
+_WEIGHTS = np.array([3, 3, 3, 8, 8, 8, 27]) / 60.0
+
+
+def surface_moments(vertices: np.ndarray, faces: np.ndarray):
+    """Area, centroid, covariance and third central moments of a triangle surface, exactly.
+
+    Returns
+    -------
+    area : float
+    centroid : (3,) float64
+    covariance : (3, 3) float64
+        Second central moments divided by the area.
+    third : (3, 3, 3) float64
+        Third central moments divided by the area.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    tri = vertices[np.asarray(faces, dtype=np.int64)]  # (k, 3, 3)
+    areas = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    area = float(areas.sum())
+    if not area > 0:
+        raise ValueError("the surface has no area")
+    points = np.einsum("qv,kvd->qkd", _BARY, tri)  # (7, k, 3)
+    weights = _WEIGHTS[:, None] * areas[None, :] / area  # (7, k), sums to 1
+    centroid = np.einsum("qk,qkd->d", weights, points)
+    x = points - centroid
+    covariance = np.einsum("qk,qki,qkj->ij", weights, x, x)
+    third = np.einsum("qk,qki,qkj,qkl->ijl", weights, x, x, x)
+    return area, centroid, covariance, third
+
+
+def handedness_of(covariance: np.ndarray, third: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Principal radii (largest first) and the two pseudo-scalars ``(h1, h2)`` (module docstring).
+
+    ``h`` is NaN when two principal variances are within :data:`AXIS_GAP` of each other.
+    """
+    variances, axes = np.linalg.eigh(covariance)
+    variances, axes = variances[::-1], axes[:, ::-1]
+    radii = np.sqrt(np.maximum(variances, 0.0))
+    top = max(float(variances[0]), np.finfo(float).tiny)
+    gaps = -np.diff(variances) / top
+    if gaps.min() < AXIS_GAP or variances[2] <= 1e-12 * top:
+        return radii, np.full(2, np.nan)
+    t = np.einsum("ijk,ia,jb,kc->abc", third, axes, axes, axes) / np.einsum("a,b,c->abc", radii, radii, radii)
+    det = float(np.sign(np.linalg.det(axes)))
+    return radii, np.array([det * t[0, 0, 0] * t[1, 1, 1] * t[2, 2, 2], det * t[0, 1, 2]])
+
+
+def shape_facts(vertices: np.ndarray, faces: np.ndarray) -> dict:
+    """``bounds`` (6,), ``extents`` (3,), ``handedness`` (2,) and ``moments`` (4,) of a surface.
+
+    A surface that cannot be measured (no area) gives :data:`UNKNOWN` (NaN everywhere).
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    if len(faces) == 0 or len(vertices) == 0:
+        return dict(UNKNOWN)
+    used = vertices[np.unique(np.asarray(faces))]
+    bounds = tuple(np.concatenate([used.min(axis=0), used.max(axis=0)]).tolist())
+    try:
+        _, _, covariance, third = surface_moments(vertices, faces)
+    except ValueError:
+        return dict(UNKNOWN, bounds=bounds)
+    radii, handedness = handedness_of(covariance, third)
+    area = float(np.asarray(_areas(vertices, faces)).sum())
+    spread = float((radii**2).sum())
+    skew = np.full(3, np.nan)
+    if np.isfinite(handedness).all():
+        variances, axes = np.linalg.eigh(covariance)
+        axes = axes[:, ::-1]
+        t = np.einsum("ijk,ia,ja,ka->a", third, axes, axes, axes) / radii**3
+        skew = np.abs(t)
+    moments = (area / spread if spread > 0 else np.nan, *skew.tolist())
+    return {"bounds": bounds, "extents": tuple(radii.tolist()), "handedness": tuple(handedness.tolist()),
+            "moments": tuple(float(m) for m in moments)}
+
+
+def _areas(vertices, faces):
+    tri = vertices[np.asarray(faces, dtype=np.int64)]
+    return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)

@@ -1,0 +1,336 @@
+"""The ranking section of a store file: what a query reads, contiguous so it can be memory-mapped.
+
+Every file of a store (main file and journal segments) written since layout 3 holds, besides
+its canonical entry columns and CSR histograms (chunked, Fletcher-32), a group ``rank/`` with
+the same signatures laid out as :class:`~shapeidx.distance.HistogramBank` ranks them:
+
+    rank/path_key      (N, 2) uint64   BLAKE2b-128 of every entry's path (superseded rows, no decoding)
+    rank/rows          (M,) int64      the file rows of its M ok entries, increasing: "rank positions"
+    rank/fractions     (M, 3) float64  IN, OUT, MIXED fractions of those entries
+    rank/means         (M, H) float64  mean pair distance of each histogram (``histograms`` order)
+    rank/angles        (M, A) float64  the normal-angle pair counts (``entries/angles``; NaN where unknown)
+    rank/H/counts      (sum,) uint32   histogram H of every ok entry, grouped by bin count (ascending),
+                                       row order within a group: group g is a dense (n_g, bins_g) block
+    rank/H/groups      (G, 2) int64    bins_g, n_g per group
+    rank/H/order       (M,) int64      the rank position of each grouped row
+    rank/H/totals      (M,) int64      each grouped row's pair total (at least 1), grouped order
+    rank/H/coarse      (sum,) uint32   the grouped histograms with every ``coarse`` bins summed (lower bounds)
+
+Every dataset is contiguous and unfiltered: HDF5 gives its file offset, so a query maps it
+(``mmap``) instead of reading and decoding it, and touches only the pages it ranks. Such
+datasets cannot carry Fletcher-32; each has a ``crc32`` attribute of its bytes instead. A
+query verifies the CRC of every array it maps but the counts, and the counts as it ranks
+them (each row must add up to its CRC-checked total, so a flipped bit is never ranked);
+``shapeidx check`` verifies every CRC and that the section is what the checked canonical
+data make (``check --repair`` rebuilds it from them). The group's ``histograms`` attribute names the histograms it
+holds, so the section follows whatever tuple of histograms the signature has.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import mmap
+import os
+import zlib
+
+import h5py
+import numpy as np
+
+from ..ragged import offsets_of, take_ragged
+from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS
+
+RANK = "rank"
+#: Attribute of every ranking dataset: CRC-32 of its raw bytes (C order, as stored); zlib
+#: computes it at over 1 GB/s without holding the GIL.
+CHECKSUM = "crc32"
+#: Arrays a query verifies by their CRC-32 as it maps them. The counts, by far the largest,
+#: are verified as they are ranked instead: each row must add up to its (CRC-checked) total.
+CRC_ON_MAP = ("path_key", "rows", "fractions", "means", "angles", "groups", "order", "totals")
+#: Dtype of the stored counts (the canonical counts' dtype).
+COUNT_DTYPE = np.uint32
+#: Bins summed into one bin of the coarse histograms (``rank/H/coarse``). By the triangle
+#: inequality the L1 distance of two coarse histograms is at most that of the histograms, so
+#: ranking reads 1/COARSE of the counts to bound every entry's distance from below and
+#: computes exact distances only where the bound does not rule an entry out.
+COARSE = 8
+#: Values per entry of ``rank/angles``: the normal-angle histograms laid end to end.
+ANGLE_WIDTH = len(ANGLE_HISTOGRAMS) * ANGLE_BINS
+
+
+def path_keys(paths) -> np.ndarray:
+    """(n, 2) uint64: the BLAKE2b-128 digest of each path (UTF-8), the key superseding uses."""
+    out = np.empty((len(paths), 2), dtype=np.uint64)
+    view = out.view(np.uint8).reshape(len(paths), 16)
+    for i, path in enumerate(paths):
+        view[i] = np.frombuffer(hashlib.blake2b(str(path).encode("utf-8", "surrogatepass"), digest_size=16).digest(), np.uint8)
+    return out
+
+
+def bytes_crc32(values: np.ndarray) -> int:
+    """The :data:`CHECKSUM` of an array (its bytes in C order)."""
+    return zlib.crc32(np.ascontiguousarray(values).reshape(-1).view(np.uint8))
+
+
+def _write(f: h5py.File, name: str, values: np.ndarray) -> None:
+    values = np.ascontiguousarray(values)
+    dataset = f.create_dataset(name, data=values)  # no chunks, no filters: contiguous, mappable
+    dataset.attrs[CHECKSUM] = np.uint32(bytes_crc32(values))
+
+
+def grouped(flat: np.ndarray, lengths: np.ndarray):
+    """Histograms laid end to end, regrouped by bin count.
+
+    Returns
+    -------
+    counts : (sum,) uint32, group after group, each a C-ordered (n_g, bins_g) block
+    groups : (G, 2) int64, bins_g and n_g
+    order : (M,) int64, the row (0..M-1) of each grouped histogram
+    totals : (M,) int64, each grouped histogram's total, at least 1 (what ranking divides by)
+    coarse : (sum,) uint32, the same histograms with every :data:`COARSE` bins summed, group
+        after group (n_g, ceil(bins_g / COARSE)): what the lower bounds of ranking read
+    """
+    lengths = np.asarray(lengths, dtype=np.int64)
+    offsets = offsets_of(lengths)
+    totals = np.zeros(len(lengths), dtype=np.int64)
+    filled = lengths > 0
+    if filled.any():  # as HistogramBank.from_counts: empty rows add nothing to a filled row's sum
+        totals[filled] = np.add.reduceat(flat, offsets[:-1][filled], dtype=np.int64)
+    order = np.argsort(lengths, kind="stable")
+    sorted_lengths = lengths[order]
+    bins, starts = np.unique(sorted_lengths, return_index=True)
+    sizes = np.diff(np.append(starts, len(order)))
+    out = np.empty(int(lengths.sum()), dtype=COUNT_DTYPE)
+    coarse = np.empty(int(np.sum(-(-bins // COARSE) * sizes)), dtype=COUNT_DTYPE)
+    at = coarse_at = 0
+    for b, lo, n in zip(bins.tolist(), starts.tolist(), sizes.tolist()):
+        if b:
+            rows = order[lo : lo + n]
+            # each histogram is one contiguous run of ``flat``: a window view copies it as one
+            block = np.lib.stride_tricks.sliding_window_view(flat, b)[offsets[rows]]
+            out[at : at + n * b] = block.reshape(-1)
+            at += n * b
+            width = -(-b // COARSE)
+            padded = np.zeros((n, width * COARSE), dtype=np.int64)
+            padded[:, :b] = block
+            coarse[coarse_at : coarse_at + n * width] = padded.reshape(n, width, COARSE).sum(axis=2).reshape(-1)
+            coarse_at += n * width
+    groups = np.stack([bins, sizes], axis=1).astype(np.int64).reshape(-1, 2)
+    return out, groups, order.astype(np.int64), np.maximum(totals[order], 1), coarse
+
+
+def write_rank(f: h5py.File, columns: dict, counts: dict, histograms) -> None:
+    """Write the ``rank/`` section of a file whose columns and counts (name -> (flat, lengths)) these are."""
+    ok = write_rank_entries(f, columns, histograms)
+    for h in histograms:
+        write_rank_histogram(f, h, *counts[h], ok)
+
+
+def write_rank_entries(f: h5py.File, columns: dict, histograms) -> np.ndarray:
+    """The per-entry part of the ``rank/`` section; returns the ok rows (for :func:`write_rank_histogram`)."""
+    from .layout import STATUS_OK
+
+    status = np.asarray(columns["entries/status"])
+    ok = np.flatnonzero(status == STATUS_OK)
+    group = f.create_group(RANK)
+    group.attrs["histograms"] = " ".join(histograms)
+    group.attrs["coarse"] = COARSE
+    _write(f, f"{RANK}/path_key", path_keys(columns["entries/path"]))
+    _write(f, f"{RANK}/rows", ok.astype(np.int64))
+    _write(f, f"{RANK}/fractions", np.asarray(columns["entries/fractions"], dtype=np.float64)[ok].reshape(-1, 3))
+    means = np.stack([np.asarray(columns[f"histograms/{h}/mean"], dtype=np.float64)[ok] for h in histograms], axis=1)
+    _write(f, f"{RANK}/means", means.reshape(len(ok), len(histograms)))
+    _write(f, f"{RANK}/angles", _angles_of(columns, ok))
+    return ok
+
+
+def _angles_of(columns: dict, ok: np.ndarray) -> np.ndarray:
+    angles = np.asarray(columns["entries/angles"], dtype=np.float64)
+    return angles[ok].reshape(len(ok), ANGLE_WIDTH)
+
+
+def write_rank_histogram(f: h5py.File, h: str, flat: np.ndarray, lengths: np.ndarray, ok: np.ndarray) -> None:
+    """Histogram ``h`` of the ``rank/`` section from every entry's counts (flat, lengths); ``ok``: the ok rows."""
+    flat, lengths = take_ragged(np.asarray(flat, dtype=COUNT_DTYPE), offsets_of(lengths), ok)
+    values, groups, order, totals, coarse = grouped(flat, lengths)
+    del flat
+    _write(f, f"{RANK}/{h}/counts", values)
+    _write(f, f"{RANK}/{h}/groups", groups)
+    _write(f, f"{RANK}/{h}/order", order)
+    _write(f, f"{RANK}/{h}/totals", totals)
+    _write(f, f"{RANK}/{h}/coarse", coarse)
+
+
+def expected_rank(columns: dict, counts: dict, histograms):
+    """(name under ``rank/``, values) of the section these columns and counts (name -> (flat,
+    lengths)) make, one array at a time: what ``shapeidx check`` compares a section with."""
+    from .layout import STATUS_OK
+
+    ok = np.flatnonzero(np.asarray(columns["entries/status"]) == STATUS_OK)
+    yield "path_key", path_keys(columns["entries/path"])
+    yield "rows", ok.astype(np.int64)
+    yield "fractions", np.asarray(columns["entries/fractions"], dtype=np.float64)[ok].reshape(-1, 3)
+    yield "means", np.stack([np.asarray(columns[f"histograms/{h}/mean"], dtype=np.float64)[ok] for h in histograms],
+                            axis=1).reshape(len(ok), len(histograms))
+    yield "angles", _angles_of(columns, ok)
+    for h in histograms:
+        flat, lengths = counts[h]
+        flat, lengths = take_ragged(np.asarray(flat, dtype=COUNT_DTYPE), offsets_of(lengths), ok)
+        values, groups, order, totals, coarse = grouped(flat, lengths)
+        yield from ((f"{h}/counts", values), (f"{h}/groups", groups), (f"{h}/order", order), (f"{h}/totals", totals),
+                    (f"{h}/coarse", coarse))
+
+
+def rank_datasets(histograms) -> list:
+    """Every dataset name of a ``rank/`` section holding ``histograms``."""
+    names = [f"{RANK}/{n}" for n in ("path_key", "rows", "fractions", "means", "angles")]
+    return names + [f"{RANK}/{h}/{n}" for h in histograms for n in ("counts", "groups", "order", "totals", "coarse")]
+
+
+def _map_file(file: h5py.File, path) -> mmap.mmap:
+    """A read-only mapping of the file ``file`` has open.
+
+    Opened anew through ``/proc/self/fd`` (the same file even when a merge deleted its name
+    meanwhile), not through HDF5's own descriptor: a mapping shares its descriptor's lock, and
+    HDF5's lock would then outlive the file's closing for as long as an array views the map.
+    """
+    try:
+        fd = os.open(f"/proc/self/fd/{file.id.get_vfd_handle()}", os.O_RDONLY)
+    except OSError:
+        fd = os.open(path, os.O_RDONLY)
+    try:
+        return mmap.mmap(fd, 0, access=mmap.ACCESS_READ)
+    finally:
+        os.close(fd)
+
+
+class RankSection:
+    """The ``rank/`` section of one open store file, memory-mapped.
+
+    Cheap to open: only the shapes and the small group tables are read and checked; the
+    arrays are mapped, so a query reads (from the page cache or the disk) only what it ranks.
+
+    Raises
+    ------
+    ValueError
+        The section is missing, incomplete or inconsistent (the caller reports the damage).
+    """
+
+    def __init__(self, file: h5py.File, path):
+        if RANK not in file:
+            raise ValueError("no ranking section")
+        group = file[RANK]
+        self.file = file
+        self.path = path
+        self.histograms = tuple(str(group.attrs["histograms"]).split())
+        self.coarse = int(group.attrs["coarse"])
+        self._map = None
+        self._arrays: dict = {}
+        n = int(file["entries/size"].shape[0])
+        self.rows = self.array("rows")
+        m = len(self.rows)
+        if self.array("path_key").shape != (n, 2) or self.array("fractions").shape != (m, 3):
+            raise ValueError("ranking arrays of the wrong shape")
+        if self.array("means").shape != (m, len(self.histograms)):
+            raise ValueError("ranking means of the wrong shape")
+        if self.array("angles").shape != (m, ANGLE_WIDTH):
+            raise ValueError("ranking angles of the wrong shape")
+        if m and (self.rows[0] < 0 or self.rows[-1] >= n):
+            raise ValueError("ranking rows out of bounds")
+        self.groups = {}
+        for h in self.histograms:
+            groups = np.asarray(self.array(f"{h}/groups"), dtype=np.int64).reshape(-1, 2)
+            total = int(np.sum(groups[:, 0] * groups[:, 1]))
+            coarse_total = int(np.sum(-(-groups[:, 0] // self.coarse) * groups[:, 1]))
+            if (int(groups[:, 1].sum()) != m or np.any(groups < 0) or total != self.array(f"{h}/counts").shape[0]
+                    or self.array(f"{h}/order").shape != (m,) or self.array(f"{h}/totals").shape != (m,)
+                    or self.array(f"{h}/coarse", verify=False).shape != (coarse_total,)):
+                raise ValueError(f"ranking groups of {h} disagree with its arrays")
+            self.groups[h] = groups
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def array(self, name: str, verify: bool = True) -> np.ndarray:
+        """The dataset ``rank/NAME``, mapped (read, if HDF5 did not place it contiguously);
+        ``verify``: check the CRC-32 of the arrays of :data:`CRC_ON_MAP` (ValueError if it fails)."""
+        if name not in self._arrays:
+            dataset = self.file[f"{RANK}/{name}"]
+            offset = dataset.id.get_offset()
+            if offset is None or dataset.size == 0 or dataset.chunks is not None:
+                values = dataset[()]
+            else:
+                if self._map is None:
+                    self._map = _map_file(self.file, self.path)
+                values = np.frombuffer(self._map, dtype=dataset.dtype, count=dataset.size, offset=offset)
+                values = values.reshape(dataset.shape)
+            if verify and name.rsplit("/", 1)[-1] in CRC_ON_MAP:
+                expected = dataset.attrs.get(CHECKSUM)
+                if expected is None or bytes_crc32(values) != int(expected):
+                    raise ValueError(f"{RANK}/{name} fails its checksum")
+            self._arrays[name] = values
+        return self._arrays[name]
+
+    def bank(self, h: str):
+        """Histogram ``h`` of the ok entries as a :class:`~shapeidx.distance.HistogramBank` (views, no copy)."""
+        from ..distance.bank import HistogramBank
+
+        counts, order, totals = self.array(f"{h}/counts"), self.array(f"{h}/order"), self.array(f"{h}/totals")
+        groups, at, row = [], 0, 0
+        for bins, n in self.groups[h].tolist():
+            block = counts[at : at + n * bins].reshape(n, bins) if bins else np.zeros((n, 0), dtype=COUNT_DTYPE)
+            groups.append((bins, order[row : row + n], block, totals[row : row + n]))
+            at += n * bins
+            row += n
+        return HistogramBank(len(self), groups)
+
+    def slots(self, h: str):
+        """(group start of each group, grouped slot of each rank position) of histogram ``h``."""
+        key = f"{h}/slot"
+        if key not in self._arrays:
+            order = self.array(f"{h}/order")
+            slot = np.empty(len(order), dtype=np.int64)
+            slot[order] = np.arange(len(order))
+            starts = np.concatenate([[0], np.cumsum(self.groups[h][:, 1])])
+            self._arrays[key] = (starts, slot)
+        return self._arrays[key]
+
+    def blocks(self, h: str, name: str = "counts"):
+        """Per group of ``h``: (bins, its (n, width) block of ``name``, its totals), where width is
+        bins for the counts and ceil(bins / coarse) for the coarse counts."""
+        values, totals = self.array(f"{h}/{name}", verify=False), self.array(f"{h}/totals")
+        out, at, row = [], 0, 0
+        for bins, n in self.groups[h].tolist():
+            width = bins if name == "counts" else -(-bins // self.coarse)
+            block = values[at : at + n * width].reshape(n, width) if width else np.zeros((n, 0), dtype=COUNT_DTYPE)
+            out.append((bins, block, totals[row : row + n]))
+            at += n * width
+            row += n
+        return out
+
+    def verify(self) -> list[str]:
+        """Every dataset's checksum and the orders being permutations; returns what is wrong."""
+        wrong = []
+        for name in rank_datasets(self.histograms):
+            short = name[len(RANK) + 1 :]
+            dataset = self.file[name]
+            expected = dataset.attrs.get(CHECKSUM)
+            if expected is None or bytes_crc32(self.array(short, verify=False)) != int(expected):
+                wrong.append(f"{name} fails its checksum")
+        if not wrong:
+            m = len(self)
+            for h in self.histograms:
+                order = self.array(f"{h}/order")
+                if m and not np.array_equal(np.sort(order), np.arange(m)):
+                    wrong.append(f"{RANK}/{h}/order is not a permutation of the ok entries")
+            if len(self.rows) > 1 and np.any(np.diff(self.rows) <= 0):
+                wrong.append(f"{RANK}/rows are not increasing")
+        return wrong
+
+    def close(self) -> None:
+        self._arrays.clear()
+        if self._map is not None:
+            try:
+                self._map.close()
+            except BufferError:  # a caller still holds a view: the mapping goes with it
+                pass
+            self._map = None
