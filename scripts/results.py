@@ -297,9 +297,9 @@ def angle_section(lines, work, data):
         "",
         "The angles carry most of the gain: alone they beat every D2 metric. Dropping the D2 histograms' own",
         "distances helps first tier a little on kicad6, but the fourteen-feature combined-angle is what",
-        "`--metric combined-angle` uses: it keeps the D2 features the paper is about, and is the best on",
-        "NN of the other collections without D2 (main tables above). Hellinger distances and the exact",
-        "aspect ratios and moments add nothing on top of the angles.",
+        "`--metric combined-angle` uses: it keeps the D2 features the paper is about (the variants without",
+        "them were not carried further). Hellinger distances and the exact aspect ratios and moments add",
+        "nothing on top of the angles.",
         "",
     ]
     # the README's example

@@ -17,7 +17,6 @@ import trimesh
 import analytic as A
 from shapeidx.distance import compare
 from shapeidx.signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_histograms, angle_probabilities
-from shapeidx.signing.classify import pair_indices
 from shapeidx.signing.pipeline import signature_of_solid
 from shapeidx.signing.solid import make_solid
 from shapeidx.io.base import PolygonMesh
@@ -121,8 +120,7 @@ def test_unchanged_by_rotation_scale_translation_and_mirroring():
 
 def test_angle_histograms_count_every_pair_by_class():
     normals = np.array([[0, 0, 1.0], [0, 0, -1.0], [1.0, 0, 0]])
-    first, second = pair_indices(3)  # (0, 1), (0, 2), (1, 2)
-    counts = angle_histograms(normals, np.array([0, 1, 2], dtype=np.uint8), first, second)
+    counts = angle_histograms(normals, np.array([0, 1, 2], dtype=np.uint8))  # pairs (0, 1), (0, 2), (1, 2)
     assert counts.shape == (4, ANGLE_BINS)
     assert counts[ALL, -1] == 1 and counts[IN, -1] == 1  # facing: theta = pi, pair 0 is IN
     assert counts[OUT].sum() == 1 and counts[MIXED].sum() == 1

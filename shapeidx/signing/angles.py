@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .classify import pair_flat_indices
 from .parameters import CLASS_NAMES
 
 #: Bins of each angle histogram over ``[0, pi]``. Odd, and 17 rather than 15, so that no bin
@@ -35,26 +36,25 @@ ANGLE_BINS = 17
 ANGLE_HISTOGRAMS = ("all",) + CLASS_NAMES
 
 
-def angle_histograms(normals: np.ndarray, classes: np.ndarray, first: np.ndarray, second: np.ndarray) -> np.ndarray:
+def angle_histograms(normals: np.ndarray, classes: np.ndarray) -> np.ndarray:
     """Pair counts per angle bin, for all pairs and per class.
 
     Parameters
     ----------
     normals : (m, 3) float
         Unit outward normals of the sample points.
-    classes : (pairs,) uint8
-        Class code of each pair (row ``1 + code`` of the result).
-    first, second : (pairs,) int
-        The two points of each pair.
+    classes : (m(m-1)/2,) uint8
+        Class code of each pair, pairs in :func:`shapeidx.signing.classify.pair_indices` order
+        (row ``1 + code`` of the result).
 
     Returns
     -------
     (len(ANGLE_HISTOGRAMS), ANGLE_BINS) int64
     """
     n = np.asarray(normals, dtype=np.float64)
-    cos = n[first, 0] * n[second, 0]
-    cos += n[first, 1] * n[second, 1]
-    cos += n[first, 2] * n[second, 2]
+    upper, _ = pair_flat_indices(len(n))
+    # every cosine from one small matrix product, then the pairs i < j: one gather, not six
+    cos = (n @ n.T).ravel()[upper]
     np.clip(cos, -1.0, 1.0, out=cos)
     bins = np.minimum((np.arccos(cos) * (ANGLE_BINS / np.pi)).astype(np.int64), ANGLE_BINS - 1)
     per_class = np.bincount(np.asarray(classes, dtype=np.int64) * ANGLE_BINS + bins, minlength=len(CLASS_NAMES) * ANGLE_BINS)

@@ -13,7 +13,7 @@ import os
 
 from ..io import LoadLimits, load
 from .angles import angle_histograms
-from .classify import classify_pairs, pair_indices
+from .classify import classify_pairs
 from .histogram import Signature
 from .parameters import BIN_DIVISOR, DEFAULT_POINTS, DEFAULT_SEED
 from .sampling import sample_surface
@@ -37,8 +37,7 @@ def signature_of_solid(
     normals = []
     distances, classes = classify_pairs(solid.vertices, solid.faces, samples, face_index, solid.watertight, threads=threads,
                                         normals_out=normals)
-    first, second = pair_indices(points)
-    angles = angle_histograms(normals[0], classes, first, second)
+    angles = angle_histograms(normals[0], classes)
     return Signature.from_pairs(distances, classes, points, seed, divisor, angles=angles)
 
 
