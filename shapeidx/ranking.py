@@ -263,13 +263,7 @@ def _query_view(reader: StoreReader, view, part, entry, top, metric, threads, fi
 
 def resolve_entry_in_view(reader: StoreReader, view, entry) -> str:
     """:func:`resolve_entry` without the full path list: one binary search per file."""
-    text = os.fspath(entry)
-    if view.find(text) is not None:
-        return text
-    inside = entry_path_of(text, reader)
-    if inside is not None and view.find(inside) is not None:
-        return inside
-    return text
+    return _resolved(reader, entry, lambda path: view.find(path) is not None)
 
 
 def signature_with_params(part, params, threads: int = 1, file_type: str | None = None) -> Signature:
@@ -304,11 +298,16 @@ def resolve_entry(reader: StoreReader, entry: str | os.PathLike) -> str:
     ``relative_path``) and also a path that opens from here, absolute or relative to the
     working directory, as long as it lies inside the indexed folder.
     """
+    return _resolved(reader, entry, lambda path: reader.index_of(path) is not None)
+
+
+def _resolved(reader: StoreReader, entry, known) -> str:
+    """``entry`` if ``known(entry)``, else its store path as a file inside the root if known, else ``entry``."""
     text = os.fspath(entry)
-    if reader.index_of(text) is not None:
+    if known(text):
         return text
     inside = entry_path_of(text, reader)
-    if inside is not None and reader.index_of(inside) is not None:
+    if inside is not None and known(inside):
         return inside
     return text
 
