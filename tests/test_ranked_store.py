@@ -171,13 +171,17 @@ def test_a_merge_killed_before_deleting_its_batches_leaves_the_same_view(real_st
     assert [path.name for _, path in batch_files(store)] == after
 
 
-def test_check_finds_a_flipped_byte_in_the_ranking_arrays_and_repair_rebuilds_them(real_store, tmp_path):
-    _, store_src, _ = real_store
+def copy_and_query(real_store, tmp_path, row: int, **options):
+    """A copy of the real store, the signature of its entry ``row`` and that entry's hits."""
     store = tmp_path / "s.h5"
-    store.write_bytes(store_src.read_bytes())
+    store.write_bytes(real_store[1].read_bytes())
     with open_store(store) as reader:
-        signature = reader.signature(5)
-        before = query_store(reader, signature, top=5)
+        signature = reader.signature(row)
+        return store, signature, query_store(reader, signature, top=5, **options)
+
+
+def test_check_finds_a_flipped_byte_in_the_ranking_arrays_and_repair_rebuilds_them(real_store, tmp_path):
+    store, signature, before = copy_and_query(real_store, tmp_path, 5)
     with h5py.File(store, "r") as f:
         offset = f["rank/out/counts"].id.get_offset() + 4 * 17
     with open(store, "r+b") as f:
@@ -196,12 +200,7 @@ def test_check_finds_a_flipped_byte_in_the_ranking_arrays_and_repair_rebuilds_th
 
 
 def test_a_layout_2_store_ranks_the_old_way_and_check_repair_adds_the_arrays(real_store, tmp_path):
-    _, store_src, _ = real_store
-    store = tmp_path / "s.h5"
-    store.write_bytes(store_src.read_bytes())
-    with open_store(store) as reader:
-        signature = reader.signature(2)
-        before = query_store(reader, signature, top=5, metric="avg4")
+    store, signature, before = copy_and_query(real_store, tmp_path, 2, metric="avg4")
     with h5py.File(store, "r+") as f:  # what a layout-2 shapeidx wrote: no rank/ section
         del f["rank"]
         f.attrs["schema_version"] = 2
