@@ -48,9 +48,9 @@ def main(argv=None) -> int:
     with open_store(args.store) as reader:
         data = labelled_features(reader)
         points = reader.params.points
-    if len(names) > len(data.features) and data.angle_features is None:
+    if set(names) - set(data.named()):
         sys.exit(f"{args.store}: built before the normal-angle histograms; rebuild it to learn {args.metric}")
-    features = data.features if args.metric == "combined" else data.all_features()
+    features = data.learned_features(args.metric)
     cv = cross_validate(features, data.labels, folds=args.folds, repeats=args.repeats)
     weights = fit_weights(features, data.labels)
     command = "python " + " ".join([Path(sys.argv[0]).as_posix()] + (argv if argv is not None else sys.argv[1:]))

@@ -180,6 +180,8 @@ def inspect(file, linear_deflection, angular_deflection, as_json):
         f"  shells      {facts['shells']} read; {solid['closed_shells']} closed, {solid['open_shells']} open,"
         f" {solid['cavities']} cavities{', united' if solid['united'] else ''}"
     )
+    if solid["walls_removed"]:
+        click.echo(f"  walls       {solid['walls_removed']:,} triangles where separately written bodies touch, removed")
     click.echo(f"  watertight  {'yes' if facts['watertight'] else 'no'}")
     if "faceting" in facts:
         f = facts["faceting"]

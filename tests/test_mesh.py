@@ -126,6 +126,26 @@ class TestPolygons:
         assert triangle_areas(mesh.vertices, tri).sum() == pytest.approx(total, rel=1e-9)
 
 
+def cubes_written_separately(cells, alternate_diagonals=False):
+    """Unit cubes at integer cells, each written whole as a triangle soup; every square split
+    along the diagonal from its smallest corner, so that where two cubes touch both write the
+    same two triangles (as exporters that write each body on its own do). With
+    ``alternate_diagonals`` every second cube splits its squares along the other diagonal."""
+    triangles = []
+    for k, c in enumerate(cells):
+        corners = np.array(np.meshgrid(*[[x, x + 1] for x in c], indexing="ij")).reshape(3, -1).T.astype(float)
+        for axis in range(3):
+            for side in (c[axis], c[axis] + 1):
+                square = corners[corners[:, axis] == side]
+                square = square[np.lexsort(square.T[::-1])]  # smallest corner first, largest last
+                if alternate_diagonals and k % 2:
+                    triangles += [[square[1], square[0], square[2]], [square[1], square[3], square[2]]]
+                else:
+                    triangles += [[square[0], square[1], square[3]], [square[0], square[2], square[3]]]
+    triangles = np.array(triangles)
+    return triangles.reshape(-1, 3), np.arange(3 * len(triangles)).reshape(-1, 3)
+
+
 def voxel_surface(cells):
     """Outward triangles of a union of unit cubes (integer cells), built face by face."""
     cells = set(map(tuple, cells))
@@ -182,8 +202,8 @@ class TestCleaning:
     def test_degenerate_and_duplicate_faces_are_dropped(self):
         v, f = merge_vertices(*self.cube_soup())
         faces = np.vstack([f, [[0, 0, 1]], f[:1], f[1:2, ::-1]])  # repeated corner, duplicate, reversed duplicate
-        kept, degenerate, duplicate, flat = remove_bad_faces(v, faces)
-        assert (len(kept), degenerate, duplicate, flat) == (12, 1, 2, 0)
+        kept, degenerate, duplicate, flat, wall = remove_bad_faces(v, faces)
+        assert (len(kept), degenerate, duplicate, flat, wall) == (12, 1, 2, 0, 0)
         np.testing.assert_array_equal(kept, f)
 
     def test_a_sliver_closing_a_t_junction_is_kept(self):
@@ -196,12 +216,53 @@ class TestCleaning:
         bottom = [[1, 0, 4]]  # below the whole edge a-b
         sliver = [[0, 1, 2]]  # a, b, m: zero area, joins a-b with a-m and m-b
         faces = np.array(top + bottom + sliver)
-        kept, degenerate, duplicate, flat = remove_bad_faces(v, faces)
-        assert (len(kept), degenerate, flat) == (4, 0, 1)
+        kept, degenerate, duplicate, flat, wall = remove_bad_faces(v, faces)
+        assert (len(kept), degenerate, flat, wall) == (4, 0, 1, 0)
         u, w = kept.ravel(), kept[:, [1, 2, 0]].ravel()
         undirected = {tuple(sorted(e)) for e in zip(u, w)}
         counts = {e: sum(1 for x in zip(u, w) if tuple(sorted(x)) == e) for e in undirected}
         assert counts[(0, 1)] == 2 and counts[(0, 2)] == 2 and counts[(1, 2)] == 2
+
+    @pytest.mark.parametrize("alternate_diagonals", [False, True], ids=["same-split", "other-split"])
+    def test_walls_between_bodies_written_separately_are_dropped(self, alternate_diagonals):
+        # three unit cubes in a row, each written whole (as KiCad's older libraries write a
+        # capacitor's two caps and its body): the two faces where they touch are written twice
+        # each, once per cube; the solid is the 3 x 1 x 1 box. The middle cube may split its
+        # squares along the other diagonal, so that the touching faces share no triangle
+        cells = [(0, 0, 0), (1, 0, 0), (2, 0, 0)]
+        v, f = merge_vertices(*cubes_written_separately(cells, alternate_diagonals))
+        kept, degenerate, duplicate, flat, wall = remove_bad_faces(v, f)
+        assert (len(kept), degenerate, duplicate, wall) == (28, 0, 0, 8)
+        # what is left is the box's surface: area 2 (3 + 3 + 1), every triangle on its boundary
+        assert triangle_areas(v, kept).sum() == pytest.approx(14.0)
+        on_boundary = (v[kept] == 0).all(axis=1) | (v[kept] == [3, 1, 1]).all(axis=1)
+        assert on_boundary.any(axis=1).all()
+        shells = orient_shells(kept)
+        assert shells.count == 1 and shells.closed.all()
+        from shapeidx.io.base import PolygonMesh
+        from shapeidx.signing.solid import make_solid
+
+        solid = make_solid(PolygonMesh.from_triangles(*cubes_written_separately(cells, alternate_diagonals), "test"))
+        assert solid.watertight and solid.volume == pytest.approx(3.0)
+        assert solid.describe()["solid"]["walls_removed"] == 8 and not solid.warnings
+
+    def test_faces_written_twice_that_are_no_wall_keep_one_copy(self):
+        v, f = merge_vertices(*self.cube_soup())
+        # a side written twice inside one closed body: dropping it would open a hole
+        kept, _, duplicate, _, wall = remove_bad_faces(v, np.vstack([f, f[:2]]))
+        assert (len(kept), duplicate, wall) == (12, 2, 0)
+        # a whole body written twice: nothing would be left of it
+        kept, _, duplicate, _, wall = remove_bad_faces(v, np.vstack([f, f[:, ::-1]]))
+        assert (len(kept), duplicate, wall) == (12, 12, 0)
+        # a zero-thickness sheet written once per side
+        sheet = np.array([[0, 1, 2], [1, 3, 2]])
+        kept, _, duplicate, _, wall = remove_bad_faces(v, np.vstack([sheet, sheet[:, ::-1]]))
+        assert (len(kept), duplicate, wall) == (2, 2, 0)
+        # a wall written three times: an odd count does not cancel in a union
+        vv, ff = merge_vertices(*cubes_written_separately([(0, 0, 0), (1, 0, 0)]))
+        shared = [t for t in ff if np.all(vv[t][:, 0] == 1)]
+        kept, _, duplicate, _, wall = remove_bad_faces(vv, np.vstack([ff, shared[:2]]))
+        assert (wall, duplicate, len(kept)) == (0, 4, 22)
 
     def test_random_flips_are_made_consistent(self):
         v, f = merge_vertices(*self.cube_soup())

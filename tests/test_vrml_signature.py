@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import gzip
 
+import numpy as np
+
 import pytest
 
 from shapeidx.distance import compare
@@ -72,3 +74,17 @@ def test_def_use_gives_the_signature_of_two_blocks(files):
     assert compare(one_block, placed_twice)["weighted"] > 1.5 * noise  # not just any shape
     for name, share in two_blocks.fractions.items():
         assert placed_twice.fractions[name] == pytest.approx(share, abs=0.03), name
+
+
+@pytest.mark.parametrize("name", ["Capacitor_SMD.3dshapes/C_0805_2012Metric.wrz", "Capacitor_SMD.3dshapes/C_1206_3216Metric.wrz"])
+def test_a_box_written_as_three_touching_bodies_is_one_convex_solid(data_dir, name):
+    # KiCad's older capacitors: the body and two end caps written face by face, each body
+    # writing the face where it touches the next. Their union is one rectangular box: its
+    # volume is the product of its sides, and, being convex, every pair of its points is IN
+    # (Ip et al. 2002, 3.2.3). Kept as a wall, the touching faces made most pairs MIXED.
+    solid = solid_of_file(data_dir / "vrml-wild" / "kicad-wrz" / name)
+    lo, hi = solid.bounds
+    assert solid.watertight and solid.describe()["solid"]["walls_removed"] == 8
+    assert solid.volume == pytest.approx(float(np.prod(hi - lo)), rel=1e-6)
+    fractions = signature_of_solid(solid).fractions
+    assert fractions["in"] >= 0.999 and fractions["mixed"] <= 0.001

@@ -12,7 +12,7 @@ import numpy as np
 from ..ragged import offsets_of
 from ..signing.histogram import Signature
 from ..signing.parameters import HISTOGRAMS
-from .combined import ANGLE_FEATURES, ANGLE_METRICS, angle_distances, class_scales, metric_values, signature_means
+from .combined import ANGLE_METRICS, angle_features, class_scales, metric_values, signature_means
 from ..signing.angles import angle_probabilities
 from .paper import PAPER_METRICS
 
@@ -24,7 +24,7 @@ METRIC_HISTOGRAMS = {
     "avg4": HISTOGRAMS,
     "weighted": HISTOGRAMS[1:],
     "combined": HISTOGRAMS,
-    "combined-angle": HISTOGRAMS,
+    "combined-angle": (),
     "all-angle": ("all",),
 }
 #: Values per working block of :meth:`HistogramBank.distances`: small enough to stay in the
@@ -175,9 +175,7 @@ def features_to_many(query: Signature, banks: dict, fractions: np.ndarray, means
         for i, c in enumerate(HISTOGRAMS[1:]):
             features[f"scale_{c}"] = scale_gap[:, i]
     if angles is not None and query.angles is not None:
-        gaps = angle_distances(angle_probabilities(query.angles), angles)
-        for i, name in enumerate(ANGLE_FEATURES):
-            features[name] = gaps[:, i]
+        features.update(angle_features(angle_probabilities(query.angles)[None], angles))
     return features
 
 

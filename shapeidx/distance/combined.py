@@ -9,10 +9,14 @@ store keeps the means, so it costs nothing. The weights come from
 (neighbourhood component analysis on a labelled collection, with class-wise
 cross-validation figures recorded beside the weights).
 
-**combined-angle**: the same ten features and four more, the L1 distances of the
-normal-angle histograms (:mod:`shapeidx.signing.angles`: all pairs, IN, OUT, MIXED), with
-its own learned weights (``combined_angle_metric.json``). A store built before those
-histograms cannot serve it (its entries' angles are unknown).
+**combined-angle**: the normal-angle histograms (:mod:`shapeidx.signing.angles`: all pairs,
+IN, OUT, MIXED) compared by Hellinger distance, with the six class features of combined (the
+three fraction gaps and the three class-mean ratios), learned the same way, with its own
+weights (``combined_angle_metric.json``). Of the variants cross-validated on kicad6 (the D2
+histograms' own distances added, L1, chi-squared or earth mover's distances of the angle
+histograms: docs/results.md) this one ranked best, and it needs no D2 histogram at query
+time. A store built before the angle histograms cannot serve it (its entries' angles are
+unknown).
 
 **all-angle**: for the same part from another exporter, not for parts of a kind. Plain D2
 (ALL) plus :data:`ALL_ANGLE_WEIGHT` times the L1 distance of the ALL angle histograms: no
@@ -42,12 +46,14 @@ METRICS = PAPER_METRICS + ("combined", "combined-angle", "all-angle")
 FEATURES = tuple(f"d_{h}" for h in HISTOGRAMS) + tuple(f"gap_{c}" for c in HISTOGRAMS[1:]) + tuple(
     f"scale_{c}" for c in HISTOGRAMS[1:]
 )
-#: L1 distances of the normal-angle histograms (:mod:`shapeidx.signing.angles`), per histogram.
-ANGLE_FEATURES = tuple(f"angle_{h}" for h in ANGLE_HISTOGRAMS)
+#: Distances of the normal-angle histograms (:mod:`shapeidx.signing.angles`), per histogram:
+#: L1 (``angle_*``, all-angle's) and Hellinger (``hellinger_angle_*``, combined-angle's).
+ANGLE_FEATURES = tuple(f"angle_{h}" for h in ANGLE_HISTOGRAMS) + tuple(f"hellinger_angle_{h}" for h in ANGLE_HISTOGRAMS)
 #: The learned metrics: their features, in the order of their weights, and their weights' file.
 LEARNED = {
     "combined": (FEATURES, "combined_metric.json"),
-    "combined-angle": (FEATURES + ANGLE_FEATURES, "combined_angle_metric.json"),
+    "combined-angle": (tuple(f for f in FEATURES if not f.startswith("d_")) + ANGLE_FEATURES[len(ANGLE_HISTOGRAMS) :],
+                       "combined_angle_metric.json"),
 }
 #: Metrics that need the normal-angle histograms.
 ANGLE_METRICS = ("combined-angle", "all-angle")
@@ -125,9 +131,22 @@ def combined_weights() -> dict:
     return learned_weights("combined")
 
 
-def angle_distances(query: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """L1 distances of normal-angle histograms: (H, B) probabilities against (N, H, B); (N, H)."""
-    return np.abs(np.asarray(rows) - np.asarray(query)[None]).sum(axis=-1)
+def angle_features(a: np.ndarray, b: np.ndarray) -> dict:
+    """:data:`ANGLE_FEATURES` between normal-angle probabilities ``a`` and ``b`` (..., H, B),
+    broadcast against each other: name -> (...) array (NaN where either is unknown).
+
+    Hellinger distance ``sqrt(sum_k (sqrt p_k - sqrt q_k)^2 / 2)`` lies in [0, 1], as L1 / 2
+    does, but weighs a bin's difference by how rare the angle is in both: the few pairs at a
+    right angle that tell a flat part from a box count for more than they do in L1. Two
+    empty classes (no pairs) are 0 apart, an empty and a filled one ``sqrt(1/2)``.
+    """
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    l1 = np.abs(a - b).sum(axis=-1)
+    hellinger = np.sqrt(((np.sqrt(a) - np.sqrt(b)) ** 2).sum(axis=-1) / 2)
+    count = len(ANGLE_HISTOGRAMS)
+    named = {name: l1[..., i] for i, name in enumerate(ANGLE_FEATURES[:count])}
+    named.update({name: hellinger[..., i] for i, name in enumerate(ANGLE_FEATURES[count:])})
+    return named
 
 
 def features_between(a: Signature, b: Signature) -> dict:
@@ -138,8 +157,8 @@ def features_between(a: Signature, b: Signature) -> dict:
     scale_gap = np.abs(class_scales(signature_means(a)) - class_scales(signature_means(b)))
     features.update({f"scale_{c}": float(v) for c, v in zip(HISTOGRAMS[1:], scale_gap)})
     if a.angles is not None and b.angles is not None:
-        gaps = angle_distances(angle_probabilities(a.angles), angle_probabilities(b.angles)[None])[0]
-        features.update({name: float(v) for name, v in zip(ANGLE_FEATURES, gaps)})
+        gaps = angle_features(angle_probabilities(a.angles), angle_probabilities(b.angles))
+        features.update({name: float(v) for name, v in gaps.items()})
     return features
 
 

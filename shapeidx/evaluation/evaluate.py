@@ -32,8 +32,14 @@ class LabelledFeatures:
     angle_features: np.ndarray | None = None  # (len(ANGLE_FEATURES), n, n); None: a store without angles
 
     def all_features(self) -> np.ndarray:
-        """``features`` and, when known, ``angle_features``: those of ``combined-angle``."""
+        """``features`` and, when known, ``angle_features``, in the order of :meth:`named`."""
         return self.features if self.angle_features is None else np.concatenate([self.features, self.angle_features])
+
+    def learned_features(self, metric: str) -> np.ndarray:
+        """The (F, n, n) features of a learned metric (:data:`~shapeidx.distance.LEARNED`), in
+        the order of its weights."""
+        named = self.named()
+        return np.stack([named[name] for name in LEARNED[metric][0]])
 
     def named(self) -> dict:
         """Feature name -> (n, n) matrix."""
@@ -182,6 +188,7 @@ def evaluate(reader: StoreReader, metrics=METRICS, per_class: bool = False, cros
     if cross_validated:
         result["metrics"]["combined (cross-validated)"] = cross_validate(data.features, data.labels)
         if data.angle_features is not None and "combined-angle" in metrics:
-            result["metrics"]["combined-angle (cross-validated)"] = cross_validate(data.all_features(), data.labels)
+            result["metrics"]["combined-angle (cross-validated)"] = cross_validate(data.learned_features("combined-angle"),
+                                                                                 data.labels)
     result["queries"] = int(retrieval_scores(matrices[metrics[0]], data.labels)["queries"]) if metrics else 0
     return result

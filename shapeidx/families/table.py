@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..distance import ANGLE_FEATURES, ANGLE_METRICS, FEATURES, METRIC_HISTOGRAMS, METRICS, metric_values
+from ..distance import ANGLE_METRICS, FEATURES, METRIC_HISTOGRAMS, METRICS, metric_values
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
-from ..distance.combined import class_scales
+from ..distance.combined import angle_features, class_scales
 from ..errors import StoreError
 from ..ragged import offsets_of
 from ..signing.parameters import HISTOGRAMS, SIGNATURE_VERSION
@@ -211,8 +211,7 @@ class FamilyTable:
         for i, c in enumerate(HISTOGRAMS[1:]):
             features[f"scale_{c}"] = gap[:, i]
         if self.angles is not None:  # NaN for entries whose angles are unknown
-            angle_gap = np.abs(self.angles[a] - self.angles[b]).sum(axis=-1)
-            features.update({name: angle_gap[:, i] for i, name in enumerate(ANGLE_FEATURES)})
+            features.update(angle_features(self.angles[a], self.angles[b]))
         assert set(FEATURES) <= set(features)
         return features
 

@@ -6,7 +6,8 @@
    rule of Ip et al. (2002, section 3.2.1), larger polygons triangulated in their plane
    (correct for concave ones).
 2. :func:`merge_vertices` and :func:`remove_bad_faces`: duplicate points merged,
-   degenerate and duplicate triangles dropped.
+   degenerate and duplicate triangles dropped, and walls between touching bodies (a face
+   each body writes, one on the other) dropped whole (:func:`shared_walls`).
 3. :func:`orient_shells`: the triangles split into shells (connected through edges that
    have exactly two triangles) and each shell's winding made consistent.
 """
@@ -258,9 +259,10 @@ def group_rows(rows: np.ndarray):
 
 
 def remove_bad_faces(vertices: np.ndarray, faces: np.ndarray, relative_area: float = 1e-14):
-    """Drop degenerate triangles (a repeated corner) and duplicates (the same three corners).
+    """Drop degenerate triangles (a repeated corner), duplicates (the same three corners) and
+    walls between touching bodies (:func:`shared_walls`).
 
-    Of duplicated triangles the first is kept, whatever its winding. A triangle with three
+    Of duplicated triangles the first is kept, whatever its winding, unless they are a wall. A triangle with three
     distinct corners but no area (a sliver whose corners lie on one line) is kept: exporters
     write them to close T-junctions, and dropping one would open the surface. It gets no
     sample point (sampling is by area) and Embree never reports a hit on it.
@@ -271,22 +273,158 @@ def remove_bad_faces(vertices: np.ndarray, faces: np.ndarray, relative_area: flo
     degenerate : int
         Triangles dropped for a repeated corner.
     duplicate : int
+        Triangles dropped as copies of one that is kept.
     flat : int
         Zero-area triangles kept.
+    wall : int
+        Triangles dropped as walls between touching bodies, every copy counted.
     """
     if len(faces) == 0:
-        return faces, 0, 0, 0
+        return faces, 0, 0, 0, 0
     repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
     faces = faces[~repeated]
     if len(faces) == 0:  # every triangle had a repeated corner
-        return faces, int(repeated.sum()), 0, 0
-    first, _ = group_rows(np.sort(faces, axis=1))
-    first.sort()
-    duplicate = len(faces) - len(first)
-    faces = faces[first]
+        return faces, int(repeated.sum()), 0, 0, 0
+    faces = same_quad_diagonals(vertices, faces)
+    first, group = group_rows(np.sort(faces, axis=1))
+    copies = np.bincount(group, minlength=len(first))
+    walls = shared_walls(faces[first], copies)
+    wall = int(copies[walls].sum())
+    duplicate = len(faces) - len(first) - (wall - int(walls.sum()))
+    faces = faces[np.sort(first[~walls])]
     diag2 = float(np.sum((vertices.max(axis=0) - vertices.min(axis=0)) ** 2))
     flat = int(np.sum(triangle_areas(vertices, faces) <= relative_area * diag2))
-    return faces, int(repeated.sum()), int(duplicate), flat
+    return faces, int(repeated.sum()), int(duplicate), flat, int(wall)
+
+
+def same_quad_diagonals(vertices: np.ndarray, faces: np.ndarray, tolerance: float = 1e-9) -> np.ndarray:
+    """Split every planar quadrilateral written more than once along one diagonal.
+
+    Where two separately written bodies touch, each writes the face between them, often as
+    a quadrilateral split along its other diagonal. The two copies then share no triangle,
+    and :func:`shared_walls` could not see that they are one face written twice. A pair of
+    triangles is taken as a written quadrilateral when they share an edge no other triangle
+    has, lie in one plane and make a convex quadrilateral, and neither has another such
+    partner; quadrilaterals with the same four corners are then all split as the first is.
+    The surface is unchanged: both splits cover the same convex planar region, with the
+    same outline.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+    faces : (k, 3) int
+        Triangles without a repeated corner.
+
+    Returns
+    -------
+    (k, 3) int
+        ``faces``, with the triangles of repeated quadrilaterals replaced.
+    """
+    if len(faces) < 4:
+        return faces
+    _, _, face, key = _edge_table(faces)
+    order = np.argsort(key, kind="stable")
+    skey = key[order]
+    start = np.flatnonzero(np.concatenate([[True], skey[1:] != skey[:-1]]))
+    size = np.diff(np.concatenate([start, [len(skey)]]))
+    two = start[size == 2]
+    t1, t2 = face[order[two]], face[order[two + 1]]
+    slot1, slot2 = order[two] % 3, order[two + 1] % 3
+    u = faces[t1, slot1]
+    v = faces[t1, (slot1 + 1) % 3]
+    a = faces[t1, (slot1 + 2) % 3]  # t1's corner off the shared edge
+    b = faces[t2, (slot2 + 2) % 3]  # t2's
+    pu, pv, pa, pb = vertices[u], vertices[v], vertices[a], vertices[b]
+    scale2 = np.einsum("ij,ij->i", pv - pu, pv - pu)
+    n1 = np.cross(pv - pu, pa - pu)
+    n2 = np.cross(pv - pu, pb - pu)
+    # one plane: b lies on a's plane; convex: a and b on opposite sides of u-v, u and v of a-b
+    height = np.abs(np.einsum("ij,ij->i", n1, pb - pu)) / np.maximum(np.linalg.norm(n1, axis=1), 1e-300)
+    flat = height <= tolerance * np.sqrt(scale2)
+    opposite_ab = np.einsum("ij,ij->i", n1, n2) < 0
+    m1 = np.cross(pb - pa, pu - pa)
+    m2 = np.cross(pb - pa, pv - pa)
+    opposite_uv = np.einsum("ij,ij->i", m1, m2) < 0
+    quad = flat & opposite_ab & opposite_uv & (a != b)
+    t1, t2, u, v, a, b = t1[quad], t2[quad], u[quad], v[quad], a[quad], b[quad]
+    partners = np.bincount(np.concatenate([t1, t2]), minlength=len(faces))
+    alone = (partners[t1] == 1) & (partners[t2] == 1)
+    t1, t2, u, v, a, b = t1[alone], t2[alone], u[alone], v[alone], a[alone], b[alone]
+    if len(t1) < 2:
+        return faces
+    corners = np.sort(np.stack([u, v, a, b], axis=1), axis=1)
+    first, group = group_rows(corners)
+    repeated = np.bincount(group)[group] >= 2
+    if not repeated.any():
+        return faces
+    faces = faces.copy()
+    lead = first[group]  # the first quadrilateral written with these corners
+    change = repeated & (lead != np.arange(len(t1)))
+    faces[t1[change]] = faces[t1[lead[change]]]
+    faces[t2[change]] = faces[t2[lead[change]]]
+    return faces
+
+
+def shared_walls(faces: np.ndarray, copies: np.ndarray) -> np.ndarray:
+    """Which distinct triangles are walls between two touching bodies, to be dropped whole.
+
+    Exporters that write every body (or every face) of a part separately, as KiCad's older
+    libraries do, write the face where two bodies touch twice, once for each body: a
+    capacitor's end cap against its body. Kept once, that face is a wall inside the united
+    solid: three triangles meet at each of its edges, the shells it joins stop being
+    closed, and every segment through it counts as crossing the surface (MIXED, when it lies
+    in the material). Both copies are the inside of the union and are dropped, when
+
+    * the triangle was written an even number of times (pairs cancel, as two bodies' faces
+      do in their union), and
+    * its connected patch of such triangles is attached to the rest of the surface, every
+      edge of the patch keeping an even number of triangles: two where it was three (the
+      two bodies' side faces), none inside the patch.
+
+    So a face written twice inside one closed body (dropping it would open a hole), a
+    zero-thickness sheet written once per side and a whole body written twice (nothing
+    would remain of it) keep one copy, as before.
+
+    Parameters
+    ----------
+    faces : (k, 3) int
+        Distinct triangles (each written at least once).
+    copies : (k,) int
+        How many times each was written.
+
+    Returns
+    -------
+    (k,) bool
+        True for the triangles to drop.
+    """
+    drop = (copies >= 2) & (copies % 2 == 0)
+    if not drop.any():
+        return drop
+    _, _, face, key = _edge_table(faces)
+    edge_ids, edge = np.unique(key, return_inverse=True)
+    edges = len(edge_ids)
+    on_edge = np.bincount(edge, minlength=edges)
+    while drop.any():
+        dropped = drop[face]
+        left = on_edge - np.bincount(edge[dropped], minlength=edges)
+        # the patches: dropped triangles joined through edges where nothing else is left
+        inner = dropped & (left[edge] == 0)
+        rows, cols = face[inner], edge[inner]
+        graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols + len(faces))),
+                           shape=(len(faces) + edges,) * 2)
+        _, label = connected_components(graph, directed=False)
+        patch = label[: len(faces)]
+        odd = dropped & (left[edge] % 2 == 1)
+        attached = dropped & (left[edge] >= 2)
+        bad = np.zeros(label.max() + 1, dtype=bool)
+        bad[patch[face[odd]]] = True
+        has_attachment = np.zeros(label.max() + 1, dtype=bool)
+        has_attachment[patch[face[attached]]] = True
+        reject = drop & (bad[patch] | ~has_attachment[patch])
+        if not reject.any():
+            break
+        drop &= ~reject
+    return drop
 
 
 # ----------------------------------------------------------------------------------

@@ -13,7 +13,7 @@ DEFAULT_SEED = 20020101
 BIN_DIVISOR = 50
 #: Raised whenever the same file and parameters could give a different signature (changes to
 #: loading, cleaning, sampling or classification). A store records it and refuses a mismatch.
-SIGNATURE_VERSION = 1
+SIGNATURE_VERSION = 2  # 2: walls between touching bodies dropped (signing.mesh.shared_walls)
 
 #: Codes of the pair classes, as stored in class arrays.
 IN, OUT, MIXED = 0, 1, 2

@@ -1,9 +1,10 @@
 """The solid a part file describes: :func:`make_solid`.
 
 From the polygons as read: triangulate, merge duplicate points, drop degenerate and duplicate
-triangles, make each shell's winding consistent (all in :mod:`shapeidx.signing.mesh`), then decide
-the solid. A part file often holds several shells. The solid they describe is decided by geometry
-alone, never by the file's winding:
+triangles and the walls where two separately written bodies touch, make each shell's winding
+consistent (all in :mod:`shapeidx.signing.mesh`), then decide the solid. A part file often
+holds several shells. The solid they describe is decided by geometry alone, never by the
+file's winding:
 
 * each closed shell bounds a body; its faces are turned to point away from that body;
 * a closed shell lying entirely inside an odd number of other closed shells is a cavity
@@ -316,6 +317,7 @@ class Solid:
                 "united": r["united"],
                 "degenerate_removed": r["degenerate_removed"],
                 "duplicates_removed": r["duplicates_removed"],
+                "walls_removed": r["walls_removed"],
                 "flat_kept": r["flat_kept"],
             },
         }
@@ -352,8 +354,8 @@ def make_solid(mesh: PolygonMesh, path=None) -> Solid:
     # work near the origin: volumes, winding numbers and booleans lose precision far from it
     centre = (used.min(axis=0) + used.max(axis=0)) / 2
     vertices, faces = merge_vertices(vertices - centre, triangles)
-    faces, degenerate, duplicate, flat = remove_bad_faces(vertices, faces)
-    report.update(degenerate_removed=degenerate, duplicates_removed=duplicate, flat_kept=flat)
+    faces, degenerate, duplicate, flat, wall = remove_bad_faces(vertices, faces)
+    report.update(degenerate_removed=degenerate, duplicates_removed=duplicate, walls_removed=wall, flat_kept=flat)
     if len(faces) == flat:
         raise _nothing_left(path, used, triangles, degenerate)
     if duplicate:
