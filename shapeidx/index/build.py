@@ -269,10 +269,10 @@ def _count(summary: BuildSummary, outcome: Outcome) -> None:
 
 
 def _store_counts(store: Path, summary: BuildSummary) -> None:
-    with open_store(store) as reader:
-        status = reader.column("entries/status")
-        summary.store_ok = int(np.sum(status == STATUS_OK))
-        summary.store_failed = int(np.sum(status == STATUS_FAILED))
+    from ..store.known import known_files
+
+    with open_store(store) as reader:  # by path key: no path decoded, whatever the journal holds
+        summary.store_ok, summary.store_failed = known_files(reader).status_counts()
         summary.store_bytes = reader.size_on_disk()
 
 
