@@ -143,7 +143,40 @@ def bench_commit(stores: list, files: int, rounds: int, full: bool = False) -> N
               f" {opened:.1f} |")
 
 
-def bench_recall(store: Path, queries: int, top: int, metric: str) -> None:
+class _Chunk:
+    """Entries ``rows`` of a store, as much of a FamilyTable as :func:`embed` reads."""
+
+    def __init__(self, reader, rows, histograms, fractions, means):
+        from shapeidx.families.table import RaggedHistograms
+
+        self.histograms = {h: RaggedHistograms.from_counts(*reader.counts(h, rows)) for h in histograms}
+        self.fractions, self.means, self.rows = fractions[rows], means[rows], rows
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+
+def store_embedding(reader, metric: str, chunk: int = 50_000) -> np.ndarray:
+    """The candidate embedding of every entry of a merged store of ok entries, chunk by chunk
+    (the vectors :func:`shapeidx.store.candidates.embed` makes of the whole store at once)."""
+    from shapeidx.distance import METRIC_HISTOGRAMS
+    from shapeidx.signing.parameters import HISTOGRAMS
+    from shapeidx.store.candidates import embed
+
+    histograms = METRIC_HISTOGRAMS[metric] if metric not in ("combined", "combined-angle") else HISTOGRAMS
+    source = reader._sources[0]
+    median = {}
+    for h in histograms:
+        lengths = np.diff(source.offsets(h))
+        median[h] = np.median(lengths[lengths > 0]) if (lengths > 0).any() else 1
+    fractions = reader.column("entries/fractions")
+    means = np.stack([reader.column(f"histograms/{h}/mean") for h in HISTOGRAMS], axis=1)
+    parts = [embed(_Chunk(reader, np.arange(lo, min(lo + chunk, len(reader))), histograms, fractions, means), metric, median)
+             for lo in range(0, len(reader), chunk)]
+    return np.concatenate(parts)
+
+
+def bench_recall(store: Path, queries: int, top: int, metric: str, embedding: str | None = None) -> None:
     """The pruned query's top ``top`` against the full exact ranking of every entry, for
     ``queries`` entries of the store as queries: recall, equal distances, time of each."""
     from shapeidx.ranking import top_hits
@@ -154,8 +187,22 @@ def bench_recall(store: Path, queries: int, top: int, metric: str) -> None:
     found = total = 0
     same = True
     pruned_s, full_s, exact_n = [], [], []
+    faiss_found, faiss_s = 0, []
     with open_store(store) as reader:
         view = ranked_view(reader)
+        index = None
+        if embedding:
+            from shapeidx.store.candidates import OVERFETCH, CandidateIndex
+
+            if len(reader._sources) != 1 or len(view) != len(reader):
+                raise SystemExit(f"{store}: --embedding needs a merged store of ok entries (view positions = rows)")
+            t0 = time.perf_counter()
+            vectors = store_embedding(reader, metric)
+            t1 = time.perf_counter()
+            index = CandidateIndex(vectors, embedding)
+            t2 = time.perf_counter()
+            print(f"# embedding of {len(vectors):,} entries ({vectors.shape[1]} dimensions): {t1 - t0:.1f} s;"
+                  f" {embedding} index built in {t2 - t1:.1f} s (load {_load()})", flush=True)
         rng = np.random.default_rng(11)
         for position in rng.choice(len(view), queries, replace=False).tolist():
             signature = view.signature(view.locate(position), reader.params)
@@ -172,7 +219,19 @@ def bench_recall(store: Path, queries: int, top: int, metric: str) -> None:
             pruned_s.append(t1 - t0)
             full_s.append(t2 - t1)
             exact_n.append(len(chosen))
+            if index is not None:  # the embedding's candidates, each given its exact distance
+                t3 = time.perf_counter()
+                _, proposed = index.search(index.vectors[position : position + 1], OVERFETCH * top)
+                proposed = proposed[0][proposed[0] >= 0]
+                exact_proposed = view.exact_distances(signature, metric, proposed)
+                faiss_s.append(time.perf_counter() - t3)
+                faiss_found += len(best & set(proposed[np.argsort(exact_proposed, kind="stable")[:top]].tolist()))
     print(f"load average after: {_load()}\n")
+    if index is not None:
+        print(f"| store | entries | queries | embedding ({index.method}) + exact re-ranking of {OVERFETCH * top}: recall@{top} |"
+              " its time per query, median (s) |")
+        print("|---|---|---|---|---|")
+        print(f"| {store.name} | {len(view):,} | {queries} | {faiss_found / total:.4f} | {statistics.median(faiss_s):.3f} |\n")
     print(f"| store | entries | queries | recall@{top} | distances equal | pruned ranking, median (s) |"
           " full exact ranking, median (s) | exact distances computed, median |")
     print("|---|---|---|---|---|---|---|---|")
@@ -310,6 +369,8 @@ def main() -> int:
     r.add_argument("--queries", type=int, default=10)
     r.add_argument("--top", type=int, default=10)
     r.add_argument("--metric", default="weighted")
+    r.add_argument("--embedding", choices=("exact", "hnsw"), help="also the candidate embedding's recall"
+                   " (shapeidx.store.candidates: FAISS flat or HNSW, then the exact distance of its candidates)")
     b = sub.add_parser("build")
     b.add_argument("stores", type=Path, nargs="+")
     b.add_argument("--old-code", type=Path, required=True, help="a folder holding an older shapeidx/ package")
@@ -332,7 +393,7 @@ def main() -> int:
     if args.what == "query":
         bench_query(args.part, args.stores, args.repeat, args.top)
     elif args.what == "recall":
-        bench_recall(args.store, args.queries, args.top, args.metric)
+        bench_recall(args.store, args.queries, args.top, args.metric, args.embedding)
     elif args.what == "build":
         bench_build(args.stores, args.old_code, args.work, args.files, args.rounds, args.parts)
     else:
