@@ -26,22 +26,33 @@ WHOLE_COLUMN_SHARE = 1 / 64
 
 
 def _keys_of(source) -> np.ndarray:
-    """(n, 2) uint64 path keys of every row of one store file."""
-    section = source.rank
-    if section is None:
+    """(n, 2) uint64 path keys of every row of one store file, their CRC-32 checked.
+
+    Only ``rank/path_key`` is read (16 bytes an entry), not the whole section: opening a
+    :class:`~shapeidx.store.rank.RankSection` checks the CRCs of every per-entry array.
+    """
+    from .rank import CHECKSUM, RANK, bytes_crc32
+
+    name = f"{RANK}/path_key"
+    if name not in source.file:  # a file written before layout 3
         return path_keys(source.column("entries/path"))
+    dataset = source.dataset(name)
     try:
-        return np.asarray(section.array("path_key"))
-    except ValueError as exc:  # its CRC-32 fails
-        raise source.damaged(f"its ranking arrays: {exc}; 'shapeidx check --repair' rebuilds them") from None
+        keys = dataset[()]
+    except (OSError, RuntimeError, ValueError) as exc:
+        raise source.damaged(f"{name} cannot be read: {exc}") from None
+    expected = dataset.attrs.get(CHECKSUM)
+    if keys.shape != (len(source), 2) or expected is None or bytes_crc32(keys) != int(expected):
+        raise source.damaged(f"{name} fails its checksum; 'shapeidx check --repair' rebuilds the ranking arrays")
+    return keys
 
 
 class _KeyIndex:
-    """Sorted (k0, k1) pairs, looked up by exact 128-bit key (fast on the first 64 bits)."""
+    """128-bit keys sorted by their first 64 bits, looked up exactly (both halves compared)."""
 
     def __init__(self, keys: np.ndarray):
         keys = np.asarray(keys, dtype=np.uint64).reshape(-1, 2)
-        self.order = np.lexsort((keys[:, 1], keys[:, 0]))
+        self.order = np.argsort(keys[:, 0], kind="stable")
         self.first, self.second = keys[self.order, 0], keys[self.order, 1]
 
     def find(self, keys: np.ndarray) -> np.ndarray:
