@@ -203,8 +203,9 @@ class StoreWriter:
 
     def _remove_leftovers(self) -> None:
         """Temporary files of killed writers, and batches already in the main file."""
-        for tmp in self.path.parent.glob(f"{glob_escape(self.path.name)}.tmp-*"):
-            tmp.unlink(missing_ok=True)
+        for pattern in (".tmp-*", ".verified.tmp-*"):  # the second: a record being written (store/verified.py)
+            for tmp in self.path.parent.glob(f"{glob_escape(self.path.name)}{pattern}"):
+                tmp.unlink(missing_ok=True)
         folder = journal_dir(self.path)
         if folder.is_dir():
             for tmp in folder.glob("*.tmp-*"):
