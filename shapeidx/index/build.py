@@ -17,13 +17,10 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
-
 from ..io.faceting import Faceting
 from ..errors import ShapeidxError, StoreDamagedError
 from ..signing.parameters import BIN_DIVISOR, DEFAULT_POINTS, DEFAULT_SEED, SIGNATURE_VERSION
-from ..store import STATUS_FAILED, STATUS_OK, StoreParams, StoreWriter, check_params, check_root, open_store
+from ..store import StoreParams, StoreWriter, check_params, check_root, open_store
 from ..system import available_cores
 from .commit import DEFAULT_COMMIT_INTERVAL, MERGE_AFTER, Committer
 from .plan import Plan, make_plan
