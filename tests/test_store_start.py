@@ -118,3 +118,31 @@ def test_a_damaged_main_file_is_still_refused_after_it_was_verified(tmp_path, si
     assert not is_verified(store)
     with pytest.raises(StoreDamagedError, match="histograms/all/counts"):
         StoreWriter(store, PARAMS, Path("/parts"))
+
+
+def test_the_plan_decodes_none_of_the_main_files_paths_but_the_removed_ones(tmp_path, signed, monkeypatch):
+    from shapeidx.index.build import BuildOptions
+    from shapeidx.index.plan import make_plan
+    from shapeidx.index.walk import FoundFile, Walk
+    from shapeidx.store import reader as store_reader
+
+    store = journal_store(tmp_path, signed)
+    with open_store(store) as reader:
+        listing = list(zip(reader.paths, reader.column("entries/size"), reader.column("entries/mtime_ns")))
+    files = [FoundFile(p, f"/parts/{p}", int(s), int(m)) for p, s, m in listing if p != "a/10.stl"]
+    files[0] = FoundFile(files[0].path, files[0].absolute, files[0].size, files[0].mtime_ns + 1)  # touched
+    files.append(FoundFile("c/new.stl", "/parts/c/new.stl", 5, 5))
+    real_column = store_reader._SourceFile.column
+
+    def column(self, name):  # small journal batches are read whole when opened (verified): the main file is not
+        assert not (name == "entries/path" and self.seq == 0), "the plan decoded the main file's paths"
+        return real_column(self, name)
+
+    monkeypatch.setattr(store_reader._SourceFile, "column", column)
+    # as in a large store, where a few removed entries are far below the share that reads the column whole
+    monkeypatch.setattr("shapeidx.store.known.WHOLE_COLUMN_SHARE", 1.0)
+    with open_store(store) as reader:
+        plan = make_plan(Walk(files=files), reader, BuildOptions())
+    assert [(t.path, t.known_hash, t.in_store) for t in plan.tasks] == [
+        (files[0].path, f"{files[0].size:064x}", True), ("c/new.stl", None, False)]
+    assert plan.removed == ["a/10.stl"] and plan.unchanged == len(listing) - 2
