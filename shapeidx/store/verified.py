@@ -14,7 +14,10 @@ whole file again.
 
 What this gives up: damage that reaches the disk without passing through the file system
 (a silently failing disk) is no longer found when a build starts but when the damaged
-bytes are read (every read checks its Fletcher-32 or CRC-32: a query, a merge, ``check``).
+bytes are read (every read checks its Fletcher-32 or CRC-32: a query, a merge, ``check``);
+so is a write that keeps the size and lands within the file system's timestamp tick of the
+recording (a few milliseconds on ext4), which only a process writing into the store's main
+file behind shapeidx's back could make.
 
 The record is only ever a shortcut: a missing, stale or unreadable one means "verify".
 It is written under the store's lock, atomically (a temporary file renamed into place).
