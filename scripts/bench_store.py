@@ -176,7 +176,8 @@ def store_embedding(reader, metric: str, chunk: int = 50_000) -> np.ndarray:
     return np.concatenate(parts)
 
 
-def bench_recall(store: Path, queries: int, top: int, metric: str, embedding: str | None = None) -> None:
+def bench_recall(store: Path, queries: int, top: int, metric: str, embedding: str | None = None,
+                 overfetch: int | None = None) -> None:
     """The pruned query's top ``top`` against the full exact ranking of every entry, for
     ``queries`` entries of the store as queries: recall, equal distances, time of each."""
     from shapeidx.ranking import top_hits
@@ -193,6 +194,8 @@ def bench_recall(store: Path, queries: int, top: int, metric: str, embedding: st
         index = None
         if embedding:
             from shapeidx.store.candidates import OVERFETCH, CandidateIndex
+
+            OVERFETCH = overfetch or OVERFETCH  # noqa: N806  (candidates per neighbour wanted)
 
             if len(reader._sources) != 1 or len(view) != len(reader):
                 raise SystemExit(f"{store}: --embedding needs a merged store of ok entries (view positions = rows)")
@@ -369,6 +372,7 @@ def main() -> int:
     r.add_argument("--queries", type=int, default=10)
     r.add_argument("--top", type=int, default=10)
     r.add_argument("--metric", default="weighted")
+    r.add_argument("--overfetch", type=int, help="embedding candidates per neighbour wanted (default: OVERFETCH, 3)")
     r.add_argument("--embedding", choices=("exact", "hnsw"), help="also the candidate embedding's recall"
                    " (shapeidx.store.candidates: FAISS flat or HNSW, then the exact distance of its candidates)")
     b = sub.add_parser("build")
@@ -393,7 +397,7 @@ def main() -> int:
     if args.what == "query":
         bench_query(args.part, args.stores, args.repeat, args.top)
     elif args.what == "recall":
-        bench_recall(args.store, args.queries, args.top, args.metric, args.embedding)
+        bench_recall(args.store, args.queries, args.top, args.metric, args.embedding, args.overfetch)
     elif args.what == "build":
         bench_build(args.stores, args.old_code, args.work, args.files, args.rounds, args.parts)
     else:
