@@ -235,7 +235,9 @@ def _query_view(reader: StoreReader, view, part, entry, top, metric, threads, fi
         first = view.position_of(found) if found is not None else None
     paths = LazyPaths(view)
     if scale == "invariant":
-        near = view.nearest(signature, metric, top, first, first if exclude_self else None, max_distance)
+        from .store.candidates import query_candidates
+
+        near = query_candidates(view, signature, metric, top, first, first if exclude_self else None, max_distance)
         if near is not None:  # exact distances of the entries that can be hits (and ``first``)
             chosen, distances = near
             keep = np.isfinite(distances) & ((chosen != first) if exclude_self and first is not None else True)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ShapeidxError
-from .candidates import candidate_pairs
+from ..store.candidates import candidate_pairs
 from ..distance.scale import check_scale, ratio_within_band
 
 #: Largest store clustered from the full distance matrix (N^2 / 2 exact distances).

@@ -192,7 +192,7 @@ def embedding_figure(result: dict, table, metric: str):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from .candidates import embed
+    from ..store.candidates import embed
 
     labels = np.asarray(result["clusters"])
     n, count = len(labels), int(result["count"])

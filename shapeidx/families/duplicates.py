@@ -35,7 +35,7 @@ from importlib import resources
 import numpy as np
 
 from ..errors import ShapeidxError
-from .candidates import OVERFETCH as OVERFETCH_MOMENTS, candidate_pairs
+from ..store.candidates import OVERFETCH as OVERFETCH_MOMENTS, candidate_pairs
 from .chirality import mirror_relation
 from ..distance.scale import check_scale, ratio_within_band
 
@@ -114,7 +114,7 @@ def _candidates(table, metric, k, method, threads):
     (each once), pairs the first entry of each with the first of its neighbours, and pairs
     the entries of one fingerprint among themselves.
     """
-    from .candidates import CandidateIndex
+    from ..store.candidates import CandidateIndex
 
     a, b, _, _, _ = candidate_pairs(table, metric, k, method, threads)
     pieces_a, pieces_b = [a], [b]

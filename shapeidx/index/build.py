@@ -17,13 +17,10 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
-
 from ..io.faceting import Faceting
 from ..errors import ShapeidxError, StoreDamagedError
 from ..signing.parameters import BIN_DIVISOR, DEFAULT_POINTS, DEFAULT_SEED, SIGNATURE_VERSION
-from ..store import STATUS_FAILED, STATUS_OK, StoreParams, StoreWriter, check_params, check_root, open_store
+from ..store import StoreParams, StoreWriter, check_params, check_root, open_store
 from ..system import available_cores
 from .commit import DEFAULT_COMMIT_INTERVAL, MERGE_AFTER, Committer
 from .plan import Plan, make_plan
@@ -269,10 +266,10 @@ def _count(summary: BuildSummary, outcome: Outcome) -> None:
 
 
 def _store_counts(store: Path, summary: BuildSummary) -> None:
-    with open_store(store) as reader:
-        status = reader.column("entries/status")
-        summary.store_ok = int(np.sum(status == STATUS_OK))
-        summary.store_failed = int(np.sum(status == STATUS_FAILED))
+    from ..store.known import known_files
+
+    with open_store(store) as reader:  # by path key: no path decoded, whatever the journal holds
+        summary.store_ok, summary.store_failed = known_files(reader).status_counts()
         summary.store_bytes = reader.size_on_disk()
 
 

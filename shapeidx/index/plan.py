@@ -10,8 +10,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from .. import __version__
 from ..store import STATUS_FAILED
+from ..store.known import known_files
 from .walk import Walk
 from .workers import Task
 
@@ -32,32 +35,36 @@ def make_plan(walk: Walk, reader, options) -> Plan:
     """Compare the walked files with the store's entries: tasks, unchanged count, removed paths.
 
     ``options`` is a :class:`~shapeidx.index.build.BuildOptions` (``full``, ``rehash``,
-    ``retry_failed`` are read).
+    ``retry_failed`` are read). The entries are looked up by path key
+    (:func:`~shapeidx.store.known.known_files`): no stored path is decoded but the removed
+    entries', no content hash read but the changed files'.
     """
-    paths = reader.paths
-    index = {p: i for i, p in enumerate(paths)}
-    size, mtime = reader.column("entries/size"), reader.column("entries/mtime_ns")
-    hashes, status = reader.column("entries/hash"), reader.column("entries/status")
+    known = known_files(reader)
+    files = walk.files
+    at = known.lookup([f.path for f in files])
+    found = at >= 0
+    entry = np.where(found, at, 0)
+    size = np.array([f.size for f in files], dtype=np.int64)
+    mtime = np.array([f.mtime_ns for f in files], dtype=np.int64)
+    failed = found & (known.status[entry] == STATUS_FAILED) if len(known) else np.zeros(len(files), dtype=bool)
+    same_size = found & (known.size[entry] == size) if len(known) else failed
+    same_stat = same_size & (known.mtime_ns[entry] == mtime) if len(known) else failed
     retry = options.retry_failed or reader.attrs.get("shapeidx_version") != __version__
-    tasks, unchanged, failed_before = [], 0, set()
-    for f in walk.files:
-        i = index.pop(f.path, None)
-        if i is not None and status[i] == STATUS_FAILED and size[i] == f.size and mtime[i] == f.mtime_ns:
-            failed_before.add(f.path)  # retried unchanged (--retry-failed, --full, a new version)
-        if i is None or options.full:
-            tasks.append(Task(f.path, f.absolute, in_store=i is not None))
-            continue
-        failed = status[i] == STATUS_FAILED
-        same_stat = size[i] == f.size and mtime[i] == f.mtime_ns
-        known = hashes[i].decode() or None
-        if failed and retry:
-            tasks.append(Task(f.path, f.absolute, in_store=True))
-        elif same_stat and not options.rehash:
-            unchanged += 1
-        else:  # times changed (or --rehash): same size may still be the same content
-            tasks.append(Task(f.path, f.absolute, known if size[i] == f.size else None, in_store=True))
-    removed = [p for p in index if not _under_any(p, walk.unlisted)]
-    return Plan(tasks, unchanged, sorted(removed), len(walk.files), failed_before)
+    # failed entries retried unchanged (--retry-failed, --full, a new version): failing again is not news
+    failed_before = {files[k].path for k in np.flatnonzero(failed & same_stat).tolist()}
+    work = ~found | (failed & bool(retry)) | ~same_stat
+    if options.full or options.rehash:
+        work[:] = True
+    unchanged = int(np.sum(~work))
+    # times changed (or --rehash): same size may still be the same content, known by its hash
+    hashed = np.flatnonzero(work & same_size & ~(failed & bool(retry))) if not options.full else np.zeros(0, dtype=np.int64)
+    known_hash = dict(zip(hashed.tolist(), known.hashes(at[hashed]))) if len(hashed) else {}
+    tasks = [Task(files[k].path, files[k].absolute, known_hash.get(k) or None, in_store=bool(found[k]))
+             for k in np.flatnonzero(work).tolist()]
+    gone = np.ones(len(known), dtype=bool)
+    gone[at[found]] = False
+    removed = [p for p in known.paths(np.flatnonzero(gone)) if not _under_any(p, walk.unlisted)]
+    return Plan(tasks, unchanged, sorted(removed), len(files), failed_before)
 
 
 def _under_any(path: str, folders: list) -> bool:

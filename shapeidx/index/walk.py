@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from stat import S_ISREG
 
 from ..io import format_of
 
@@ -53,6 +54,8 @@ def walk_parts(root: Path, follow_outside_links: bool = False) -> Walk:
                 continue  # a loop, or a second way to a folder already walked
             seen.add((stat.st_dev, stat.st_ino))
             children = sorted(os.scandir(folder), key=lambda e: e.name)
+            # the folder's paths as strings, once: pathlib per file costs more than its stat
+            folder_text, folder_rel = str(folder), folder.relative_to(root).as_posix()
         except OSError as exc:
             rel = folder.relative_to(root).as_posix()
             found.unlisted.append(rel)
@@ -71,7 +74,8 @@ def walk_parts(root: Path, follow_outside_links: bool = False) -> Walk:
             if _is_folder(child):
                 (linked if child.is_symlink() else folders).append(Path(child.path))
             elif format_of(child.name) is not None:
-                _add_file(found, root, Path(child.path))
+                _add_file(found, child.name if folder_rel == "." else f"{folder_rel}/{child.name}",
+                          child.name if folder_text == "." else os.path.join(folder_text, child.name))
     found.files.sort(key=lambda f: f.path)
     return found
 
@@ -95,18 +99,18 @@ def _is_folder(entry: os.DirEntry) -> bool:
         return False
 
 
-def _add_file(found: Walk, root: Path, absolute: Path) -> None:
-    rel = absolute.relative_to(root).as_posix()
+def _add_file(found: Walk, rel: str, absolute: str) -> None:
+    """``rel``: the path relative to the root, '/'-separated; ``absolute``: as ``str(Path(...))`` gives it."""
     try:
         rel.encode("utf-8")
     except UnicodeEncodeError:
         found.warnings.append(f"skipped {rel!r}: its name is not valid UTF-8")
         return
     try:
-        stat = absolute.stat()
+        stat = os.stat(absolute)
     except OSError as exc:
         found.warnings.append(f"skipped {rel}: {exc.strerror or exc} (a broken link?)")
         return
-    if not absolute.is_file():
+    if not S_ISREG(stat.st_mode):  # what Path.is_file() asks, from the same stat: one system call a file
         return
-    found.files.append(FoundFile(rel, str(absolute), stat.st_size, stat.st_mtime_ns))
+    found.files.append(FoundFile(rel, absolute, stat.st_size, stat.st_mtime_ns))

@@ -48,10 +48,14 @@ def suffixes() -> list[str]:
 
 def format_of(path: str | os.PathLike) -> str | None:
     """The format of ``path`` judged by its name (case-insensitive, ``.gz`` allowed), or None."""
-    name = Path(path).name.lower()
+    if isinstance(path, str) and "/" not in path:  # a bare file name (the build's walk): no Path to make
+        name = path.lower()
+    else:
+        name = Path(path).name.lower()
     if name.endswith(".gz"):
         name = name[:-3]
-    fmt = _BY_SUFFIX.get(Path(name).suffix)
+    at = name.rfind(".")
+    fmt = _BY_SUFFIX.get(name[at:]) if 0 < at < len(name) - 1 else None  # Path(name).suffix's rule: ".wrl" has none
     return fmt.name if fmt else None
 
 

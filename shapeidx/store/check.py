@@ -398,19 +398,24 @@ def refuse_damaged(store: Path) -> None:
     """Raise the one-line :class:`StoreDamagedError` if the store's main file fails a check.
 
     ``build`` calls this before it changes anything (journal batches are verified whenever a
-    store is opened). It reads the whole main file once: about a second per 100 MB.
+    store is opened). It reads the whole main file (about a second per 100 MB) unless that
+    very file passed before or was written by the store's own merge (``STORE.verified``,
+    :mod:`shapeidx.store.verified`); the caller holds the lock.
     """
     from .reader import damaged
+    from .verified import identity, is_verified, mark_verified
 
     store = Path(store)
-    if not store.exists():
+    if not store.exists() or is_verified(store):
         return
+    before = identity(store)
     _, points, attrs = _store_files(store)
     scan = scan_file(store, 0, points, derived=False)  # every checksum; the full comparison is check's
     if scan.problems:
         first = scan.problems[0]
         more = f" and {len(scan.problems) - 1} more" if len(scan.problems) > 1 else ""
         raise damaged(store, f"{first.what}: {first.problem}{more}", attrs.get("root"))
+    mark_verified(store, before)
 
 
 def repair_store(store: Path) -> list[str]:

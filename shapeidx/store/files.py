@@ -4,6 +4,7 @@
     STORE.journal/           batches committed since the main file was last written
         batch-0000000007.h5    same entry layout, plus /touched and /removed
     STORE.lock               held (flock) by the one build that may write
+    STORE.verified           which main file a build last verified (shapeidx.store.verified)
 
 No file a reader may open is ever written in place: every file is written under a temporary
 name, flushed to disk, and renamed into place (atomic on POSIX).

@@ -59,11 +59,8 @@ ANGLE_WIDTH = len(ANGLE_HISTOGRAMS) * ANGLE_BINS
 
 def path_keys(paths) -> np.ndarray:
     """(n, 2) uint64: the BLAKE2b-128 digest of each path (UTF-8), the key superseding uses."""
-    out = np.empty((len(paths), 2), dtype=np.uint64)
-    view = out.view(np.uint8).reshape(len(paths), 16)
-    for i, path in enumerate(paths):
-        view[i] = np.frombuffer(hashlib.blake2b(str(path).encode("utf-8", "surrogatepass"), digest_size=16).digest(), np.uint8)
-    return out
+    digests = b"".join(hashlib.blake2b(str(path).encode("utf-8", "surrogatepass"), digest_size=16).digest() for path in paths)
+    return np.frombuffer(digests, dtype=np.uint64).reshape(len(paths), 2).copy()  # one buffer, not one array a path
 
 
 def bytes_crc32(values: np.ndarray) -> int:

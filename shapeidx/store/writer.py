@@ -53,6 +53,7 @@ from .layout import (
 )
 from .rank import write_rank, write_rank_entries, write_rank_histogram
 from .reader import StoreReader, check_params, check_root, open_store
+from .verified import mark_verified
 
 #: A run of the newest segments is merged into the segment before it while that one holds at
 #: most GROWTH times their rows (see the module docstring).
@@ -202,8 +203,9 @@ class StoreWriter:
 
     def _remove_leftovers(self) -> None:
         """Temporary files of killed writers, and batches already in the main file."""
-        for tmp in self.path.parent.glob(f"{glob_escape(self.path.name)}.tmp-*"):
-            tmp.unlink(missing_ok=True)
+        for pattern in (".tmp-*", ".verified.tmp-*"):  # the second: a record being written (store/verified.py)
+            for tmp in self.path.parent.glob(f"{glob_escape(self.path.name)}{pattern}"):
+                tmp.unlink(missing_ok=True)
         folder = journal_dir(self.path)
         if folder.is_dir():
             for tmp in folder.glob("*.tmp-*"):
@@ -317,6 +319,7 @@ class StoreWriter:
         # the merged file holds no more than the files it merges, their checksums and ranking arrays
         estimate = int(reader.size_on_disk() * 2.2)
         write_atomically(self.path, lambda f: _write_snapshot(f, reader, attrs), estimate)
+        mark_verified(self.path)  # written from checked reads: the next build need not read it again
         self.merged_seq = through
         for seq, batch in batch_files(self.path):
             if seq <= through:

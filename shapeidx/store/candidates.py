@@ -1,0 +1,201 @@
+"""The candidate step: which entries are worth an exact distance. One module for the three
+roads that need it, the one-off query, ``duplicates`` and ``cluster``.
+
+Two questions, one step each, both ending in the exact distance:
+
+* **one part against every entry** (a query: :func:`query_candidates`). Every entry's
+  distance is bounded from below by that of its coarse histograms (``rank/H/coarse``, every
+  8 bins summed, memory-mapped; :meth:`~shapeidx.store.ranked.RankedView.nearest`), and exact
+  distances are computed only where the bound cannot rule an entry out. For the paper's
+  metrics the answer is therefore exact, bit for bit (recall 1 by construction, measured at
+  10^6 entries by ``scripts/bench_store.py recall``); for the others (no bound) every entry is
+  ranked exactly. The bound pass is linear in the store but reads 1/8 of the counts.
+* **every entry against every entry** (``duplicates``, ``cluster``: :func:`candidate_pairs`).
+  A bound per pair would be N^2 work; instead every signature becomes a fixed-length vector
+  (:func:`embed`) whose Euclidean distances order pairs nearly as the store's distances do,
+  the vectors are searched for each entry's nearest ones (:class:`CandidateIndex`, FAISS),
+  and only those candidates get the exact distance
+  (:meth:`shapeidx.families.table.FamilyTable.pair_distances`). This one is approximate:
+  its recall against the exact answer is measured (``scripts/bench_families.py`` at 10^4,
+  ``scripts/bench_store.py recall --embedding`` for single queries at 10^6).
+
+Why not one mechanism for both: the embedding's nearest vectors miss some of the exact
+nearest entries (docs/scaling.md has the recall at 10^6), so a query answered from it would
+no longer be the exact ranking, and certifying its answer needs the very bound pass above;
+the bounds, in turn, cost N per entry, N^2 for all pairs. Both read the same signatures.
+
+The embedding. Every stored histogram has bins of one width on the axis "distance / that
+histogram's mean" (the paper's normalisation), so bin k means the same for every part.
+Each histogram is coarsened to :data:`COARSE_BINS` bins of :data:`FINE_PER_COARSE` stored
+bins (the last one takes the rest of the tail) and the square roots of its probabilities
+are taken: Euclidean distance between such vectors is the Hellinger distance, which orders
+near pairs as the L1 ``D`` does. Weights per block (histograms, class fractions, the class
+scales ``ln(mean_c / mean_all)``) follow the metric's own weights, so one embedding per
+metric. The embedding only proposes: recall against the exact answer is measured by
+``scripts/bench_families.py`` (>= 99% of the exact neighbours and pairs at 10,000 entries).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..distance import METRIC_HISTOGRAMS, combined_weights
+from ..distance.combined import class_scales
+from ..signing.parameters import HISTOGRAMS
+
+#: Coarse bins per histogram in the embedding, and stored bins per coarse bin: 48 x 3 covers
+#: distances up to 2.9 times the mean (the rest of the tail is the last bin).
+COARSE_BINS = 48
+FINE_PER_COARSE = 3
+#: Candidates fetched from the embedding per neighbour wanted: 3 finds 99.8% of the exact
+#: 10 nearest on 10,000 synthetic entries (1 finds 63%); scripts/bench_families.py.
+OVERFETCH = 3
+#: Up to this many entries the index is exact (brute force on the vectors); above, HNSW.
+EXACT_LIMIT = 200_000
+#: HNSW graph degree and search breadth (recall measured by scripts/bench_families.py).
+HNSW_M = 32
+HNSW_EF_SEARCH = 256
+HNSW_EF_CONSTRUCTION = 200
+
+
+def _block_weights(metric: str) -> dict:
+    """Weight of each embedding block for ``metric`` (a histogram's, the fractions', the scales')."""
+    hists = METRIC_HISTOGRAMS[metric]
+    if metric in ("combined", "combined-angle"):  # combined-angle: its angles are left to the exact re-ranking
+        w = combined_weights()["weights"]
+        weights = {h: w[f"d_{h}"] for h in HISTOGRAMS}
+        weights["fractions"] = float(np.mean([w[f"gap_{c}"] for c in HISTOGRAMS[1:]]))
+        weights["scales"] = float(np.mean([w[f"scale_{c}"] for c in HISTOGRAMS[1:]]))
+        return {k: v for k, v in weights.items() if v > 0 or k in ("fractions", "scales")}
+    weights = {h: 1.0 for h in hists}
+    # Weighted divides each D by the classes' agreement: a fraction gap separates parts
+    weights["fractions"] = 0.02 if metric == "weighted" else 0.0
+    weights["scales"] = 0.0
+    return weights
+
+
+def embed(table, metric: str = "combined", median_bins: dict | None = None) -> np.ndarray:
+    """(N, dim) float32 vectors of a :class:`~shapeidx.families.table.FamilyTable`'s entries.
+
+    Squared Euclidean distance between two vectors approximates (a monotone stand-in for)
+    the ``metric`` distance of the two entries near zero; see the module docstring.
+    ``median_bins``: per histogram, the median bin count of the whole store (default: of
+    ``table``), so that a store embedded in chunks gets the vectors it would get whole.
+    """
+    weights = _block_weights(metric)
+    blocks = []
+    n = len(table)
+    for h in HISTOGRAMS:
+        if h not in weights or weights[h] <= 0 or h not in table.histograms:
+            continue
+        ragged = table.histograms[h]
+        lengths = ragged.lengths
+        k = np.arange(len(ragged.p)) - np.repeat(ragged.offsets[:-1], lengths)
+        coarse = np.minimum(k // FINE_PER_COARSE, COARSE_BINS - 1)
+        row = np.repeat(np.arange(n), lengths)
+        dense = np.zeros((n, COARSE_BINS))
+        np.add.at(dense, (row, coarse), ragged.p)
+        # D is L1 / bins: a part with few bins weighs each bin more
+        median = median_bins[h] if median_bins is not None else (
+            np.median(lengths[lengths > 0]) if (lengths > 0).any() else 1)
+        scale = np.sqrt(weights[h] / np.maximum(median, 1))
+        blocks.append(np.sqrt(dense) * scale * np.sqrt(COARSE_BINS))
+    if weights.get("fractions", 0) > 0:
+        blocks.append(table.fractions * np.sqrt(weights["fractions"]) * 3.0)
+    if weights.get("scales", 0) > 0:
+        blocks.append(class_scales(table.means) * np.sqrt(weights["scales"]))
+    vectors = np.concatenate(blocks, axis=1) if blocks else np.zeros((n, 1))
+    return np.ascontiguousarray(np.nan_to_num(vectors), dtype=np.float32)
+
+
+class CandidateIndex:
+    """Nearest vectors by Euclidean distance: exact (FAISS flat) up to :data:`EXACT_LIMIT`
+    entries, HNSW above (or as ``method`` says: ``"exact"``, ``"hnsw"``, ``"auto"``)."""
+
+    def __init__(self, vectors: np.ndarray, method: str = "auto", threads: int | None = None):
+        import faiss
+
+        if threads:
+            faiss.omp_set_num_threads(int(threads))
+        self.vectors = np.ascontiguousarray(vectors, dtype=np.float32)
+        n, dim = self.vectors.shape
+        self.method = ("exact" if n <= EXACT_LIMIT else "hnsw") if method == "auto" else method
+        if self.method == "exact":
+            self.index = faiss.IndexFlatL2(dim)
+        elif self.method == "hnsw":
+            self.index = faiss.IndexHNSWFlat(dim, HNSW_M)
+            self.index.hnsw.efConstruction = HNSW_EF_CONSTRUCTION
+            self.index.hnsw.efSearch = HNSW_EF_SEARCH
+        else:
+            raise ValueError(f"unknown candidate method {method!r}")
+        if n:
+            self.index.add(self.vectors)
+
+    def __len__(self) -> int:
+        return len(self.vectors)
+
+    def search(self, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` nearest entries of each query vector: (squared distances, indices), -1 for none."""
+        k = min(k, len(self))
+        queries = np.ascontiguousarray(queries, dtype=np.float32)
+        if k <= 0 or len(queries) == 0:
+            return np.zeros((len(queries), 0), np.float32), np.zeros((len(queries), 0), np.int64)
+        return self.index.search(queries, k)
+
+    def neighbours(self, k: int) -> np.ndarray:
+        """(N, k) candidate neighbours of every entry, itself left out (-1 where fewer exist)."""
+        _, found = self.search(self.vectors, k + 1)
+        n = len(self)
+        out = np.full((n, k), -1, dtype=np.int64)
+        own = found == np.arange(n)[:, None]
+        # drop the entry itself (or, among identical vectors, the last column) from each row
+        keep = ~own
+        drop_last = keep.all(axis=1)
+        keep[drop_last, -1] = False
+        rows = found[keep].reshape(n, -1) if found.shape[1] else found
+        out[:, : rows.shape[1]] = rows[:, :k]
+        return out
+
+
+def candidate_pairs(table, metric: str, k: int, method: str = "auto", threads: int | None = None, vectors=None):
+    """Each entry's ``k`` nearest neighbours: :data:`OVERFETCH` times as many candidates from
+    the embedding (or ``vectors``), each confirmed with the exact distance, the best ``k`` kept.
+
+    Returns
+    -------
+    a, b : (M,) int64
+        Every candidate pair confirmed, ``a < b``, each once.
+    distances : (M,) float64
+        Their exact ``metric`` distances.
+    neighbours : (N, k) int64
+        The candidates of every entry, nearest (by exact distance) first; -1 padding.
+    neighbour_distances : (N, k) float64
+        Their exact distances (inf for padding).
+    """
+    n = len(table)
+    index = CandidateIndex(embed(table, metric) if vectors is None else vectors, method, threads)
+    found = index.neighbours(min(OVERFETCH * k, max(n - 1, 0)))
+    rows = np.repeat(np.arange(n), found.shape[1])
+    cols = found.ravel()
+    valid = cols >= 0
+    exact = np.full(len(cols), np.inf)
+    exact[valid] = table.pair_distances(rows[valid], cols[valid], metric)
+    exact = exact.reshape(n, -1)
+    order = np.lexsort((found, exact), axis=1) if n else np.zeros((0, 0), np.int64)
+    neighbours = np.take_along_axis(found, order, axis=1)[:, :k]
+    neighbour_distances = np.take_along_axis(exact, order, axis=1)[:, :k]
+    a, b = np.minimum(rows, cols)[valid], np.maximum(rows, cols)[valid]
+    d = exact.ravel()[valid]
+    key = a * max(n, 1) + b
+    _, first = np.unique(key, return_index=True)
+    return a[first], b[first], d[first], neighbours, neighbour_distances
+
+
+def query_candidates(view, signature, metric: str, top: int, first: int | None = None, exclude: int | None = None,
+                     max_distance: float | None = None):
+    """The query's candidate step over a :class:`~shapeidx.store.ranked.RankedView`: positions
+    and exact distances of a set of live entries holding every entry of the exact ``top``
+    nearest (and ``first``), found with the coarse lower bounds; None for a metric that has no
+    bound (then every entry is ranked exactly). See the module docstring.
+    """
+    return view.nearest(signature, metric, top, first, exclude, max_distance)
