@@ -45,6 +45,8 @@ from .mesh import unit_normals
 from .occlusion import OcclusionScene
 from .parameters import CLASS_NAMES, IN, MIXED, OUT  # noqa: F401 (re-exported: the class codes)
 
+assert (IN, OUT) == (0, 1)  # classify_pairs writes an agreeing pair's "leaves the material" flag as its class
+
 #: Shift of query segments off the surface, relative to the bounding-box diagonal.
 OFFSET = 1e-5
 #: A segment whose direction makes |cos| < TANGENT with its face normal runs along the face.
@@ -133,33 +135,42 @@ def classify_pairs(
 
     m = len(points)
     first, second = pair_indices(m)
-    upper, lower = pair_flat_indices(m)
+    upper, _ = pair_flat_indices(m)
     distance = pdist(points)  # float64, in pair_indices order
 
-    # rise[a, b] = (p_a - p_b) . n_b: how far p_a lies above the plane of b's face. One small
-    # matrix product serves every pair; float32 is ample for a sign test against TANGENT.
-    # (Three outer products: BLAS is no faster for an inner dimension of 3 and wakes threads.)
+    # rise[a, b] = (p_a - p_b) . n_b: how far p_a lies above the plane of b's face. Three
+    # small outer products serve every pair; float32 is ample for a sign test against
+    # TANGENT. (BLAS is no faster for an inner dimension of 3 and wakes threads.) The
+    # transposed matrix is computed as well, not gathered: a pair (i, j) needs rise[i, j]
+    # and rise[j, i], and gathering the second through the transposed positions reads a
+    # new cache line for every pair. Products commute, so both are the same numbers.
     p32, n32 = points.astype(np.float32), normals.astype(np.float32)
+    own = np.einsum("ij,ij->i", p32, n32)
     rise = np.multiply.outer(p32[:, 0], n32[:, 0])
     rise += np.multiply.outer(p32[:, 1], n32[:, 1])
     rise += np.multiply.outer(p32[:, 2], n32[:, 2])
-    rise -= np.einsum("ij,ij->i", p32, n32)[None, :]
-    rise = rise.ravel()
+    rise -= own[None, :]
+    rise_back = np.multiply.outer(n32[:, 0], p32[:, 0])  # rise_back[i, j] = rise[j, i]
+    rise_back += np.multiply.outer(n32[:, 1], p32[:, 1])
+    rise_back += np.multiply.outer(n32[:, 2], p32[:, 2])
+    rise_back -= own[:, None]
     # the segment leaves the material at its end j when p_i lies above j's plane with
     # cos >= TANGENT (and at i when p_j lies above i's); coincident points stay IN
     threshold = (TANGENT * distance).astype(np.float32)
-    leaves_second = rise[upper] > threshold
-    leaves_first = rise[lower] > threshold
+    leaves_second = rise.ravel()[upper] > threshold
+    leaves_first = rise_back.ravel()[upper] > threshold
+    del rise, rise_back
 
-    classes = np.full(len(distance), MIXED, dtype=np.uint8)
     agree = np.flatnonzero(leaves_first == leaves_second)
     outward = leaves_first[agree]
     # each point moved off the surface, inward (rows 0..m-1) and outward (rows m..2m-1)
     shifted = np.concatenate([points - OFFSET * normals, points + OFFSET * normals]).astype(np.float32)
-    row_shift = m * outward
+    row_shift = np.where(outward, np.int32(m), np.int32(0))
     clear = ~scene.blocked_between(shifted, first[agree] + row_shift, second[agree] + row_shift, threads)
 
-    classes[agree[clear]] = np.where(outward[clear], OUT, IN)
+    # IN is 0 and OUT 1: an agreeing pair's class is its "outward", unless the surface is crossed
+    classes = np.full(len(distance), MIXED, dtype=np.uint8)
+    classes[agree] = np.where(clear, outward.view(np.uint8), np.uint8(MIXED))
     return distance / scale, classes
 
 
