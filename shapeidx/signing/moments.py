@@ -107,7 +107,9 @@ def shape_facts(vertices: np.ndarray, faces: np.ndarray) -> dict:
     vertices = np.asarray(vertices, dtype=np.float64)
     if len(faces) == 0 or len(vertices) == 0:
         return dict(UNKNOWN)
-    used = vertices[np.unique(np.asarray(faces))]
+    from .mesh import unique_indices  # here: this module is imported without scipy
+
+    used = vertices[unique_indices(faces)]
     bounds = tuple(np.concatenate([used.min(axis=0), used.max(axis=0)]).tolist())
     try:
         _, _, covariance, third = surface_moments(vertices, faces)
