@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .classify import pair_flat_indices
+from .classify import pair_blocks
 from .parameters import CLASS_NAMES
 
 #: Bins of each angle histogram over ``[0, pi]``. Odd, and 17 rather than 15, so that no bin
@@ -52,13 +52,16 @@ def angle_histograms(normals: np.ndarray, classes: np.ndarray) -> np.ndarray:
     (len(ANGLE_HISTOGRAMS), ANGLE_BINS) int64
     """
     n = np.asarray(normals, dtype=np.float64)
-    upper, _ = pair_flat_indices(len(n))
-    # every cosine from three outer products (a BLAS product with an inner dimension of 3
-    # costs several times more), then the pairs i < j: one gather
-    cos = np.multiply.outer(n[:, 0], n[:, 0])
-    cos += np.multiply.outer(n[:, 1], n[:, 1])
-    cos += np.multiply.outer(n[:, 2], n[:, 2])
-    bins = angle_bins(cos.ravel()[upper])
+    # the cosines by three outer products (a BLAS product with an inner dimension of 3
+    # costs several times more), by blocks of rows that stay in cache, upper triangle only
+    cos = np.empty(len(n) * (len(n) - 1) // 2)
+    for row, stop_row, local, start, stop in pair_blocks(len(n)):
+        n_i, n_j = n[row:stop_row], n[row:]
+        block = np.multiply.outer(n_i[:, 0], n_j[:, 0])
+        block += np.multiply.outer(n_i[:, 1], n_j[:, 1])
+        block += np.multiply.outer(n_i[:, 2], n_j[:, 2])
+        np.take(block.ravel(), local, out=cos[start:stop])
+    bins = angle_bins(cos)
     per_class = np.bincount(np.asarray(classes, dtype=np.int64) * ANGLE_BINS + bins, minlength=len(CLASS_NAMES) * ANGLE_BINS)
     per_class = per_class[: len(CLASS_NAMES) * ANGLE_BINS].reshape(len(CLASS_NAMES), ANGLE_BINS)
     return np.vstack([per_class.sum(axis=0), per_class]).astype(np.int64)
