@@ -60,3 +60,17 @@ def test_classes_histograms_and_angles_are_unchanged(data_dir, index):
         assert np.array_equal(got.counts, old.counts), name
         assert (got.mean, got.bin_width) == (old.mean, old.bin_width), name
     assert np.array_equal(angle_histograms(normals[0], classes), before.angle_histograms(old_normals, old_classes))
+
+
+def test_unique_indices_is_numpys_unique(data_dir):
+    from shapeidx.signing.mesh import unique_indices
+
+    path = _files(data_dir)[0]
+    mesh = load(path)
+    rng = np.random.default_rng(2)
+    for indices in (mesh.face_indices, make_solid(mesh, path).faces, rng.integers(0, 50, (40, 3)), np.zeros((0, 3), np.int64),
+                    np.array([-1, 3, 3, 0])):
+        used, inverse = np.unique(indices, return_inverse=True)
+        got_used, got_inverse = unique_indices(indices, return_inverse=True)
+        assert np.array_equal(got_used, used) and np.array_equal(got_inverse, inverse.reshape(-1))
+        assert np.array_equal(unique_indices(indices), np.unique(indices))
