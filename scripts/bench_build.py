@@ -3,7 +3,7 @@
 
 Usage::
 
-    python scripts/bench_build.py [--cache DIR] [--subset N] [--seed S] [--workers 2] [--scheduler ADDRESS]
+    python scripts/bench_build.py [--cache DIR] [--subset N] [--seed S] [--workers 2] [--scheduler ADDRESS] [--floor-jobs J]
 
 The library is Debian's ``kicad-packages3d`` (6,227 VRML models of KiCad 6): fetched once
 with ``apt-get download kicad-packages3d`` into ``--cache`` and unpacked there with
@@ -24,9 +24,11 @@ Measured, in one run on one machine:
 * the same ratio in CPU time: the CPU seconds of the build's processes together over the
   floor's CPU seconds. On a machine that other work shares, wall times stretch with the
   load; this one does much less;
-* where the per-file work goes: each built part hashed, loaded, made a solid and signed
-  again on one thread, in CPU seconds over the floor's CPU seconds (what the build would
-  cost with no overhead of its own).
+* where the per-file work goes: each built part hashed, loaded, made a solid, signed and
+  measured (the facts an entry keeps beside its signature) again on one thread, in CPU
+  seconds over the floor's CPU seconds (what the build would cost with no overhead of its
+  own); ``--floor-only`` leaves this out, ``--floor-jobs J`` shares it (and the floor)
+  among J processes.
 
 With ``--scheduler`` the build runs on that Dask cluster (``--workers`` is then only the
 floor's divisor: give the cluster's thread count; the memory and CPU figures are then those of
@@ -118,9 +120,15 @@ def timed_build(tree: Path, store: Path, workers: int, scheduler: str | None) ->
     proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     done = threading.Event()
 
+    loads = []  # the 1-minute load average, once a second
+
     def sample():
+        ticks = 0
         while not done.is_set():
             peak[0] = max(peak[0], _tree_rss(proc.pid))
+            if ticks % 10 == 0:
+                loads.append(os.getloadavg()[0])
+            ticks += 1
             done.wait(0.1)
 
     sampler = threading.Thread(target=sample, daemon=True)
@@ -135,29 +143,49 @@ def timed_build(tree: Path, store: Path, workers: int, scheduler: str | None) ->
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     largest = after.ru_maxrss * 1024  # kB on Linux
     return {"wall": wall, "cpu": cpu, "record": json.loads(out), "peak_total": peak[0], "peak_process": largest,
-            "command": shlex.join(command)}
+            "command": shlex.join(command), "loads": loads}
 
 
-def floor_seconds(tree: Path, store: Path, points: int) -> dict:
+def floor_seconds(tree: Path, store: Path, points: int, jobs: int = 1, stages: bool = True) -> dict:
     """The floor, and where a part's time goes, over every ok entry's part, on one thread.
 
     Returns the bare Embree query's summed wall and CPU seconds, the part count, and the
     summed CPU seconds of each stage of the build's own per-file work (hash, load, solid,
-    signature: what ``index_file`` does), so ``stages / bare`` says how far above the floor
+    signature, and the facts an entry keeps beside it: what ``index_file`` does), so ``stages / bare`` says how far above the floor
     the per-file work is by itself, whatever runs it.
+
+    ``jobs > 1`` shares the parts among that many processes, each timing its parts on one
+    thread as above (every figure is a sum of per-part, per-process times), so that the
+    whole library's floor takes a fraction of the time on as many cores. ``stages=False``
+    times only the floor (each part is still loaded and made a solid, untimed).
     """
+    from shapeidx.store import STATUS_OK, open_store
+
+    with open_store(store) as reader:
+        paths = list(reader.paths[reader.column("entries/status") == STATUS_OK])
+    if jobs <= 1:
+        return _floor_of(tree, paths, points, stages)
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    shares = [paths[k::jobs] for k in range(jobs)]
+    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        parts = list(pool.map(_floor_of, [tree] * jobs, shares, [points] * jobs, [stages] * jobs))
+    return {key: sum(part[key] for part in parts) for key in parts[0]}
+
+
+def _floor_of(tree: Path, paths: list, points: int, stages: bool = True) -> dict:
+    """:func:`floor_seconds` over these paths, in this process."""
     import hashlib
 
     from shapeidx.io import load
+    from shapeidx.signing.moments import shape_facts
     from shapeidx.signing.pipeline import signature_of_solid
     from shapeidx.signing.solid import make_solid
-    from shapeidx.store import STATUS_OK, open_store
     from shapeidx.system import keep_freed_memory
 
     keep_freed_memory()  # as the build's workers do
-    with open_store(store) as reader:
-        paths = list(reader.paths[reader.column("entries/status") == STATUS_OK])
-    found = {"bare": 0.0, "bare_cpu": 0.0, "hash": 0.0, "load": 0.0, "solid": 0.0, "signature": 0.0,
+    found = {"bare": 0.0, "bare_cpu": 0.0, "hash": 0.0, "load": 0.0, "solid": 0.0, "signature": 0.0, "facts": 0.0,
              "parts": len(paths)}
     clock = time.process_time  # CPU of every thread (Embree builds its BVH on several)
 
@@ -172,7 +200,9 @@ def floor_seconds(tree: Path, store: Path, points: int) -> dict:
         timed("hash", lambda: hashlib.sha256(path.read_bytes()).hexdigest())
         polygons = timed("load", lambda: load(path))
         solid = timed("solid", lambda: make_solid(polygons, path))
-        timed("signature", lambda: signature_of_solid(solid, points))
+        if stages:
+            timed("signature", lambda: signature_of_solid(solid, points))
+            timed("facts", lambda: (solid.describe(), shape_facts(solid.vertices, solid.faces)))  # the entry's other facts
         query = bare_query_of(solid, points)
         started, started_cpu = time.perf_counter(), clock()
         query()
@@ -196,6 +226,10 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--scheduler", help="build on this Dask cluster")
     parser.add_argument("--work", type=Path, default=REPO / ".bench-cache", help="where the store is written")
+    parser.add_argument("--floor-only", action="store_true",
+                        help="after the build, time only the floor, not the per-file stages (half the time)")
+    parser.add_argument("--floor-jobs", type=int, default=1,
+                        help="processes that time the floor and the stages after the build (each on one thread)")
     args = parser.parse_args()
     print(f"machine: {machine()}")
     print(f"command: {shlex.join([sys.executable, *sys.argv])}")
@@ -214,8 +248,12 @@ def main() -> int:
               f" {record['indexed'] / build['wall']:.1f} parts/s")
         print(f"  peak memory: {build['peak_total'] / 2**20:.0f} MiB all processes together,"
               f" {build['peak_process'] / 2**20:.0f} MiB the largest one")
+        loads = build["loads"] or [float("nan")]
+        print(f"load average during the build (1-minute, sampled every second): mean {sum(loads) / len(loads):.2f},"
+              f" max {max(loads):.2f}")
         print(f"load average after the build: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
-        found = floor_seconds(tree, store, 1024)
+        found = floor_seconds(tree, store, 1024, args.floor_jobs, not args.floor_only)
+        print(f"load average after the floor: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
         floor, floor_cpu, parts = found["bare"], found["bare_cpu"], found["parts"]
         ratio = build["wall"] / (floor / args.workers)
         print(f"floor: bare Embree occlusion {floor:.1f} s ({floor_cpu:.1f} s CPU) over {parts} parts on one thread,"
@@ -223,10 +261,11 @@ def main() -> int:
         print(f"wall / floor: {ratio:.2f} (target at most {TARGET}){'' if ratio <= TARGET else ' OVER TARGET'}")
         print(f"CPU / floor CPU: {build['cpu']:.1f} s / {floor_cpu:.1f} s = {build['cpu'] / floor_cpu:.2f}"
               f" (the build's processes together)")
-        stages = ("hash", "load", "solid", "signature")
-        print("per-file work on one thread, CPU over the floor's CPU: "
-              + ", ".join(f"{stage} {found[stage] / floor_cpu:.2f}" for stage in stages)
-              + f"; together {sum(found[stage] for stage in stages) / floor_cpu:.2f}")
+        stages = ("hash", "load", "solid", "signature", "facts")
+        if not args.floor_only:
+            print("per-file work on one thread, CPU over the floor's CPU: "
+                  + ", ".join(f"{stage} {found[stage] / floor_cpu:.2f}" for stage in stages)
+                  + f"; together {sum(found[stage] for stage in stages) / floor_cpu:.2f}")
         print(f"load average at the end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     finally:
         for path in [store, *store.parent.glob(store.name + ".*")]:

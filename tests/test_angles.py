@@ -195,3 +195,17 @@ def test_a_store_without_angles_refuses_only_the_angle_metrics(small_store, tmp_
         assert refused.exit_code == 1
         lines = refused.stderr.strip().splitlines()
         assert len(lines) == 1 and "normal-angle histograms" in lines[0] and "Traceback" not in refused.stderr
+
+
+def test_fast_angle_bins_are_the_definitions_at_every_edge():
+    from shapeidx.signing.angles import angle_bins, angle_bins_exact
+
+    rng = np.random.default_rng(5)
+    values = [rng.uniform(-1.0 - 1e-9, 1.0 + 1e-9, 200_000), np.array([-1.0, 1.0, 0.0, -0.0, np.nextafter(1, 2), -1.5, 1.5])]
+    for edge in np.cos(np.arange(ANGLE_BINS + 1) * np.pi / ANGLE_BINS):
+        ulp = np.spacing(abs(edge)) if edge else np.spacing(1e-17)
+        values += [edge + np.arange(-300, 301) * ulp, edge + np.arange(-300, 301) * 1e-11]
+    cos = np.concatenate(values)
+    exact = angle_bins_exact(cos)
+    assert np.array_equal(angle_bins(cos), exact)
+    assert set(np.unique(exact)) == set(range(ANGLE_BINS))

@@ -45,6 +45,8 @@ from .mesh import unit_normals
 from .occlusion import OcclusionScene
 from .parameters import CLASS_NAMES, IN, MIXED, OUT  # noqa: F401 (re-exported: the class codes)
 
+assert (IN, OUT) == (0, 1)  # classify_pairs writes an agreeing pair's "leaves the material" flag as its class
+
 #: Shift of query segments off the surface, relative to the bounding-box diagonal.
 OFFSET = 1e-5
 #: A segment whose direction makes |cos| < TANGENT with its face normal runs along the face.
@@ -73,6 +75,32 @@ def pair_indices(count: int) -> tuple[np.ndarray, np.ndarray]:
     i.flags.writeable = False
     j.flags.writeable = False
     return i, j
+
+
+#: Rows of the pair matrix handled at once by :func:`pair_blocks`' users: a block of
+#: 64 x 1024 float64 values (512 KiB) stays in a core's cache between the passes over it.
+BLOCK_ROWS = 64
+
+
+@lru_cache(maxsize=4)
+def pair_blocks(count: int, rows: int = BLOCK_ROWS) -> tuple:
+    """The pairs ``i < j`` in blocks of rows, for pair-matrix work that stays in cache.
+
+    Returns a tuple of ``(first, stop_row, local, start, stop)``: the pairs ``start:stop``
+    (in :func:`pair_indices` order) are those with ``first <= i < stop_row``, and ``local``
+    is where each lies in the flattened ``(stop_row - first, count - first)`` block of rows
+    ``first..stop_row - 1`` and columns ``first..count - 1`` (read-only).
+    """
+    blocks = []
+    start = 0
+    for first in range(0, count, rows):
+        stop_row = min(count, first + rows)
+        width = count - first
+        local = np.concatenate([(i - first) * width + np.arange(i + 1 - first, width) for i in range(first, stop_row)])
+        local.flags.writeable = False
+        blocks.append((first, stop_row, local, start, start + len(local)))
+        start += len(local)
+    return tuple(blocks)
 
 
 def normalise(vertices: np.ndarray, points: np.ndarray):
@@ -133,33 +161,44 @@ def classify_pairs(
 
     m = len(points)
     first, second = pair_indices(m)
-    upper, lower = pair_flat_indices(m)
     distance = pdist(points)  # float64, in pair_indices order
 
-    # rise[a, b] = (p_a - p_b) . n_b: how far p_a lies above the plane of b's face. One small
-    # matrix product serves every pair; float32 is ample for a sign test against TANGENT.
-    # (Three outer products: BLAS is no faster for an inner dimension of 3 and wakes threads.)
-    p32, n32 = points.astype(np.float32), normals.astype(np.float32)
-    rise = np.multiply.outer(p32[:, 0], n32[:, 0])
-    rise += np.multiply.outer(p32[:, 1], n32[:, 1])
-    rise += np.multiply.outer(p32[:, 2], n32[:, 2])
-    rise -= np.einsum("ij,ij->i", p32, n32)[None, :]
-    rise = rise.ravel()
+    # rise[a, b] = (p_a - p_b) . n_b: how far p_a lies above the plane of b's face. Three
+    # small outer products serve every pair; float32 is ample for a sign test against
+    # TANGENT. (BLAS is no faster for an inner dimension of 3 and wakes threads.) A pair
+    # (i, j) needs rise[i, j] and rise[j, i]: both are computed by blocks of rows i (the
+    # second as its transpose, products commute: the same numbers), so that each block's
+    # values are compared while still in cache and only the upper triangle is computed.
     # the segment leaves the material at its end j when p_i lies above j's plane with
     # cos >= TANGENT (and at i when p_j lies above i's); coincident points stay IN
+    p32, n32 = points.astype(np.float32), normals.astype(np.float32)
+    own = np.einsum("ij,ij->i", p32, n32)
     threshold = (TANGENT * distance).astype(np.float32)
-    leaves_second = rise[upper] > threshold
-    leaves_first = rise[lower] > threshold
+    leaves_second = np.empty(len(distance), dtype=bool)
+    leaves_first = np.empty(len(distance), dtype=bool)
+    for row, stop_row, local, start, stop in pair_blocks(m):
+        p_i, n_i, p_j, n_j = p32[row:stop_row], n32[row:stop_row], p32[row:], n32[row:]
+        rise = np.multiply.outer(p_i[:, 0], n_j[:, 0])  # rise[i, j]
+        rise += np.multiply.outer(p_i[:, 1], n_j[:, 1])
+        rise += np.multiply.outer(p_i[:, 2], n_j[:, 2])
+        rise -= own[None, row:]
+        rise_back = np.multiply.outer(n_i[:, 0], p_j[:, 0])  # rise[j, i]
+        rise_back += np.multiply.outer(n_i[:, 1], p_j[:, 1])
+        rise_back += np.multiply.outer(n_i[:, 2], p_j[:, 2])
+        rise_back -= own[row:stop_row, None]
+        np.greater(rise.ravel()[local], threshold[start:stop], out=leaves_second[start:stop])
+        np.greater(rise_back.ravel()[local], threshold[start:stop], out=leaves_first[start:stop])
 
-    classes = np.full(len(distance), MIXED, dtype=np.uint8)
     agree = np.flatnonzero(leaves_first == leaves_second)
     outward = leaves_first[agree]
     # each point moved off the surface, inward (rows 0..m-1) and outward (rows m..2m-1)
     shifted = np.concatenate([points - OFFSET * normals, points + OFFSET * normals]).astype(np.float32)
-    row_shift = m * outward
+    row_shift = np.where(outward, np.int32(m), np.int32(0))
     clear = ~scene.blocked_between(shifted, first[agree] + row_shift, second[agree] + row_shift, threads)
 
-    classes[agree[clear]] = np.where(outward[clear], OUT, IN)
+    # IN is 0 and OUT 1: an agreeing pair's class is its "outward", unless the surface is crossed
+    classes = np.full(len(distance), MIXED, dtype=np.uint8)
+    classes[agree] = np.where(clear, outward.view(np.uint8), np.uint8(MIXED))
     return distance / scale, classes
 
 

@@ -81,12 +81,14 @@ class Signature:
         """
         histograms = {"all": Histogram.of(distances, divisor)}
         n_classes = len(CLASS_NAMES)
-        sizes = np.bincount(classes, minlength=n_classes)
-        means = np.bincount(classes, weights=distances, minlength=n_classes) / np.maximum(sizes, 1)
+        codes = classes.astype(np.intp)  # once: bincount and take would each convert uint8 again
+        sizes = np.bincount(codes, minlength=n_classes)
+        means = np.bincount(codes, weights=distances, minlength=n_classes) / np.maximum(sizes, 1)
         widths = means / divisor
-        bins = (distances / np.where(widths > 0, widths, 1.0)[classes]).astype(np.int64)
-        stride = int(bins.max()) + 1 if len(bins) else 1
-        key = classes.astype(np.int64) * stride + bins  # int64: uint8 classes would wrap
+        key = (distances / np.take(np.where(widths > 0, widths, 1.0), codes)).astype(np.int64)
+        stride = int(key.max()) + 1 if len(key) else 1
+        codes *= stride
+        key += codes  # each pair's bin, offset by its class
         table = np.bincount(key, minlength=n_classes * stride).reshape(n_classes, stride)
         for code, name in enumerate(CLASS_NAMES):
             used = np.flatnonzero(table[code])

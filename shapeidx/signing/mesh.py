@@ -67,6 +67,28 @@ def signed_volumes(vertices: np.ndarray, faces: np.ndarray, origin=None) -> np.n
     return np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
 
 
+def unique_indices(indices: np.ndarray, return_inverse: bool = False):
+    """``np.unique`` of non-negative integer indices (vertex numbers), by a mask, not a sort.
+
+    Returns the sorted distinct values (int64) and, with ``return_inverse``, each index's
+    position among them (flat): exactly what ``np.unique`` gives, in time linear in the
+    indices and the largest of them.
+    """
+    flat = np.asarray(indices).reshape(-1)
+    if len(flat) == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return (empty, empty) if return_inverse else empty
+    if flat.min() < 0:  # not vertex numbers: the general road
+        return np.unique(flat, return_inverse=return_inverse)
+    seen = np.zeros(int(flat.max()) + 1, dtype=bool)
+    seen[flat] = True
+    used = np.flatnonzero(seen)
+    if not return_inverse:
+        return used
+    rank = np.cumsum(seen) - 1
+    return used, rank[flat]
+
+
 # ----------------------------------------------------------------------------------
 # 1. triangulation
 
@@ -227,7 +249,7 @@ def merge_vertices(vertices: np.ndarray, faces: np.ndarray, relative_tolerance: 
     faces : (k, 3) int64
         Re-indexed.
     """
-    used, inverse = np.unique(faces.reshape(-1), return_inverse=True)
+    used, inverse = unique_indices(faces, return_inverse=True)
     points = vertices[used]
     lo, hi = points.min(axis=0), points.max(axis=0)
     step = max(float(np.linalg.norm(hi - lo)), 1e-300) * relative_tolerance
@@ -490,8 +512,7 @@ def orient_shells(faces: np.ndarray) -> Shells:
     plain = coo_matrix((np.ones(len(f1), dtype=np.int8), (f1, f2)), shape=(k, k))
     count, shell = connected_components(plain, directed=False)
 
-    orientable = np.ones(count, dtype=bool)
-    np.logical_and.at(orientable, shell, orientable_face)
+    orientable = np.bincount(shell, weights=~orientable_face, minlength=count) == 0  # no face that is not
     kept = np.bincount(shell, weights=(~flip).astype(float), minlength=count) / np.bincount(shell, minlength=count)
     closed = _closed_shells(new_faces, shell, count) & orientable
     return Shells(new_faces, shell, count, closed, orientable, kept)
@@ -512,6 +533,4 @@ def _closed_shells(faces: np.ndarray, shell: np.ndarray, count: int) -> np.ndarr
     size = np.diff(np.concatenate([start, [len(skey)]]))
     n_forward = np.add.reduceat(forward, start)
     good_edge = 2 * n_forward == size
-    closed = np.ones(count, dtype=bool)
-    np.logical_and.at(closed, sowner[start], good_edge)
-    return closed
+    return np.bincount(sowner[start], weights=~good_edge, minlength=count) == 0  # no bad edge

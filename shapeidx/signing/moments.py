@@ -73,12 +73,25 @@ def surface_moments(vertices: np.ndarray, faces: np.ndarray):
     area = float(areas.sum())
     if not area > 0:
         raise ValueError("the surface has no area")
-    points = np.einsum("qv,kvd->qkd", _BARY, tri)  # (7, k, 3)
-    weights = _WEIGHTS[:, None] * areas[None, :] / area  # (7, k), sums to 1
-    centroid = np.einsum("qk,qkd->d", weights, points)
-    x = points - centroid
-    covariance = np.einsum("qk,qki,qkj->ij", weights, x, x)
-    third = np.einsum("qk,qki,qkj,qkl->ijl", weights, x, x, x)
+    # the quadrature points as columns, one row per axis, and each distinct moment a sum of
+    # products of contiguous rows: an einsum of four operands loops over every index
+    # combination (some 15 times slower on a KiCad part), and BLAS would start threads
+    # that only spin beside a build worker, which already has its core.
+    points = np.einsum("qv,dvk->dqk", _BARY, tri.transpose(2, 1, 0)).reshape(3, -1)  # (3, 7 k)
+    weights = (_WEIGHTS[:, None] * areas[None, :] / area).reshape(-1)  # (7 k,), sums to 1
+    centroid = np.einsum("dn,n->d", points, weights)
+    x = points - centroid[:, None]
+    weighted = x * weights
+    covariance = np.empty((3, 3))
+    third = np.empty((3, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            pair = weighted[i] * x[j]
+            covariance[i, j] = covariance[j, i] = pair.sum()
+            for k in range(j, 3):
+                value = (pair * x[k]).sum()
+                for a, b, c in {(i, j, k), (i, k, j), (j, i, k), (j, k, i), (k, i, j), (k, j, i)}:
+                    third[a, b, c] = value
     return area, centroid, covariance, third
 
 
@@ -107,7 +120,9 @@ def shape_facts(vertices: np.ndarray, faces: np.ndarray) -> dict:
     vertices = np.asarray(vertices, dtype=np.float64)
     if len(faces) == 0 or len(vertices) == 0:
         return dict(UNKNOWN)
-    used = vertices[np.unique(np.asarray(faces))]
+    from .mesh import unique_indices  # here: this module is imported without scipy
+
+    used = vertices[unique_indices(faces)]
     bounds = tuple(np.concatenate([used.min(axis=0), used.max(axis=0)]).tolist())
     try:
         _, _, covariance, third = surface_moments(vertices, faces)
