@@ -344,14 +344,9 @@ def same_quad_diagonals(vertices: np.ndarray, faces: np.ndarray, tolerance: floa
     """
     if len(faces) < 4:
         return faces
-    _, _, face, key = _edge_table(faces)
-    order = np.argsort(key, kind="stable")
-    skey = key[order]
-    start = np.flatnonzero(np.concatenate([[True], skey[1:] != skey[:-1]]))
-    size = np.diff(np.concatenate([start, [len(skey)]]))
-    two = start[size == 2]
-    t1, t2 = face[order[two]], face[order[two + 1]]
-    slot1, slot2 = order[two] % 3, order[two + 1] % 3
+    h1, h2 = _two_face_edges(faces)
+    t1, t2 = h1 // 3, h2 // 3
+    slot1, slot2 = h1 % 3, h2 % 3
     u = faces[t1, slot1]
     v = faces[t1, (slot1 + 1) % 3]
     a = faces[t1, (slot1 + 2) % 3]  # t1's corner off the shared edge
@@ -477,6 +472,18 @@ def _edge_table(faces: np.ndarray):
     return u, v, face, key
 
 
+def _two_face_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The edges that exactly two triangles share, as their two half-edges (indices into
+    :func:`_edge_table`'s arrays: half-edge ``h`` is side ``h % 3`` of face ``h // 3``)."""
+    _, _, _, key = _edge_table(faces)
+    order = np.argsort(key, kind="stable")
+    skey = key[order]
+    start = np.flatnonzero(np.concatenate([[True], skey[1:] != skey[:-1]]))
+    size = np.diff(np.concatenate([start, [len(skey)]]))
+    two = start[size == 2]
+    return order[two], order[two + 1]
+
+
 def orient_shells(faces: np.ndarray) -> Shells:
     """Split faces into shells and make the winding consistent within each.
 
@@ -488,13 +495,8 @@ def orient_shells(faces: np.ndarray) -> Shells:
     node ``f + k`` the same face flipped.
     """
     k = len(faces)
-    u, _, face, key = _edge_table(faces)
-    order = np.argsort(key, kind="stable")
-    skey = key[order]
-    group_start = np.flatnonzero(np.concatenate([[True], skey[1:] != skey[:-1]]))
-    group_size = np.diff(np.concatenate([group_start, [len(skey)]]))
-    pairs = group_start[group_size == 2]
-    h1, h2 = order[pairs], order[pairs + 1]
+    u, _, face, _ = _edge_table(faces)
+    h1, h2 = _two_face_edges(faces)
     f1, f2 = face[h1], face[h2]
     must_flip_one = u[h1] == u[h2]  # both traverse the shared edge the same way
 
