@@ -209,3 +209,20 @@ def test_fast_angle_bins_are_the_definitions_at_every_edge():
     exact = angle_bins_exact(cos)
     assert np.array_equal(angle_bins(cos), exact)
     assert set(np.unique(exact)) == set(range(ANGLE_BINS))
+
+
+def test_angle_features_are_l1_and_hellinger_distances():
+    from shapeidx.distance.combined import ANGLE_FEATURES, angle_features
+
+    # rows: all, IN, OUT, MIXED; two-bin toy distributions whose distances are known by hand
+    p = np.array([[1.0, 0.0], [0.5, 0.5], [0.0, 0.0], [0.25, 0.75]])
+    q = np.array([[0.0, 1.0], [0.5, 0.5], [0.0, 0.0], [0.0, 0.0]])
+    got = angle_features(p, q)
+    assert set(got) == set(ANGLE_FEATURES)
+    assert [float(got[f"angle_{h}"]) for h in ("all", "in", "out", "mixed")] == [2.0, 0.0, 0.0, 1.0]
+    hellinger = [float(got[f"hellinger_angle_{h}"]) for h in ("all", "in", "out", "mixed")]
+    # disjoint: 1; equal: 0; both empty: 0; empty against filled: sqrt(1/2)
+    np.testing.assert_allclose(hellinger, [1.0, 0.0, 0.0, np.sqrt(0.5)], atol=1e-15)
+    # broadcasting one query against many rows gives each row's pair value
+    many = angle_features(p[None], np.stack([q, p]))
+    assert float(many["hellinger_angle_all"][0]) == hellinger[0] and float(many["hellinger_angle_all"][1]) == 0.0
