@@ -7,7 +7,7 @@ Synthetic stores come from ``scripts/bench_query.py``'s generator (each entry on
 source's real signatures, every count scaled by a random factor in [0.9, 1.1] and 0-5 last
 bins dropped; sizes and handedness those of the source part). Measured:
 
-* recall of the approximate candidates (:mod:`shapeidx.families.candidates`) against the
+* recall of the approximate candidates (:mod:`shapeidx.store.candidates`) against the
   exact answer, on ``--recall-size`` entries (default 10,000): for ``--queries`` entries
   drawn at random, the exact distance to every entry gives their exact 15 nearest
   neighbours (the cluster graph's k) and every pair ``find_duplicates`` would report if
@@ -31,7 +31,7 @@ import numpy as np
 
 from _common import machine
 from make_store import real_signatures, write_store
-from shapeidx.families.candidates import candidate_pairs
+from shapeidx.store.candidates import candidate_pairs
 from shapeidx.families.cluster import GRAPH_NEIGHBOURS, cluster_store
 from shapeidx.families.duplicates import FINGERPRINT_NEAR, find_duplicates, fingerprint_gap, thresholds
 from shapeidx.families.table import FamilyTable

@@ -16,7 +16,7 @@ from clitools import cli, cli_json
 from storetools import copy_tree
 from shapeidx.distance import METRICS, compare
 from shapeidx.families.agreement import ari, nmi
-from shapeidx.families.candidates import candidate_pairs
+from shapeidx.store.candidates import candidate_pairs
 from shapeidx.families.chirality import mirror_relation
 from shapeidx.signing.moments import shape_facts, surface_moments
 from shapeidx.families.cluster import cluster_store

@@ -1,9 +1,9 @@
 """The whole store at once: the paper's first task (categories, clusters) and duplicates.
 
-(``--scale invariant | sensitive`` is :mod:`shapeidx.distance.scale`: query uses it too.)
+(``--scale invariant | sensitive`` is :mod:`shapeidx.distance.scale`: query uses it too; the
+candidate step, FAISS over fixed-length embeddings, is :mod:`shapeidx.store.candidates`.)
 
     table.py       the ok entries laid out for pair work: exact distances of chosen pairs
-    candidates.py  the approximate step: fixed-length embeddings searched with FAISS
     chirality.py   is one part the mirror image of another (from the stored handedness)
     labels.py      labels of entries: folders or a CSV
     classify.py    distance-weighted k-NN vote            (shapeidx classify)

@@ -14,7 +14,7 @@ Which picture follows the road :func:`~shapeidx.families.cluster.cluster_store` 
 * **graph road** (larger stores; single linkage on the neighbour graph, no tree of every
   merge to draw): a 2-D embedding, one dot per entry coloured by its cluster. The plane is
   the first two principal axes of the candidate embedding of
-  :func:`~shapeidx.families.candidates.embed` (whose Euclidean distances stand in for the
+  :func:`~shapeidx.store.candidates.embed` (whose Euclidean distances stand in for the
   metric near zero): principal components of those vectors are classical MDS of their
   distances, computed from a (dim, dim) covariance, so 10^6 entries cost seconds. The
   :data:`LABELLED_CLUSTERS` largest clusters carry their number at their median point.

@@ -18,7 +18,7 @@ mirror image of the other, by :func:`shapeidx.families.chirality.mirror_relation
 false for parts that are their own mirror image). With ``scale="sensitive"`` a pair whose
 sizes differ by more than :data:`~shapeidx.distance.scale.SIZE_BAND` is no duplicate.
 
-Candidates come from :func:`shapeidx.families.candidates.candidate_pairs`, twice: each
+Candidates come from :func:`shapeidx.store.candidates.candidate_pairs`, twice: each
 entry's nearest neighbours in the D2 embedding, and in the space of its exact moments
 (:func:`fingerprint_vectors`); all are confirmed with the exact distance, so the work grows
 as N k, not N^2. Groups are the connected components of the pairs found; a group of up to

@@ -284,10 +284,11 @@ def remove_bad_faces(vertices: np.ndarray, faces: np.ndarray, relative_area: flo
     """Drop degenerate triangles (a repeated corner), duplicates (the same three corners) and
     walls between touching bodies (:func:`shared_walls`).
 
-    Of duplicated triangles the first is kept, whatever its winding, unless they are a wall. A triangle with three
-    distinct corners but no area (a sliver whose corners lie on one line) is kept: exporters
-    write them to close T-junctions, and dropping one would open the surface. It gets no
-    sample point (sampling is by area) and Embree never reports a hit on it.
+    Of duplicated triangles the first is kept, whatever its winding, unless they are a wall.
+    A triangle with three distinct corners but no area (a sliver whose corners lie on one
+    line) is kept: exporters write them to close T-junctions, and dropping one would open
+    the surface. It gets no sample point (sampling is by area) and Embree never reports a
+    hit on it.
 
     Returns
     -------
