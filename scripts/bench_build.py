@@ -68,7 +68,7 @@ def library(cache: Path) -> Path:
         debs = sorted(cache.glob(f"{PACKAGE}_*.deb"))
     print(f"unpacking the VRML models of {debs[-1].name} ...", flush=True)
     tar = subprocess.Popen(["dpkg-deb", "--fsys-tarfile", str(debs[-1])], stdout=subprocess.PIPE)
-    subprocess.run(["tar", "-x", "--wildcards", "*.wrl", "-C", str(cache)], stdin=tar.stdout, check=True)
+    subprocess.run(["tar", "-x", "-C", str(cache), "--wildcards", "*.wrl"], stdin=tar.stdout, check=True)
     if tar.wait() != 0:
         raise SystemExit(f"dpkg-deb could not unpack {debs[-1]}")
     return models
