@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from .classify import pair_blocks
+from .occlusion import compiled_pairs
 from .parameters import CLASS_NAMES
 
 #: Bins of each angle histogram over ``[0, pi]``. Odd, and 17 rather than 15, so that no bin
@@ -51,7 +52,10 @@ def angle_histograms(normals: np.ndarray, classes: np.ndarray) -> np.ndarray:
     -------
     (len(ANGLE_HISTOGRAMS), ANGLE_BINS) int64
     """
-    n = np.asarray(normals, dtype=np.float64)
+    n = np.ascontiguousarray(normals, dtype=np.float64)
+    native = compiled_pairs()
+    if native is not None and len(n) > 1:
+        return _angle_histograms_compiled(native, n, np.ascontiguousarray(classes, dtype=np.uint8))
     # the cosines by three outer products (a BLAS product with an inner dimension of 3
     # costs several times more), by blocks of rows that stay in cache, upper triangle only
     cos = np.empty(len(n) * (len(n) - 1) // 2)
@@ -65,6 +69,19 @@ def angle_histograms(normals: np.ndarray, classes: np.ndarray) -> np.ndarray:
     per_class = np.bincount(np.asarray(classes, dtype=np.int64) * ANGLE_BINS + bins, minlength=len(CLASS_NAMES) * ANGLE_BINS)
     per_class = per_class[: len(CLASS_NAMES) * ANGLE_BINS].reshape(len(CLASS_NAMES), ANGLE_BINS)
     return np.vstack([per_class.sum(axis=0), per_class]).astype(np.int64)
+
+
+def _angle_histograms_compiled(native, normals: np.ndarray, classes: np.ndarray) -> np.ndarray:
+    """:func:`angle_histograms` by one compiled pass (shapeidx/signing/_pairs.c): the same
+    cosines, binned by the same table; the pairs near a bin edge come back to be binned here
+    by the definition."""
+    per_class = np.zeros((len(CLASS_NAMES), ANGLE_BINS), dtype=np.int64)
+    near_cos, near_class = np.empty(len(classes)), np.empty(len(classes), dtype=np.uint8)
+    near = native.angle_counts(normals, classes, _CELL_BINS, per_class, near_cos, near_class)
+    if near:
+        keys = near_class[:near].astype(np.int64) * ANGLE_BINS + angle_bins_exact(near_cos[:near])
+        per_class += np.bincount(keys, minlength=per_class.size).reshape(per_class.shape)
+    return np.vstack([per_class.sum(axis=0), per_class])
 
 
 def angle_bins_exact(cos: np.ndarray) -> np.ndarray:
@@ -88,7 +105,7 @@ def _cell_bins() -> np.ndarray:
     margin = 1e-9
     low = angle_bins_exact(np.maximum(edges[:-1] - margin, -1.0))
     high = angle_bins_exact(np.minimum(edges[1:] + margin, 1.0))
-    table = np.where(low == high, low, -1)
+    table = np.where(low == high, low, -1).astype(np.int64)
     table.flags.writeable = False
     return table
 

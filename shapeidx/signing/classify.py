@@ -42,7 +42,7 @@ import numpy as np
 from scipy.spatial.distance import pdist
 
 from .mesh import unit_normals
-from .occlusion import OcclusionScene
+from .occlusion import NativeScene, OcclusionScene, _thread_pool, native_pairs
 from .parameters import CLASS_NAMES, IN, MIXED, OUT  # noqa: F401 (re-exported: the class codes)
 
 assert (IN, OUT) == (0, 1)  # classify_pairs writes an agreeing pair's "leaves the material" flag as its class
@@ -152,12 +152,14 @@ def classify_pairs(
     vertices, points, scale = normalise(np.asarray(vertices, float), np.asarray(points, float))
     normals = unit_normals(vertices, faces[face_index])
     if scene is None:
-        scene = OcclusionScene(vertices, faces)
+        scene = NativeScene(vertices, faces) if native_pairs() is not None else OcclusionScene(vertices, faces)
 
     if not watertight:
         normals = _orient_by_winding(points, normals, vertices, faces)
     if normals_out is not None:
         normals_out.append(normals)
+    if isinstance(scene, NativeScene):
+        return _classify_compiled(scene, points, normals, scale, threads)
 
     m = len(points)
     first, second = pair_indices(m)
@@ -200,6 +202,50 @@ def classify_pairs(
     classes = np.full(len(distance), MIXED, dtype=np.uint8)
     classes[agree] = np.where(clear, outward.view(np.uint8), np.uint8(MIXED))
     return distance / scale, classes
+
+
+def spatial_order(points: np.ndarray) -> np.ndarray:
+    """The points' indices in Morton (Z-curve) order of a 1024^3 grid over their bounds:
+    points near each other come near each other, so rays to them run side by side."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    cell = ((points - lo) / np.maximum(hi - lo, 1e-300) * 1023).astype(np.uint64)
+    code = np.zeros(len(points), dtype=np.uint64)
+    for bit in range(10):
+        for axis in range(3):
+            code |= ((cell[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
+    return np.argsort(code, kind="stable").astype(np.int32)
+
+
+def _classify_compiled(scene, points, normals, scale, threads: int, packets: bool = True):
+    """:func:`classify_pairs`' pair pass in one compiled loop (shapeidx/signing/_pairs.c):
+    the same tests in the same float32 and float64 steps, so the same classes and distances.
+
+    Embree gets the agreeing pairs' rays in packets of 16 from one origin, each row's pairs
+    taken in :func:`spatial_order` so that a packet's rays run side by side (on 40 library
+    parts: 0.79 of the time of one ray at a time in row order; ``packets=False`` sends them
+    one at a time, for the tests).
+    """
+    m = len(points)
+    if m < 2:
+        return np.zeros(0), np.zeros(0, dtype=np.uint8)
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    p32, n32 = points.astype(np.float32), np.ascontiguousarray(normals, dtype=np.float32)
+    own = np.einsum("ij,ij->i", p32, n32)
+    shifted = np.concatenate([points - OFFSET * normals, points + OFFSET * normals]).astype(np.float32)
+    distance = np.empty(m * (m - 1) // 2)
+    classes = np.empty(len(distance), dtype=np.uint8)
+    order = spatial_order(points)
+
+    def rows(first, stop):
+        scene.classify(points, p32, n32, own, shifted, order, TANGENT, scale, first, stop, distance, classes, packets)
+
+    if threads <= 1 or m < 200:
+        rows(0, m)
+    else:  # row i holds m - 1 - i pairs: cut the rows where the pair count is shared evenly
+        done = np.cumsum(np.arange(m - 1, -1, -1))
+        cuts = [0, *np.searchsorted(done, [len(distance) * k / threads for k in range(1, threads)]).tolist(), m]
+        list(_thread_pool(threads).map(rows, cuts[:-1], cuts[1:]))
+    return distance, classes
 
 
 def _orient_by_winding(points, normals, vertices, faces):

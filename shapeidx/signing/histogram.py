@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .occlusion import compiled_pairs
 from .parameters import BIN_DIVISOR, CLASS_NAMES
 
 
@@ -79,6 +80,10 @@ class Signature:
         The three class histograms come from one pass: each pair's bin in its own class's
         scale, offset by class, counted by a single ``bincount``.
         """
+        native = compiled_pairs()
+        if native is not None and len(distances) and float(distances.mean()) > 0:
+            histograms = _histograms_compiled(native, distances, classes, divisor)
+            return cls(points=points, seed=seed, histograms=histograms, angles=angles)
         histograms = {"all": Histogram.of(distances, divisor)}
         n_classes = len(CLASS_NAMES)
         codes = classes.astype(np.intp)  # once: bincount and take would each convert uint8 again
@@ -114,3 +119,28 @@ class Signature:
                 for name, h in self.histograms.items()
             },
         }
+
+
+def _histograms_compiled(native, distances: np.ndarray, classes: np.ndarray, divisor: int) -> dict:
+    """:meth:`Signature.from_pairs`' histograms by two compiled passes over the pairs
+    (shapeidx/signing/_pairs.c): the same sums in the same order, the same bins."""
+    distances = np.ascontiguousarray(distances, dtype=np.float64)
+    classes = np.ascontiguousarray(classes, dtype=np.uint8)
+    sums, sizes = np.zeros(len(CLASS_NAMES)), np.zeros(len(CLASS_NAMES), dtype=np.int64)
+    largest = native.class_sums(distances, classes, sums, sizes)
+    means = sums / np.maximum(sizes, 1)
+    widths = means / divisor
+    mean_all = float(distances.mean())  # numpy's pairwise sum, as Histogram.of takes it
+    width_all = mean_all / divisor
+    # d / w grows with d, so the largest distance has the last bin of every histogram
+    bins_all = int(largest / width_all) + 1
+    bins = max(int(largest / (w if w > 0 else 1.0)) for w in widths) + 1
+    counts_all = np.zeros(bins_all, dtype=np.int64)
+    per_class = np.zeros((len(CLASS_NAMES), bins), dtype=np.int64)
+    native.bin_counts(distances, classes, width_all, widths, counts_all, per_class)
+    histograms = {"all": Histogram(counts_all, mean_all, width_all)}
+    for code, name in enumerate(CLASS_NAMES):
+        used = np.flatnonzero(per_class[code])
+        counts = per_class[code, : used[-1] + 1] if len(used) else np.zeros(0, dtype=np.int64)
+        histograms[name] = Histogram(counts, float(means[code]), float(widths[code]))
+    return histograms

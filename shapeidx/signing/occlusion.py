@@ -64,3 +64,81 @@ def _thread_pool(threads: int):
     from concurrent.futures import ThreadPoolExecutor
 
     return ThreadPoolExecutor(max_workers=threads, thread_name_prefix="shapeidx-embree")
+
+
+#: Embree's RTC_SCENE_FLAG_ROBUST.
+ROBUST = 1 << 2
+
+
+@lru_cache(maxsize=1)
+def compiled_pairs():
+    """The compiled pair passes (:mod:`shapeidx.signing._pairs`), or None.
+
+    None when the extension was not built or ``SHAPEIDX_NATIVE=0`` asks for the numpy
+    path (which gives the same results: tests/test_compiled_pairs.py).
+    """
+    import os
+
+    if os.environ.get("SHAPEIDX_NATIVE", "1") == "0":
+        return None
+    try:
+        from . import _pairs
+    except ImportError:
+        return None
+    return _pairs
+
+
+@lru_cache(maxsize=1)
+def native_pairs():
+    """:func:`compiled_pairs` with Embree opened for its scenes, or None (also when the
+    library embreex loaded cannot be found in this process)."""
+    compiled = compiled_pairs()
+    library = _embree_library() if compiled is not None else None
+    if library is None:
+        return None
+    try:
+        compiled.open_embree(library, "")
+    except (ImportError, RuntimeError):
+        return None
+    return compiled
+
+
+def _embree_library() -> str | None:
+    """The path of the libembree4 that embreex loaded into this process (Linux: /proc/self/maps)."""
+    import embreex.rtcore  # noqa: F401 (loads the library)
+
+    try:
+        with open("/proc/self/maps") as maps:
+            for line in maps:
+                path = line.rstrip("\n").split(maxsplit=5)[-1]
+                if "libembree4" in path.rsplit("/", 1)[-1]:
+                    return path
+    except OSError:
+        pass
+    return None
+
+
+class NativeScene:
+    """The same questions as :class:`OcclusionScene`, from the compiled pass: Embree reads
+    the triangles in place, and the pair pass runs in one loop (``classify``)."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        native = native_pairs()
+        # one float of padding after the last vertex: Embree reads vertices 16 bytes at a time
+        self._vertices = np.zeros(3 * len(vertices) + 1, dtype=np.float32)
+        self._vertices[:-1] = np.asarray(vertices, dtype=np.float32).ravel()
+        self._faces = np.ascontiguousarray(faces, dtype=np.uint32)
+        # embreex's scenes are robust (no ray slips between two triangles): so are these, for
+        # the same answers on grazing rays
+        self._scene = native.Scene(self._vertices, len(vertices), self._faces, len(self._faces), ROBUST)
+
+    def blocked(self, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+        """True where the segment from ``starts[k]`` to ``ends[k]`` meets a triangle."""
+        starts = np.ascontiguousarray(starts, dtype=np.float32)
+        directions = np.ascontiguousarray(np.subtract(ends, starts, dtype=np.float32))
+        hit = np.zeros(len(starts), dtype=bool)
+        self._scene.blocked(starts, directions, hit.view(np.uint8))
+        return hit
+
+    def classify(self, *args):
+        self._scene.classify(*args)
