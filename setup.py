@@ -4,7 +4,8 @@ from setuptools import Extension, setup
 
 setup(
     ext_modules=[
-        # VRML fast path (shapeidx/io/vrml/fast.py falls back to Python without it)
-        Extension("shapeidx.io.vrml._scan", ["shapeidx/io/vrml/_scan.c"], extra_compile_args=["-O2"]),
+        # VRML fast path; optional: without a C compiler the install goes on and
+        # shapeidx/io/vrml/fast.py reads every file in Python
+        Extension("shapeidx.io.vrml._scan", ["shapeidx/io/vrml/_scan.c"], extra_compile_args=["-O2"], optional=True),
     ]
 )
