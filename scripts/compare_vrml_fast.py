@@ -97,7 +97,7 @@ _NUMBER = re.compile(rb"-?\d+\.?\d*")
 _SAFE_EDITS = [
     (b"{ creaseAngle", b"{ ccw FALSE creaseAngle"), (b"{ creaseAngle", b"{ ccw TRUE solid FALSE creaseAngle"),
     (b"coord Coordinate", b"coord DEF C Coordinate"), (b"point [", b"point [ 0 0 0"), (b"[0,", b"[1,"),
-    (b",-1]", b"]"), (b",-1,", b",-1,-1,"), (b"Shape {", b"DEF S Shape {"), (b"Shape {", b"USE S Shape {"),
+    (b",-1]", b"]"), (b",-1,", b",-1,-1,"), (b"Shape {", b"DEF S Shape {"), (b"Shape {", b"NULL Shape {"),
     (b"coord Coordinate", b"coord USE C coord Coordinate"), (b"coordIndex [", b"coordIndex [ 0 1 2 -1 "),
 ]
 
@@ -111,9 +111,12 @@ def mutate(data: bytes, rng: random.Random, gentle: bool = False) -> bytes:
         choice = rng.random() * (0.45 if gentle else 1.0)
         if choice < 0.3:
             numbers = list(_NUMBER.finditer(data))
-            for match in rng.sample(numbers, min(len(numbers), rng.randint(1, 20))):
-                if len(data) >= match.end() and data[match.start() : match.end()] == match.group():
-                    data[match.start() : match.end()] = random_number(rng)
+            if gentle:  # only coordinates: a random number in coordIndex is refused
+                numbers = [m for span in re.finditer(rb"point\s*\[[^\]]*\]", data)
+                           for m in _NUMBER.finditer(data, span.start() + 5, span.end())]
+            chosen = rng.sample(numbers, min(len(numbers), rng.randint(1, 20)))
+            for match in sorted(chosen, key=lambda m: -m.start()):  # from the end: spans stay valid
+                data[match.start() : match.end()] = random_number(rng)
         elif choice < 0.45:
             old, new = rng.choice(_SAFE_EDITS)
             found = [m.start() for m in re.finditer(re.escape(old), data)]

@@ -41,7 +41,7 @@ def _shared_files() -> list[str]:
     return files
 
 
-def outcome(path, fast_on: bool, monkeypatch=None, limits: LoadLimits | None = None):
+def outcome(path, fast_on: bool, limits: LoadLimits | None = None):
     """What loading gives, as comparable values: the arrays' bytes, dtypes, shapes and
     flags, format and warnings; or the error's type and message."""
     saved = fast.available
