@@ -5,6 +5,8 @@
     scene.py     the tree counted (limits first), then walked with its transforms
     geometry.py  face sets -> polygons, transforms, primitives
     reader.py    files, gzip, Inline, limits -> a PolygonMesh
+    fast.py      flat VRML 2.0 (KiCad) read by the compiled _scan.c in one pass; any
+                 other file, or no compiled module, goes the way above
 """
 
 from .reader import FORMATS, load_vrml

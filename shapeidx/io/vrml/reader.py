@@ -30,6 +30,7 @@ import numpy as np
 
 from ...errors import LoadError
 from ..base import Format, LoadLimits, PolygonMesh, head_of, read_bytes
+from . import fast
 from .geometry import Placement
 from .parser import Node, Scene, parse_vrml
 from .scene import MAX_NODE_VISITS, MeshBuilder, SceneWalker, Warnings
@@ -84,6 +85,16 @@ class _VrmlLoad:
         self.walker = SceneWalker(self.resolve_inline, self.warnings, self.where)
 
     def run(self) -> PolygonMesh:
+        if fast.available:  # flat VRML 2.0 (KiCad): the compiled reader, else None
+            if self.top_data is None:
+                self.top_data = read_bytes(self.path, self.limits)[0]
+            mesh = fast.load_flat(self.path, self.top_data, self.limits, self.check_expansion)
+            if mesh is not None:
+                return mesh
+        return self.run_python()
+
+    def run_python(self) -> PolygonMesh:
+        """The whole load in Python: what :mod:`.fast` gives for the files it reads."""
         top = self.read_scene(self.path)
         self.inline_stack.append(os.path.realpath(self.path))
         triangles = visits = 0
