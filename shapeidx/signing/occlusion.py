@@ -2,8 +2,16 @@
 
 The classification rule (:mod:`shapeidx.signing.classify`) needs one question answered,
 in bulk: does the open segment between two points cross any triangle? This module answers
-it with Embree (the ``embreex`` binding), one occlusion ray per segment. Another backend
-(a GPU ray tracer, say) would provide the same two methods.
+it with Embree, one occlusion ray per segment, in two ways that give the same answers:
+
+* :class:`NativeScene`, what every signature uses: the compiled pair pass of
+  :mod:`shapeidx.signing._pairs`, which opens the Embree library that embreex loaded, lets
+  it read the triangles in place and asks it about the pairs in packets of 16 while it
+  classifies them (:func:`shapeidx.signing.classify.classify_pairs` says how);
+* :class:`OcclusionScene`, through the ``embreex`` binding: where the extension is not
+  built, or ``SHAPEIDX_NATIVE=0``, and as the floor that benchmarks measure against.
+
+Another backend (a GPU ray tracer, say) would provide the same methods.
 """
 
 from __future__ import annotations
@@ -141,4 +149,5 @@ class NativeScene:
         return hit
 
     def classify(self, *args):
+        """Rows of the pair pass, written into the caller's arrays (see ``_pairs.c``)."""
         self._scene.classify(*args)
