@@ -9,7 +9,8 @@ brackets, any warning or error) it gives None and :mod:`.reader` reads the file 
 Python way. Its results are the Python reader's, bit for bit (tests/test_vrml_fast.py).
 
 When the extension is not built, :data:`available` is False and every file is read in
-Python. Setting the environment variable ``SHAPEIDX_VRML_PYTHON=1`` does the same.
+Python. Setting the environment variable ``SHAPEIDX_VRML_PYTHON=1`` does the same, as does
+``SHAPEIDX_NATIVE=0``, which switches off every compiled pass of shapeidx.
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ except ImportError:  # not compiled (a source checkout without a build): Python 
     _scan = None
 
 #: Is the compiled path used? (Tests switch it off to compare the two paths.)
-available = _scan is not None and os.environ.get("SHAPEIDX_VRML_PYTHON", "") in ("", "0")
+available = (_scan is not None and os.environ.get("SHAPEIDX_VRML_PYTHON", "") in ("", "0")
+             and os.environ.get("SHAPEIDX_NATIVE", "1") != "0")
 
 
 def load_flat(path, data: bytes, limits: LoadLimits, check_expansion) -> PolygonMesh | None:
