@@ -118,6 +118,8 @@ def test_histogram_edge_cases_match(numpy_road):
         (rng.random(500), np.zeros(500, dtype=np.uint8)),  # IN only: OUT and MIXED empty
         (np.r_[np.zeros(10), rng.random(90)], np.r_[np.ones(10), np.full(90, 2)].astype(np.uint8)),  # OUT all at 0
         (np.arange(1, 101, dtype=float) / 50, np.full(100, 2, dtype=np.uint8)),  # values on bin edges
+        # a few OUT pairs very short beside long IN ones: OUT's bins are narrow, its counts short
+        (np.r_[np.full(5, 1e-9), rng.random(995) * 10], np.r_[np.ones(5), np.zeros(995)].astype(np.uint8)),
     ]
     for distances, classes in cases:
         with numpy_road():
@@ -146,12 +148,13 @@ def test_bad_arguments_raise_instead_of_writing_past_arrays():
     compiled = occlusion.compiled_pairs()
     distances = np.ones(4)
     with pytest.raises(ValueError, match="class code"):
-        compiled.class_sums(distances, np.array([0, 1, 2, 3], dtype=np.uint8), np.zeros(3), np.zeros(3, dtype=np.int64))
+        compiled.class_sums(distances, np.array([0, 1, 2, 3], dtype=np.uint8), np.zeros(3), np.zeros(3, dtype=np.int64),
+                            np.zeros(3))
     with pytest.raises(ValueError, match="outside"):
         compiled.bin_counts(distances, np.zeros(4, dtype=np.uint8), 0.1, np.full(3, 0.1), np.zeros(2, dtype=np.int64),
                             np.zeros((3, 2), dtype=np.int64))
     with pytest.raises(ValueError, match="wrong size"):
-        compiled.class_sums(distances, np.zeros(3, dtype=np.uint8), np.zeros(3), np.zeros(3, dtype=np.int64))
+        compiled.class_sums(distances, np.zeros(3, dtype=np.uint8), np.zeros(3), np.zeros(3, dtype=np.int64), np.zeros(3))
     native = occlusion.native_pairs()
     vertices = np.zeros(10, dtype=np.float32)
     with pytest.raises(ValueError, match="does not exist"):

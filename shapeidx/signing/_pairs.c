@@ -387,27 +387,27 @@ static void buffers_release(Buffers *bs) {
 }
 
 /*
- * class_sums(distances, classes, sums_out, sizes_out): per class, the sum of the distances
- * (in pair order, as np.bincount(classes, weights=distances) adds them), the pair count, and
- * returns the largest distance.
+ * class_sums(distances, classes, sums_out, sizes_out, largest_out): per class, the sum of
+ * the distances (in pair order, as np.bincount(classes, weights=distances) adds them), the
+ * pair count and the largest distance (0 for an empty class).
  */
 static PyObject *class_sums(PyObject *self, PyObject *args) {
-    PyObject *o[4];
-    if (!PyArg_ParseTuple(args, "OOOO", &o[0], &o[1], &o[2], &o[3])) return NULL;
+    PyObject *o[5];
+    if (!PyArg_ParseTuple(args, "OOOOO", &o[0], &o[1], &o[2], &o[3], &o[4])) return NULL;
     Buffers bs;
     PyObject *result = NULL;
-    if (buffers_get(&bs, o, 4, 2) < 0) goto done;
+    if (buffers_get(&bs, o, 5, 2) < 0) goto done;
     Py_ssize_t n = bs.b[1].len;
     if (bs.b[0].len != (Py_ssize_t)(n * sizeof(double)) || bs.b[2].len != 3 * sizeof(double) ||
-        bs.b[3].len != 3 * sizeof(int64_t)) {
+        bs.b[3].len != 3 * sizeof(int64_t) || bs.b[4].len != 3 * sizeof(double)) {
         PyErr_SetString(PyExc_ValueError, "class_sums: arrays of the wrong size");
         goto done;
     }
     const double *d = bs.b[0].buf;
     const unsigned char *c = bs.b[1].buf;
-    double *sums = bs.b[2].buf, largest = 0;
+    double *sums = bs.b[2].buf, *largest = bs.b[4].buf;
     int64_t *sizes = bs.b[3].buf;
-    for (int k = 0; k < 3; k++) sums[k] = 0, sizes[k] = 0;
+    for (int k = 0; k < 3; k++) sums[k] = 0, sizes[k] = 0, largest[k] = 0;
     for (Py_ssize_t k = 0; k < n; k++) {
         if (c[k] > 2) {
             PyErr_SetString(PyExc_ValueError, "class_sums: a class code above 2");
@@ -415,9 +415,10 @@ static PyObject *class_sums(PyObject *self, PyObject *args) {
         }
         sums[c[k]] += d[k];
         sizes[c[k]]++;
-        if (d[k] > largest) largest = d[k];
+        if (d[k] > largest[c[k]]) largest[c[k]] = d[k];
     }
-    result = PyFloat_FromDouble(largest);
+    result = Py_None;
+    Py_INCREF(result);
 done:
     buffers_release(&bs);
     return result;
@@ -549,7 +550,7 @@ static PyTypeObject SceneType = {
 
 static PyMethodDef module_methods[] = {
     {"open_embree", open_embree, METH_VARARGS, "open_embree(path, config): load libembree4, start a device."},
-    {"class_sums", class_sums, METH_VARARGS, "Per class: distance sums and pair counts; returns the largest distance."},
+    {"class_sums", class_sums, METH_VARARGS, "Per class: distance sums, pair counts and largest distances."},
     {"bin_counts", bin_counts, METH_VARARGS, "Pairs per D2 bin, of all and per class."},
     {"angle_counts", angle_counts, METH_VARARGS, "Pairs per normal-angle bin per class, near-edge pairs written out."},
     {NULL}};

@@ -127,14 +127,16 @@ def _histograms_compiled(native, distances: np.ndarray, classes: np.ndarray, div
     distances = np.ascontiguousarray(distances, dtype=np.float64)
     classes = np.ascontiguousarray(classes, dtype=np.uint8)
     sums, sizes = np.zeros(len(CLASS_NAMES)), np.zeros(len(CLASS_NAMES), dtype=np.int64)
-    largest = native.class_sums(distances, classes, sums, sizes)
+    largest = np.zeros(len(CLASS_NAMES))
+    native.class_sums(distances, classes, sums, sizes, largest)
     means = sums / np.maximum(sizes, 1)
     widths = means / divisor
     mean_all = float(distances.mean())  # numpy's pairwise sum, as Histogram.of takes it
     width_all = mean_all / divisor
-    # d / w grows with d, so the largest distance has the last bin of every histogram
-    bins_all = int(largest / width_all) + 1
-    bins = max(int(largest / (w if w > 0 else 1.0)) for w in widths) + 1
+    # d / w grows with d, so a histogram's largest distance falls in its last bin (each
+    # class by its own largest: a class of a few short pairs has a narrow bin width)
+    bins_all = int(largest.max() / width_all) + 1
+    bins = max(int(top / (w if w > 0 else 1.0)) for top, w in zip(largest, widths)) + 1
     counts_all = np.zeros(bins_all, dtype=np.int64)
     per_class = np.zeros((len(CLASS_NAMES), bins), dtype=np.int64)
     native.bin_counts(distances, classes, width_all, widths, counts_all, per_class)
