@@ -173,3 +173,45 @@ def test_packets_of_rays_answer_as_single_rays(data_dir):
         packed = _classify_compiled(scene, points, normals, scale, 1)
         single = _classify_compiled(scene, points, normals, scale, 1, packets=False)
         assert np.array_equal(packed[1], single[1]), path.name
+
+
+def test_a_scene_not_made_or_made_twice_raises_instead_of_crashing(data_dir):
+    """Found by review: these crashed the process (a NULL scene) or leaked its buffers."""
+    native = occlusion.native_pairs()
+    empty = native.Scene.__new__(native.Scene)
+    rays = np.zeros((1, 3), dtype=np.float32)
+    with pytest.raises(RuntimeError, match="not made"):
+        empty.blocked(rays, rays, np.zeros(1, dtype=np.uint8))
+    vertices = np.zeros(10, dtype=np.float32)
+    faces = np.array([[0, 1, 2]], dtype=np.uint32)
+    scene = native.Scene(vertices, 3, faces, 1)
+    with pytest.raises(TypeError, match="once"):
+        scene.__init__(vertices, 3, faces, 1)
+    for bad in [(vertices, -1, faces, 1), (vertices, 3, faces, -1), (vertices, 4, faces, 1),
+                (vertices.astype(np.float64), 3, faces, 1), (vertices, 3, faces.astype(np.int64), 1)]:
+        with pytest.raises(ValueError):
+            native.Scene(*bad)
+
+
+def test_classify_refuses_wrong_dtypes_and_an_order_that_is_not_a_permutation(data_dir):
+    from shapeidx.signing.classify import OFFSET, TANGENT, _classify_compiled, spatial_order
+    from shapeidx.signing.mesh import unit_normals
+
+    path, solid = _solids(data_dir)[0]
+    points, face_index = sample_surface(solid.vertices, solid.faces, 50, seed=1)
+    vertices, points, scale = normalise(solid.vertices, points)
+    normals = unit_normals(vertices, solid.faces[face_index])
+    scene = NativeScene(vertices, solid.faces)
+    p32, n32 = points.astype(np.float32), normals.astype(np.float32)
+    own = np.einsum("ij,ij->i", p32, n32)
+    shifted = np.concatenate([points - OFFSET * normals, points + OFFSET * normals]).astype(np.float32)
+    distance, classes = np.empty(50 * 49 // 2), np.empty(50 * 49 // 2, dtype=np.uint8)
+    good = (points, p32, n32, own, shifted, spatial_order(points), TANGENT, scale, 0, 50, distance, classes, True)
+    scene.classify(*good)
+    assert np.array_equal(classes, _classify_compiled(scene, points, normals, scale, 1)[1])
+    with pytest.raises(ValueError, match="permutation"):
+        scene.classify(*good[:5], np.zeros(50, dtype=np.int32), *good[6:])
+    with pytest.raises(ValueError, match="dtype"):
+        scene.classify(*good[:10], distance.view(np.int64), *good[11:])
+    with pytest.raises(ValueError, match="dtype"):
+        scene.classify(points.astype(np.float32).repeat(2, axis=1), *good[1:])

@@ -12,7 +12,7 @@
  *
  * Every floating-point step is the one numpy takes, in the same order and precision
  * (float32 rises, float64 distances), so the classes are those of the numpy path bit for
- * bit; tests/test_native_pairs.py compares them on real parts.
+ * bit; tests/test_compiled_pairs.py compares them on real parts.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -56,7 +56,6 @@ static struct {
     void (*ReleaseGeometry)(RTCGeometry);
     void (*CommitScene)(RTCScene);
     void (*SetSceneFlags)(RTCScene, int);
-    void (*SetSceneBuildQuality)(RTCScene, int);
     void (*Occluded1)(RTCScene, RTCRay *, void *);
     void (*Occluded16)(const int *, RTCScene, RTCRay16 *, void *);
     RTCDevice device;
@@ -83,7 +82,7 @@ static PyObject *open_embree(PyObject *self, PyObject *args) {
     BIND(NewGeometry, "rtcNewGeometry") BIND(SetSharedGeometryBuffer, "rtcSetSharedGeometryBuffer")
     BIND(CommitGeometry, "rtcCommitGeometry") BIND(AttachGeometry, "rtcAttachGeometry")
     BIND(ReleaseGeometry, "rtcReleaseGeometry") BIND(CommitScene, "rtcCommitScene")
-    BIND(SetSceneFlags, "rtcSetSceneFlags") BIND(SetSceneBuildQuality, "rtcSetSceneBuildQuality")
+    BIND(SetSceneFlags, "rtcSetSceneFlags")
     BIND(Occluded1, "rtcOccluded1") BIND(Occluded16, "rtcOccluded16")
     embree.device = embree.NewDevice(config[0] ? config : NULL);
     if (!embree.device) {
@@ -108,53 +107,92 @@ static void Scene_dealloc(Scene *s) {
     Py_TYPE(s)->tp_free((PyObject *)s);
 }
 
+/* Does a buffer hold items of this kind ('f' float, 'i' signed or 'u' unsigned integer) and size? */
+static int buffer_is(const Py_buffer *b, char kind, Py_ssize_t itemsize) {
+    if (b->itemsize != itemsize) return 0;
+    const char *f = b->format ? b->format : "B";
+    while (*f == '<' || *f == '=' || *f == '@' || *f == '!' || *f == '>') f++;
+    if (f[0] == 0 || f[1] != 0) return 0;
+    switch (kind) {
+    case 'f': return f[0] == 'f' || f[0] == 'd';
+    case 'i': return f[0] == 'b' || f[0] == 'h' || f[0] == 'i' || f[0] == 'l' || f[0] == 'q';
+    default: return f[0] == 'B' || f[0] == 'H' || f[0] == 'I' || f[0] == 'L' || f[0] == 'Q' || f[0] == '?';
+    }
+}
+
 static int Scene_init(Scene *s, PyObject *args, PyObject *kw) {
     PyObject *vertices, *faces;
     Py_ssize_t n_vertices, n_faces;
-    int flags = 0, quality = 1, stride = 3;
-    if (!PyArg_ParseTuple(args, "OnOn|iii", &vertices, &n_vertices, &faces, &n_faces, &flags, &quality, &stride)) return -1;
+    int flags = 0;
+    if (!PyArg_ParseTuple(args, "OnOn|i", &vertices, &n_vertices, &faces, &n_faces, &flags)) return -1;
     if (!embree.loaded) {
         PyErr_SetString(PyExc_RuntimeError, "open_embree() first");
         return -1;
     }
-    if (PyObject_GetBuffer(vertices, &s->vertices, PyBUF_C_CONTIGUOUS) < 0) return -1;
-    if (PyObject_GetBuffer(faces, &s->faces, PyBUF_C_CONTIGUOUS) < 0) return -1;
+    if (s->scene || s->vertices.obj) { /* a second __init__ would pull the scene from under a query */
+        PyErr_SetString(PyExc_TypeError, "a Scene is made once");
+        return -1;
+    }
+    if (n_vertices < 0 || n_faces < 0 || n_vertices > UINT32_MAX || n_faces > PY_SSIZE_T_MAX / 12) {
+        PyErr_SetString(PyExc_ValueError, "vertex or face count out of range");
+        return -1;
+    }
+    Py_buffer v = {0}, f = {0};
+    RTCScene scene = NULL;
+    RTCGeometry g = NULL;
+    if (PyObject_GetBuffer(vertices, &v, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) goto fail;
+    if (PyObject_GetBuffer(faces, &f, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) goto fail;
     /* Embree reads vertices with 16-byte loads: the buffer has one float past the last */
-    if (s->vertices.len < (Py_ssize_t)sizeof(float) * (stride * n_vertices + 1) ||
-        s->faces.len < (Py_ssize_t)sizeof(uint32_t) * 3 * n_faces) {
-        PyErr_SetString(PyExc_ValueError, "vertex or face buffer too small");
-        return -1;
+    if (!buffer_is(&v, 'f', 4) || !buffer_is(&f, 'u', 4) || v.len / 4 < 3 * n_vertices + 1 || f.len / 12 < n_faces) {
+        PyErr_SetString(PyExc_ValueError, "Scene: float32 vertices (3n + 1) and uint32 faces (3k) wanted");
+        goto fail;
     }
-    const uint32_t *f = s->faces.buf;
+    const uint32_t *corner = f.buf;
     for (Py_ssize_t k = 0; k < 3 * n_faces; k++)
-        if (f[k] >= (uint64_t)n_vertices) {
+        if (corner[k] >= (uint64_t)n_vertices) {
             PyErr_SetString(PyExc_ValueError, "a face refers to a vertex that does not exist");
-            return -1;
+            goto fail;
         }
-    s->scene = embree.NewScene(embree.device);
-    RTCGeometry g = embree.NewGeometry(embree.device, RTC_GEOMETRY_TYPE_TRIANGLE);
-    if (flags) embree.SetSceneFlags(s->scene, flags);
-    embree.SetSceneBuildQuality(s->scene, quality);
-    if (!s->scene || !g) {
+    embree.GetDeviceError(embree.device); /* forget an error of an earlier call */
+    scene = embree.NewScene(embree.device);
+    g = embree.NewGeometry(embree.device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    if (!scene || !g) {
         PyErr_SetString(PyExc_RuntimeError, "Embree could not make a scene");
-        return -1;
+        goto fail;
     }
-    embree.SetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, s->vertices.buf, 0,
-                                   stride * sizeof(float), (size_t)n_vertices);
-    embree.SetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, s->faces.buf, 0,
-                                   3 * sizeof(uint32_t), (size_t)n_faces);
+    if (flags) embree.SetSceneFlags(scene, flags);
+    embree.SetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, v.buf, 0, 3 * sizeof(float),
+                                   (size_t)n_vertices);
+    embree.SetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, f.buf, 0, 3 * sizeof(uint32_t),
+                                   (size_t)n_faces);
     embree.CommitGeometry(g);
-    embree.AttachGeometry(s->scene, g);
+    embree.AttachGeometry(scene, g);
     embree.ReleaseGeometry(g); /* the scene holds it */
+    g = NULL;
     Py_BEGIN_ALLOW_THREADS
-    embree.CommitScene(s->scene);
+    embree.CommitScene(scene);
     Py_END_ALLOW_THREADS
     int error = embree.GetDeviceError(embree.device);
     if (error) {
         PyErr_Format(PyExc_RuntimeError, "Embree error %d building the scene", error);
-        return -1;
+        goto fail;
     }
+    /* only a committed scene is ever seen by the methods */
+    s->vertices = v;
+    s->faces = f;
+    s->scene = scene;
     return 0;
+fail:
+    if (g) embree.ReleaseGeometry(g);
+    if (scene) embree.ReleaseScene(scene);
+    if (v.obj) PyBuffer_Release(&v);
+    if (f.obj) PyBuffer_Release(&f);
+    return -1;
+}
+
+static int scene_ready(Scene *s) {
+    if (!s->scene) PyErr_SetString(PyExc_RuntimeError, "the Scene was not made (its __init__ did not run or failed)");
+    return s->scene != NULL;
 }
 
 /* ---- the pair pass ---- */
@@ -224,15 +262,25 @@ static PyObject *Scene_classify(Scene *s, PyObject *args) {
     if (!PyArg_ParseTuple(args, "OOOOOOddnnOOp", &o_points, &o_p32, &o_n32, &o_own, &o_shifted, &o_order, &tangent,
                           &scale, &first_row, &stop_row, &o_dist, &o_classes, &packets))
         return NULL;
+    if (!scene_ready(s)) return NULL;
     Py_buffer b[8];
     PyObject *objects[8] = {o_points, o_p32, o_n32, o_own, o_shifted, o_order, o_dist, o_classes};
     int got = 0;
+    /* kinds and item sizes: points float64, p32 n32 own shifted float32, order int32,
+       distances float64, classes uint8 */
+    const char kinds[8] = {'f', 'f', 'f', 'f', 'f', 'i', 'f', 'u'};
+    const Py_ssize_t sizes[8] = {8, 4, 4, 4, 4, 4, 8, 1};
     for (; got < 8; got++) {
-        int flags = got >= 6 ? (PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE) : PyBUF_C_CONTIGUOUS;
+        int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (got >= 6 ? PyBUF_WRITABLE : 0);
         if (PyObject_GetBuffer(objects[got], &b[got], flags) < 0) break;
+        if (!buffer_is(&b[got], kinds[got], sizes[got])) {
+            PyErr_Format(PyExc_ValueError, "classify: argument %d has the wrong dtype", got + 1);
+            got++;
+            break;
+        }
     }
     PyObject *result = NULL;
-    if (got < 8) goto done;
+    if (got < 8 || PyErr_Occurred()) goto done;
     Py_ssize_t m = b[0].len / (Py_ssize_t)(3 * sizeof(double));
     int64_t pairs = (int64_t)m * (m - 1) / 2;
     if (b[1].len != (Py_ssize_t)(3 * m * sizeof(float)) || b[2].len != b[1].len ||
@@ -249,11 +297,21 @@ static PyObject *Scene_classify(Scene *s, PyObject *args) {
     double *dist = b[6].buf;
     unsigned char *classes = b[7].buf;
     RTCScene scene = s->scene;
-    for (Py_ssize_t k = 0; k < m; k++)
-        if (order[k] < 0 || order[k] >= m) {
-            PyErr_SetString(PyExc_ValueError, "classify: an order entry that is not a point");
+    /* every pair is written once only if order is a permutation of the points */
+    unsigned char *seen = calloc(m ? m : 1, 1);
+    if (!seen) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    for (Py_ssize_t k = 0; k < m; k++) {
+        if (order[k] < 0 || order[k] >= m || seen[order[k]]) {
+            free(seen);
+            PyErr_SetString(PyExc_ValueError, "classify: order is not a permutation of the points");
             goto done;
         }
+        seen[order[k]] = 1;
+    }
+    free(seen);
 
     Packet *inward = aligned_alloc(64, sizeof(Packet)), *outward = aligned_alloc(64, sizeof(Packet));
     if (!inward || !outward) {
@@ -329,20 +387,22 @@ done:
 static PyObject *Scene_blocked(Scene *s, PyObject *args) {
     PyObject *o_org, *o_dir, *o_out;
     if (!PyArg_ParseTuple(args, "OOO", &o_org, &o_dir, &o_out)) return NULL;
+    if (!scene_ready(s)) return NULL;
     Py_buffer org, dir, out;
-    if (PyObject_GetBuffer(o_org, &org, PyBUF_C_CONTIGUOUS) < 0) return NULL;
-    if (PyObject_GetBuffer(o_dir, &dir, PyBUF_C_CONTIGUOUS) < 0) {
+    if (PyObject_GetBuffer(o_org, &org, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) return NULL;
+    if (PyObject_GetBuffer(o_dir, &dir, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
         PyBuffer_Release(&org);
         return NULL;
     }
-    if (PyObject_GetBuffer(o_out, &out, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE) < 0) {
+    if (PyObject_GetBuffer(o_out, &out, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE | PyBUF_FORMAT) < 0) {
         PyBuffer_Release(&org);
         PyBuffer_Release(&dir);
         return NULL;
     }
     Py_ssize_t n = out.len;
     PyObject *result = NULL;
-    if (org.len != (Py_ssize_t)(3 * n * sizeof(float)) || dir.len != org.len) {
+    if (!buffer_is(&org, 'f', 4) || !buffer_is(&dir, 'f', 4) || !buffer_is(&out, 'u', 1) ||
+        org.len != (Py_ssize_t)(3 * n * sizeof(float)) || dir.len != org.len) {
         PyErr_SetString(PyExc_ValueError, "blocked: arrays of the wrong size");
     } else {
         const float *o = org.buf, *d = dir.buf;
@@ -374,10 +434,18 @@ typedef struct {
     int got;
 } Buffers;
 
-static int buffers_get(Buffers *bs, PyObject **objects, int n, int first_writable) {
+/* kinds: one letter per argument, 'd' float64, 'B' uint8, 'q' int64 */
+static int buffers_get(Buffers *bs, PyObject **objects, const char *kinds, int first_writable) {
+    int n = (int)strlen(kinds);
     for (bs->got = 0; bs->got < n; bs->got++) {
-        int flags = bs->got >= first_writable ? (PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE) : PyBUF_C_CONTIGUOUS;
+        int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (bs->got >= first_writable ? PyBUF_WRITABLE : 0);
         if (PyObject_GetBuffer(objects[bs->got], &bs->b[bs->got], flags) < 0) return -1;
+        char kind = kinds[bs->got];
+        if (!buffer_is(&bs->b[bs->got], kind == 'd' ? 'f' : kind == 'q' ? 'i' : 'u', kind == 'B' ? 1 : 8)) {
+            bs->got++;
+            PyErr_Format(PyExc_ValueError, "argument %d has the wrong dtype", bs->got);
+            return -1;
+        }
     }
     return 0;
 }
@@ -396,7 +464,7 @@ static PyObject *class_sums(PyObject *self, PyObject *args) {
     if (!PyArg_ParseTuple(args, "OOOOO", &o[0], &o[1], &o[2], &o[3], &o[4])) return NULL;
     Buffers bs;
     PyObject *result = NULL;
-    if (buffers_get(&bs, o, 5, 2) < 0) goto done;
+    if (buffers_get(&bs, o, "dBdqd", 2) < 0) goto done;
     Py_ssize_t n = bs.b[1].len;
     if (bs.b[0].len != (Py_ssize_t)(n * sizeof(double)) || bs.b[2].len != 3 * sizeof(double) ||
         bs.b[3].len != 3 * sizeof(int64_t) || bs.b[4].len != 3 * sizeof(double)) {
@@ -436,7 +504,7 @@ static PyObject *bin_counts(PyObject *self, PyObject *args) {
     if (!PyArg_ParseTuple(args, "OOdOOO", &o[0], &o[1], &width_all, &o[2], &o[3], &o[4])) return NULL;
     Buffers bs;
     PyObject *result = NULL;
-    if (buffers_get(&bs, o, 5, 3) < 0) goto done;
+    if (buffers_get(&bs, o, "dBdqq", 3) < 0) goto done;
     Py_ssize_t n = bs.b[1].len, bins_all = bs.b[3].len / sizeof(int64_t), bins = bs.b[4].len / (3 * sizeof(int64_t));
     if (bs.b[0].len != (Py_ssize_t)(n * sizeof(double)) || bs.b[2].len != 3 * sizeof(double)) {
         PyErr_SetString(PyExc_ValueError, "bin_counts: arrays of the wrong size");
@@ -475,7 +543,7 @@ static PyObject *angle_counts(PyObject *self, PyObject *args) {
     if (!PyArg_ParseTuple(args, "OOOOOO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5])) return NULL;
     Buffers bs;
     PyObject *result = NULL;
-    if (buffers_get(&bs, o, 6, 3) < 0) goto done;
+    if (buffers_get(&bs, o, "dBqqdB", 3) < 0) goto done;
     Py_ssize_t m = bs.b[0].len / (Py_ssize_t)(3 * sizeof(double)), pairs = (Py_ssize_t)m * (m - 1) / 2;
     Py_ssize_t cells = bs.b[2].len / sizeof(int64_t), bins = bs.b[3].len / (3 * sizeof(int64_t));
     if (bs.b[1].len != pairs || bs.b[4].len != (Py_ssize_t)(pairs * sizeof(double)) || bs.b[5].len != pairs ||
@@ -506,7 +574,10 @@ static PyObject *angle_counts(PyObject *self, PyObject *args) {
             cos += ni[1] * nj[1];
             cos += ni[2] * nj[2];
             double scaled = (cos + 1.0) * half;
-            Py_ssize_t cell = scaled >= cells ? cells - 1 : (scaled > 0 ? (Py_ssize_t)scaled : 0); /* NaN: 0 */
+            /* numpy's astype(intp) then clip: NaN, infinities and values past 2^63 become
+               INT64_MIN, so cell 0; other values truncate, then clip to 0..cells-1 */
+            Py_ssize_t cell = !(scaled > -9223372036854775808.0 && scaled < 9223372036854775808.0) ? 0
+                              : scaled >= cells ? cells - 1 : (scaled > 0 ? (Py_ssize_t)scaled : 0);
             int64_t bin = table[cell];
             unsigned char code = c[slot];
             if (code > 2) {
@@ -563,6 +634,10 @@ PyMODINIT_FUNC PyInit__pairs(void) {
     PyObject *m = PyModule_Create(&module);
     if (!m) return NULL;
     Py_INCREF(&SceneType);
-    if (PyModule_AddObject(m, "Scene", (PyObject *)&SceneType) < 0) return NULL;
+    if (PyModule_AddObject(m, "Scene", (PyObject *)&SceneType) < 0) {
+        Py_DECREF(&SceneType);
+        Py_DECREF(m);
+        return NULL;
+    }
     return m;
 }

@@ -113,8 +113,10 @@ def native_pairs():
 
 def _embree_library() -> str | None:
     """The path of the libembree4 that embreex loaded into this process (Linux: /proc/self/maps)."""
-    import embreex.rtcore  # noqa: F401 (loads the library)
-
+    try:
+        import embreex.rtcore  # noqa: F401 (loads the library)
+    except ImportError:
+        return None
     try:
         with open("/proc/self/maps") as maps:
             for line in maps:
