@@ -120,6 +120,36 @@ static int buffer_is(const Py_buffer *b, char kind, Py_ssize_t itemsize) {
     }
 }
 
+/* Buffers for a function's arguments, released together. */
+typedef struct {
+    Py_buffer b[8];
+    int got;
+} Buffers;
+
+/* One letter per argument, as numpy's dtype.char: 'd' float64, 'f' float32, 'i' int32,
+   'I' uint32, 'q' int64, 'B' uint8. Arguments from first_writable on are written to. */
+static int buffers_get(Buffers *bs, PyObject **objects, const char *kinds, int first_writable) {
+    int n = (int)strlen(kinds);
+    for (bs->got = 0; bs->got < n; bs->got++) {
+        int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (bs->got >= first_writable ? PyBUF_WRITABLE : 0);
+        if (PyObject_GetBuffer(objects[bs->got], &bs->b[bs->got], flags) < 0) return -1;
+        char kind = kinds[bs->got];
+        int ok = kind == 'd' ? buffer_is(&bs->b[bs->got], 'f', 8) : kind == 'f' ? buffer_is(&bs->b[bs->got], 'f', 4)
+               : kind == 'i' ? buffer_is(&bs->b[bs->got], 'i', 4) : kind == 'I' ? buffer_is(&bs->b[bs->got], 'u', 4)
+               : kind == 'q' ? buffer_is(&bs->b[bs->got], 'i', 8) : buffer_is(&bs->b[bs->got], 'u', 1);
+        if (!ok) {
+            bs->got++;
+            PyErr_Format(PyExc_ValueError, "argument %d has the wrong dtype", bs->got);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+static void buffers_release(Buffers *bs) {
+    for (int k = 0; k < bs->got; k++) PyBuffer_Release(&bs->b[k]);
+}
+
 static int Scene_init(Scene *s, PyObject *args, PyObject *kw) {
     PyObject *vertices, *faces;
     Py_ssize_t n_vertices, n_faces;
@@ -263,24 +293,11 @@ static PyObject *Scene_classify(Scene *s, PyObject *args) {
                           &scale, &first_row, &stop_row, &o_dist, &o_classes, &packets))
         return NULL;
     if (!scene_ready(s)) return NULL;
-    Py_buffer b[8];
     PyObject *objects[8] = {o_points, o_p32, o_n32, o_own, o_shifted, o_order, o_dist, o_classes};
-    int got = 0;
-    /* kinds and item sizes: points float64, p32 n32 own shifted float32, order int32,
-       distances float64, classes uint8 */
-    const char kinds[8] = {'f', 'f', 'f', 'f', 'f', 'i', 'f', 'u'};
-    const Py_ssize_t sizes[8] = {8, 4, 4, 4, 4, 4, 8, 1};
-    for (; got < 8; got++) {
-        int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (got >= 6 ? PyBUF_WRITABLE : 0);
-        if (PyObject_GetBuffer(objects[got], &b[got], flags) < 0) break;
-        if (!buffer_is(&b[got], kinds[got], sizes[got])) {
-            PyErr_Format(PyExc_ValueError, "classify: argument %d has the wrong dtype", got + 1);
-            got++;
-            break;
-        }
-    }
+    Buffers bs;
+    Py_buffer *b = bs.b;
     PyObject *result = NULL;
-    if (got < 8 || PyErr_Occurred()) goto done;
+    if (buffers_get(&bs, objects, "dffffidB", 6) < 0) goto done;
     Py_ssize_t m = b[0].len / (Py_ssize_t)(3 * sizeof(double));
     int64_t pairs = (int64_t)m * (m - 1) / 2;
     if (b[1].len != (Py_ssize_t)(3 * m * sizeof(float)) || b[2].len != b[1].len ||
@@ -379,7 +396,7 @@ static PyObject *Scene_classify(Scene *s, PyObject *args) {
     result = Py_None;
     Py_INCREF(result);
 done:
-    for (int k = 0; k < got; k++) PyBuffer_Release(&b[k]);
+    buffers_release(&bs);
     return result;
 }
 
@@ -388,71 +405,34 @@ static PyObject *Scene_blocked(Scene *s, PyObject *args) {
     PyObject *o_org, *o_dir, *o_out;
     if (!PyArg_ParseTuple(args, "OOO", &o_org, &o_dir, &o_out)) return NULL;
     if (!scene_ready(s)) return NULL;
-    Py_buffer org, dir, out;
-    if (PyObject_GetBuffer(o_org, &org, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) return NULL;
-    if (PyObject_GetBuffer(o_dir, &dir, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
-        PyBuffer_Release(&org);
-        return NULL;
-    }
-    if (PyObject_GetBuffer(o_out, &out, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE | PyBUF_FORMAT) < 0) {
-        PyBuffer_Release(&org);
-        PyBuffer_Release(&dir);
-        return NULL;
-    }
-    Py_ssize_t n = out.len;
+    PyObject *objects[3] = {o_org, o_dir, o_out};
+    Buffers bs;
     PyObject *result = NULL;
-    if (!buffer_is(&org, 'f', 4) || !buffer_is(&dir, 'f', 4) || !buffer_is(&out, 'u', 1) ||
-        org.len != (Py_ssize_t)(3 * n * sizeof(float)) || dir.len != org.len) {
+    if (buffers_get(&bs, objects, "ffB", 2) < 0) goto done;
+    Py_ssize_t n = bs.b[2].len;
+    if (bs.b[0].len != (Py_ssize_t)(3 * n * sizeof(float)) || bs.b[1].len != bs.b[0].len) {
         PyErr_SetString(PyExc_ValueError, "blocked: arrays of the wrong size");
-    } else {
-        const float *o = org.buf, *d = dir.buf;
-        unsigned char *hit = out.buf;
-        RTCScene scene = s->scene;
-        Py_BEGIN_ALLOW_THREADS
-        for (Py_ssize_t k = 0; k < n; k++) {
-            RTCRay ray = {o[3 * k], o[3 * k + 1], o[3 * k + 2], 0.0f, d[3 * k], d[3 * k + 1], d[3 * k + 2], 0.0f,
-                          1.0f, 0xFFFFFFFFu, 0, 0};
-            embree.Occluded1(scene, &ray, NULL);
-            hit[k] = ray.tfar < 0;
-        }
-        Py_END_ALLOW_THREADS
-        result = Py_None;
-        Py_INCREF(result);
+        goto done;
     }
-    PyBuffer_Release(&org);
-    PyBuffer_Release(&dir);
-    PyBuffer_Release(&out);
+    const float *o = bs.b[0].buf, *d = bs.b[1].buf;
+    unsigned char *hit = bs.b[2].buf;
+    RTCScene scene = s->scene;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t k = 0; k < n; k++) {
+        RTCRay ray = {o[3 * k], o[3 * k + 1], o[3 * k + 2], 0.0f, d[3 * k], d[3 * k + 1], d[3 * k + 2], 0.0f,
+                      1.0f, 0xFFFFFFFFu, 0, 0};
+        embree.Occluded1(scene, &ray, NULL);
+        hit[k] = ray.tfar < 0;
+    }
+    Py_END_ALLOW_THREADS
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    buffers_release(&bs);
     return result;
 }
 
-
 /* ---- histograms of the pairs (shapeidx/signing/histogram.py, angles.py) ---- */
-
-/* Buffers for a function's arguments, released together. */
-typedef struct {
-    Py_buffer b[8];
-    int got;
-} Buffers;
-
-/* kinds: one letter per argument, 'd' float64, 'B' uint8, 'q' int64 */
-static int buffers_get(Buffers *bs, PyObject **objects, const char *kinds, int first_writable) {
-    int n = (int)strlen(kinds);
-    for (bs->got = 0; bs->got < n; bs->got++) {
-        int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (bs->got >= first_writable ? PyBUF_WRITABLE : 0);
-        if (PyObject_GetBuffer(objects[bs->got], &bs->b[bs->got], flags) < 0) return -1;
-        char kind = kinds[bs->got];
-        if (!buffer_is(&bs->b[bs->got], kind == 'd' ? 'f' : kind == 'q' ? 'i' : 'u', kind == 'B' ? 1 : 8)) {
-            bs->got++;
-            PyErr_Format(PyExc_ValueError, "argument %d has the wrong dtype", bs->got);
-            return -1;
-        }
-    }
-    return 0;
-}
-
-static void buffers_release(Buffers *bs) {
-    for (int k = 0; k < bs->got; k++) PyBuffer_Release(&bs->b[k]);
-}
 
 /*
  * class_sums(distances, classes, sums_out, sizes_out, largest_out): per class, the sum of

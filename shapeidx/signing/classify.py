@@ -178,8 +178,7 @@ def classify_pairs(
     # values are compared while still in cache and only the upper triangle is computed.
     # the segment leaves the material at its end j when p_i lies above j's plane with
     # cos >= TANGENT (and at i when p_j lies above i's); coincident points stay IN
-    p32, n32 = points.astype(np.float32), normals.astype(np.float32)
-    own = np.einsum("ij,ij->i", p32, n32)
+    p32, n32, own, shifted = _float32_ends(points, normals)
     threshold = (TANGENT * distance).astype(np.float32)
     leaves_second = np.empty(len(distance), dtype=bool)
     leaves_first = np.empty(len(distance), dtype=bool)
@@ -198,8 +197,6 @@ def classify_pairs(
 
     agree = np.flatnonzero(leaves_first == leaves_second)
     outward = leaves_first[agree]
-    # each point moved off the surface, inward (rows 0..m-1) and outward (rows m..2m-1)
-    shifted = np.concatenate([points - OFFSET * normals, points + OFFSET * normals]).astype(np.float32)
     row_shift = np.where(outward, np.int32(m), np.int32(0))
     clear = ~scene.blocked_between(shifted, first[agree] + row_shift, second[agree] + row_shift, threads)
 
@@ -207,6 +204,16 @@ def classify_pairs(
     classes = np.full(len(distance), MIXED, dtype=np.uint8)
     classes[agree] = np.where(clear, outward.view(np.uint8), np.uint8(MIXED))
     return distance / scale, classes
+
+
+def _float32_ends(points: np.ndarray, normals: np.ndarray):
+    """What both roads of the end tests read, made once so that they read the same numbers:
+    points and normals as float32, each point's ``p . n`` (float32), and the points moved
+    off the surface, inward (rows 0..m-1) and outward (rows m..2m-1), as float32."""
+    p32, n32 = points.astype(np.float32), normals.astype(np.float32)
+    own = np.einsum("ij,ij->i", p32, n32)
+    shifted = np.concatenate([points - OFFSET * normals, points + OFFSET * normals]).astype(np.float32)
+    return p32, n32, own, shifted
 
 
 def spatial_order(points: np.ndarray) -> np.ndarray:
@@ -234,9 +241,7 @@ def _classify_compiled(scene, points, normals, scale, threads: int, packets: boo
     if m < 2:
         return np.zeros(0), np.zeros(0, dtype=np.uint8)
     points = np.ascontiguousarray(points, dtype=np.float64)
-    p32, n32 = points.astype(np.float32), np.ascontiguousarray(normals, dtype=np.float32)
-    own = np.einsum("ij,ij->i", p32, n32)
-    shifted = np.concatenate([points - OFFSET * normals, points + OFFSET * normals]).astype(np.float32)
+    p32, n32, own, shifted = _float32_ends(points, normals)
     distance = np.empty(m * (m - 1) // 2)
     classes = np.empty(len(distance), dtype=np.uint8)
     order = spatial_order(points)

@@ -81,8 +81,9 @@ class Signature:
         scale, offset by class, counted by a single ``bincount``.
         """
         native = compiled_pairs()
-        if native is not None and len(distances) and float(distances.mean()) > 0:
-            histograms = _histograms_compiled(native, distances, classes, divisor)
+        mean_all = float(distances.mean()) if len(distances) else 0.0  # numpy's pairwise sum, as Histogram.of's
+        if native is not None and mean_all > 0:
+            histograms = _histograms_compiled(native, distances, classes, mean_all, divisor)
             return cls(points=points, seed=seed, histograms=histograms, angles=angles)
         histograms = {"all": Histogram.of(distances, divisor)}
         n_classes = len(CLASS_NAMES)
@@ -95,10 +96,7 @@ class Signature:
         codes *= stride
         key += codes  # each pair's bin, offset by its class
         table = np.bincount(key, minlength=n_classes * stride).reshape(n_classes, stride)
-        for code, name in enumerate(CLASS_NAMES):
-            used = np.flatnonzero(table[code])
-            counts = table[code, : used[-1] + 1] if len(used) else np.zeros(0, dtype=np.int64)
-            histograms[name] = Histogram(counts, float(means[code]), float(widths[code]))
+        histograms.update(_class_histograms(table, means, widths))
         return cls(points=points, seed=seed, histograms=histograms, angles=angles)
 
     @property
@@ -121,7 +119,18 @@ class Signature:
         }
 
 
-def _histograms_compiled(native, distances: np.ndarray, classes: np.ndarray, divisor: int) -> dict:
+def _class_histograms(table: np.ndarray, means: np.ndarray, widths: np.ndarray) -> dict:
+    """The IN / OUT / MIXED histograms from a (3, bins) table of counts, each cut after its
+    last filled bin (an empty class: no bins)."""
+    histograms = {}
+    for code, name in enumerate(CLASS_NAMES):
+        used = np.flatnonzero(table[code])
+        counts = table[code, : used[-1] + 1] if len(used) else np.zeros(0, dtype=np.int64)
+        histograms[name] = Histogram(counts, float(means[code]), float(widths[code]))
+    return histograms
+
+
+def _histograms_compiled(native, distances: np.ndarray, classes: np.ndarray, mean_all: float, divisor: int) -> dict:
     """:meth:`Signature.from_pairs`' histograms by two compiled passes over the pairs
     (shapeidx/signing/_pairs.c): the same sums in the same order, the same bins."""
     distances = np.ascontiguousarray(distances, dtype=np.float64)
@@ -131,7 +140,6 @@ def _histograms_compiled(native, distances: np.ndarray, classes: np.ndarray, div
     native.class_sums(distances, classes, sums, sizes, largest)
     means = sums / np.maximum(sizes, 1)
     widths = means / divisor
-    mean_all = float(distances.mean())  # numpy's pairwise sum, as Histogram.of takes it
     width_all = mean_all / divisor
     # d / w grows with d, so a histogram's largest distance falls in its last bin (each
     # class by its own largest: a class of a few short pairs has a narrow bin width)
@@ -140,9 +148,4 @@ def _histograms_compiled(native, distances: np.ndarray, classes: np.ndarray, div
     counts_all = np.zeros(bins_all, dtype=np.int64)
     per_class = np.zeros((len(CLASS_NAMES), bins), dtype=np.int64)
     native.bin_counts(distances, classes, width_all, widths, counts_all, per_class)
-    histograms = {"all": Histogram(counts_all, mean_all, width_all)}
-    for code, name in enumerate(CLASS_NAMES):
-        used = np.flatnonzero(per_class[code])
-        counts = per_class[code, : used[-1] + 1] if len(used) else np.zeros(0, dtype=np.int64)
-        histograms[name] = Histogram(counts, float(means[code]), float(widths[code]))
-    return histograms
+    return {"all": Histogram(counts_all, mean_all, width_all), **_class_histograms(per_class, means, widths)}

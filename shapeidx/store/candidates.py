@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..distance import METRIC_HISTOGRAMS, combined_weights
+from ..distance import METRIC_HISTOGRAMS
 from ..distance.combined import class_scales, learned_weights
 from ..signing.parameters import CLASS_NAMES, HISTOGRAMS
 
@@ -69,15 +69,12 @@ def _block_weights(metric: str) -> dict:
     """Weight of each embedding block for ``metric`` (a histogram's, the fractions', the
     scales', and for combined-angle each normal-angle histogram's, ``angle_H``)."""
     hists = METRIC_HISTOGRAMS[metric]
-    if metric == "combined-angle":  # no D2 term: class features and the angles' Hellinger distances
-        w = learned_weights("combined-angle")["weights"]
-        weights = {f"angle_{h}": w[f"hellinger_angle_{h}"] for h in ANGLE_HISTOGRAMS}
-        weights["fractions"] = float(np.mean([w[f"gap_{c}"] for c in HISTOGRAMS[1:]]))
-        weights["scales"] = float(np.mean([w[f"scale_{c}"] for c in HISTOGRAMS[1:]]))
-        return weights
-    if metric == "combined":
-        w = combined_weights()["weights"]
-        weights = {h: w[f"d_{h}"] for h in HISTOGRAMS}
+    if metric in ("combined", "combined-angle"):
+        w = learned_weights(metric)["weights"]
+        if metric == "combined":
+            weights = {h: w[f"d_{h}"] for h in HISTOGRAMS}
+        else:  # no D2 term: the angles' Hellinger distances with the class features
+            weights = {f"angle_{h}": w[f"hellinger_angle_{h}"] for h in ANGLE_HISTOGRAMS}
         weights["fractions"] = float(np.mean([w[f"gap_{c}"] for c in HISTOGRAMS[1:]]))
         weights["scales"] = float(np.mean([w[f"scale_{c}"] for c in HISTOGRAMS[1:]]))
         return {k: v for k, v in weights.items() if v > 0 or k in ("fractions", "scales")}
