@@ -26,7 +26,7 @@ from .console.params import (
     STORE_ENV,
     FiniteFloat,
 )
-from .console.text import plain_reason
+from .errors import plain_reason
 from .errors import printable
 
 CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}

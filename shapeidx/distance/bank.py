@@ -12,21 +12,13 @@ import numpy as np
 from ..ragged import offsets_of
 from ..signing.histogram import Signature
 from ..signing.parameters import HISTOGRAMS
-from .combined import ANGLE_METRICS, angle_features, class_scales, metric_values, signature_means
 from ..signing.angles import angle_probabilities
-from .paper import PAPER_METRICS
+from .combined import angle_features, class_scales, metric_values, signature_means
+from .metrics import ANGLE_METRICS, PAPER_METRICS, REGISTRY
 
 
-#: Histograms each metric reads: ranking skips the others (Weighted never needs ALL).
-METRIC_HISTOGRAMS = {
-    "all": ("all",),
-    "avg3": HISTOGRAMS[1:],
-    "avg4": HISTOGRAMS,
-    "weighted": HISTOGRAMS[1:],
-    "combined": HISTOGRAMS,
-    "combined-angle": (),
-    "all-angle": ("all",),
-}
+#: Histograms each metric reads (its registry record's): ranking skips the others.
+METRIC_HISTOGRAMS = {name: m.histograms for name, m in REGISTRY.items()}
 #: Values per working block of :meth:`HistogramBank.distances`: small enough to stay in the
 #: CPU cache, so each stored probability is read from memory once per query.
 BLOCK_VALUES = 1 << 15

@@ -81,6 +81,17 @@ class LoadLimits:
             )
 
 
+def file_hash(path: str | os.PathLike) -> str:
+    """SHA-256 of a file's bytes, as 64 hex digits (what a store entry records)."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
 def _binary_size(n: int) -> str:
     return f"{n / (1 << 30):.1f} GiB" if n >= 1 << 30 else f"{n / (1 << 20):.1f} MiB"
 

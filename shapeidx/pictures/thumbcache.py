@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..index.workers import file_hash
+from ..io.base import file_hash
 from .render import DEFAULT_SIZE, RENDER_VERSION, render_file_png, render_solid_png
 
 

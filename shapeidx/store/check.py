@@ -22,7 +22,6 @@ built again from its files.
 
 from __future__ import annotations
 
-import hashlib
 import os
 import time
 from dataclasses import dataclass, field
@@ -32,6 +31,7 @@ import h5py
 import numpy as np
 
 from ..errors import StoreError
+from ..io.base import file_hash
 from ..signing.parameters import HISTOGRAMS
 from .files import batch_files, write_atomically
 from .layout import (
@@ -376,7 +376,7 @@ def _check_files(store: Path, root: str | None, report: CheckReport) -> None:
                 continue  # could not be read when indexed: nothing to compare
             absolute = os.path.join(root or "", str(path))
             try:
-                actual = _file_hash(absolute)
+                actual = file_hash(absolute)
             except OSError as exc:
                 report.problems.append(Problem(store.name, str(path), f"the file cannot be read ({exc.strerror or exc})"))
                 continue
@@ -384,14 +384,6 @@ def _check_files(store: Path, root: str | None, report: CheckReport) -> None:
             if actual != expected:
                 report.problems.append(Problem(store.name, str(path), "the file changed since it was indexed"
                                                " (a build signs it again)"))
-
-
-def _file_hash(path: str) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(1 << 20):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 def refuse_damaged(store: Path) -> None:
