@@ -180,6 +180,8 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         finally:
             pool.close()
         committer.finish()
+        writer.facts = {"indexed": summary.indexed, "failed": summary.failed, "removed": summary.removed,
+                        "unchanged": summary.unchanged}
     summary.seconds = time.monotonic() - started
     _store_counts(store, summary)
     return summary
@@ -222,7 +224,7 @@ def _dry_run(root: Path, store: Path, params: StoreParams, options, reporter, su
     walk = walk_parts(root, options.follow_outside_links)
     for warning in walk.warnings:
         reporter.warning(warning)
-    if store.exists():
+    if store.exists() or store.with_name(store.name + ".converting").exists():
         with open_store(store) as reader:
             check_params(reader, params)
             check_root(reader, root)

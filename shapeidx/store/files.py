@@ -1,10 +1,16 @@
 """The files of a store and how they are written so that a kill at any moment loses nothing.
 
-    STORE                    the main file: a complete snapshot, only ever replaced by rename
-    STORE.journal/           batches committed since the main file was last written
-        batch-0000000007.h5    same entry layout, plus /touched and /removed
-    STORE.lock               held (flock) by the one build that may write
-    STORE.verified           which main file a build last verified (shapeidx.store.verified)
+A store is one directory, the unit a user copies, moves, archives or deletes (``cp -a``,
+``mv``, ``rsync -a``, ``tar``): everything shapeidx keeps about the indexed tree is inside.
+
+    STORE/                   the store (any name; the examples use ``NAME.shapeidx``)
+        main.h5              the main file: a snapshot, only ever replaced by rename
+        journal/             segments committed since the main file was last written
+            batch-0000000007.h5  same entry layout, plus /touched and /removed
+        lock                 held (flock) by the one build that may write
+        build.json           the last build: running, finished or stopped (shapeidx stats)
+        verified             which main file a build last verified (shapeidx.store.verified)
+        thumbs/              rendered thumbnails and the similarity calibration (a cache)
 
 No file a reader may open is ever written in place: every file is written under a temporary
 name, flushed to disk, and renamed into place (atomic on POSIX).
@@ -130,12 +136,37 @@ def _fsync_path(path: Path) -> None:
         os.close(fd)
 
 
+MAIN_FILE = "main.h5"
+
+
+def main_file(store: Path) -> Path:
+    """The main file of the store (directory) ``store``."""
+    return Path(store) / MAIN_FILE
+
+
 def journal_dir(store: Path) -> Path:
-    return store.with_name(store.name + ".journal")
+    return Path(store) / "journal"
 
 
 def lock_path(store: Path) -> Path:
-    return store.with_name(store.name + ".lock")
+    return Path(store) / "lock"
+
+
+def build_state_path(store: Path) -> Path:
+    return Path(store) / "build.json"
+
+
+def thumbs_dir(store: Path) -> Path:
+    return Path(store) / "thumbs"
+
+
+def is_one_file_store(path: Path) -> bool:
+    """Whether ``path`` is a store of the older layout: one HDF5 file (``STORE.journal/`` beside it)."""
+    try:
+        with open(path, "rb") as f:
+            return Path(path).is_file() and f.read(8) == b"\x89HDF\r\n\x1a\n"
+    except OSError:
+        return False
 
 
 def batch_files(store: Path) -> list[tuple[int, Path]]:

@@ -28,7 +28,7 @@ STATUS_OK, STATUS_FAILED = 0, 1
 #: Class fractions are stored as (N, 3) in this order.
 FRACTION_CLASSES = HISTOGRAMS[1:]
 #: Where the default store lives, relative to the working directory.
-DEFAULT_STORE = "shapeidx.h5"
+DEFAULT_STORE = "index.shapeidx"
 STORE_ENV = "SHAPEIDX_STORE"
 
 _STR = h5py.string_dtype("utf-8")

@@ -20,7 +20,7 @@ from ..ragged import offsets_of, take_ragged
 from ..signing.histogram import Histogram, Signature
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS
 from ..signing.parameters import HISTOGRAMS
-from .files import batch_files, journal_dir, lock_path
+from .files import batch_files, is_one_file_store, main_file
 from .layout import (
     CONTENT_HASH,
     COUNT_DTYPE,
@@ -70,8 +70,8 @@ class _SourceFile:
         self._offsets: dict = {}
 
     def damaged(self, what: str) -> StoreDamagedError:
-        where = "" if self.path == self.store else f" of {self.path.name}"
-        root = self.file.attrs.get("root") if self.path == self.store else None
+        where = "" if self.seq == 0 else f" of {self.path.name}"
+        root = self.file.attrs.get("root") if self.seq == 0 else None
         return damaged(self.store, what + where, as_text(root) if root is not None else None)
 
     def dataset(self, name: str) -> h5py.Dataset:
@@ -232,8 +232,10 @@ class StoreReader:
     journal : int
         Batches applied on top of the main file.
     skipped : list of (Path, str)
-        Damaged journal batches left out of the view, with why (the next build drops them
-        and redoes their work).
+        Damaged journal segments left out of the view, with why: only a view opened for a
+        build (``open_store(..., skip_damaged=True)``), which drops them and redoes their
+        work; every other reader refuses a damaged segment (an answer over fewer entries
+        than the store holds is never given).
     """
 
     def __init__(self, path: Path, main: _SourceFile, batches: list[_SourceFile], skipped=()):
@@ -414,13 +416,18 @@ def resolve_store_path(path: str | os.PathLike | None) -> Path:
     return Path(path or os.environ.get(STORE_ENV) or DEFAULT_STORE)
 
 
-def open_store(path: str | os.PathLike, attempts: int = 20) -> StoreReader:
-    """Open a store for reading: the main file and the journal batches it does not hold yet.
+def open_store(path: str | os.PathLike, attempts: int = 20, skip_damaged: bool = False) -> StoreReader:
+    """Open a store for reading: the main file and the journal segments it does not hold yet.
+
+    ``skip_damaged``: leave a damaged segment out of the view (:attr:`StoreReader.skipped`)
+    instead of refusing the store; only a build asks for that (it redoes their work).
 
     Raises
     ------
     StoreError
         No store there, a file that is not a store, or one of a newer layout.
+    StoreDamagedError
+        A file of the store fails its checks (a damaged segment included, unless ``skip_damaged``).
     """
     path = Path(path)
     for _ in range(attempts):
@@ -435,11 +442,13 @@ def open_store(path: str | os.PathLike, attempts: int = 20) -> StoreReader:
                     opened, reason = _open_batch(path, batch, seq)
                     if opened is not None:
                         batches.append(opened)
-                    elif reason is not None:
+                    elif reason is not None and skip_damaged:
                         skipped.append((batch, reason))
+                    elif reason is not None:
+                        raise damaged(path, f"journal segment {batch.name}: {reason}", as_text(main.file.attrs.get("root", "")) or None)
                     else:
                         raise FileNotFoundError(batch)  # it vanished: a merge finished meanwhile
-            if _same_file(path, main):  # no merge replaced the main file while the batches were listed
+            if _same_file(main.path, main):  # no merge replaced the main file while the batches were listed
                 batches = _drop_covered(batches)
                 return StoreReader(path, main, batches, skipped)
         except FileNotFoundError:  # a batch went: a merge finished meanwhile
@@ -456,21 +465,33 @@ def open_store(path: str | os.PathLike, attempts: int = 20) -> StoreReader:
 
 
 def _open_main(path: Path) -> _SourceFile:
-    if path.is_dir():
-        raise StoreError(f"{path} is a directory, not a store (give the store's file with --store)")
+    check_store_directory(path)
+    main = main_file(path)
     try:
-        return _SourceFile(path, 0)
+        return _SourceFile(main, 0, path)
     except FileNotFoundError:
-        raise StoreError(f"no store at {path} (run 'shapeidx build DIR' first, or give --store)") from None
+        raise StoreError(f"{path} is not a shapeidx store (it holds no {main.name})") from None
     except PermissionError:
         raise StoreError(f"{path}: cannot open the store: permission denied") from None
     except OSError as exc:
-        if not path.exists():
-            raise StoreError(f"no store at {path} (run 'shapeidx build DIR' first, or give --store)") from None
-        was_a_store = lock_path(path).exists() or journal_dir(path).exists()
-        if path.stat().st_size == 0 or (_signature_missing(path) and not was_a_store):
-            raise StoreError(f"{path} is not a shapeidx store (not an HDF5 file)") from None
+        if not main.exists():
+            raise StoreError(f"{path} is not a shapeidx store (it holds no {main.name})") from None
+        if main.stat().st_size == 0 or _signature_missing(main):
+            raise damaged(path, f"{main.name} is not an HDF5 file") from None
         raise damaged(path, f"the main file cannot be opened: {_first_line(exc)}") from None
+
+
+def check_store_directory(path: Path) -> None:
+    """Refuse, in one line, a path that is not a store directory: nothing there, a file of
+    the older one-file layout (a build converts it), or any other file."""
+    if path.is_dir():
+        return
+    if not path.exists():
+        raise StoreError(f"no store at {path} (run 'shapeidx build DIR --store {path}' first, or give --store)")
+    if is_one_file_store(path):
+        raise StoreError(f"{path} is a store of the older one-file layout: 'shapeidx build DIR --store {path}' converts"
+                         " it into the store directory (renames only: no part is signed again)")
+    raise StoreError(f"{path} is not a shapeidx store (a store is a directory; this is a file)")
 
 
 def _signature_missing(path: Path) -> bool:
