@@ -90,13 +90,13 @@ def signature(part, points: int = DEFAULT_POINTS, seed: int = DEFAULT_SEED, file
 
 
 def compare(a, b, points: int = DEFAULT_POINTS, seed: int = DEFAULT_SEED) -> dict:
-    """Every distance between two parts (or signatures): the paper's four and ``combined``.
+    """Every distance between two parts (or signatures), one per metric of the registry
+    (:data:`shapeidx.distance.METRICS`: the paper's four, combined, combined-angle, all-angle).
 
     Returns
     -------
     dict
-        ``{"all", "avg3", "avg4", "weighted", "combined"}`` -> float; 0 means identical
-        histograms.
+        Metric name -> float; 0 means identical histograms.
     """
     from .distance import compare as distances_between
 
@@ -104,41 +104,73 @@ def compare(a, b, points: int = DEFAULT_POINTS, seed: int = DEFAULT_SEED) -> dic
 
 
 def open_store(path):
-    """Open a signature store for reading (main file and journal, as one consistent view).
+    """Open a store to read and query it; keep it open to answer many queries quickly.
 
-    Use it as a context manager, or close it. See :class:`~shapeidx.store.StoreReader`
-    for what it offers (``paths``, ``column(name)``, ``signature(i)``, ``params``).
+    Use it as a context manager, or close it. It is a :class:`~shapeidx.search.Searcher`:
+    pass it to :func:`query`; ``paths``, ``column(name)``, ``counts(name, rows)``,
+    ``signature(i)``, ``params`` and ``attrs`` read the store's entries
+    (:class:`~shapeidx.store.StoreReader`).
     """
-    from .store import open_store as open_reader
+    from .search import Searcher
 
-    return open_reader(path)
+    return Searcher(path)
 
 
-def query(store, part=None, top: int = 10, metric: str = "weighted", entry: str | None = None, file_type: str | None = None):
-    """The entries of ``store`` nearest to ``part``, nearest first.
+def query(store, part=None, top: int = 10, metric: str = "weighted", entry: str | None = None,
+          file_type: str | None = None, where=(), exclude_self: bool = False, max_distance: float | None = None,
+          scale: str = "invariant") -> list:
+    """The entries of ``store`` nearest to ``part`` (or to its entry ``entry``), nearest first.
+
+    The same road as ``shapeidx query``, the web page and sheets (:mod:`shapeidx.search`):
+    the same hits, distances and fields.
 
     Parameters
     ----------
-    store : path of a store, or a store opened with :func:`open_store`
+    store : path of a store, or a store opened with :func:`open_store` (faster for many queries)
     part : anything :func:`load` takes, or a Signature made with the store's parameters
     top : int
         How many hits.
     metric : str
-        ``"weighted"`` (the paper's, the default), ``"all"``, ``"avg3"``, ``"avg4"`` or
-        ``"combined"``.
+        A name of :data:`shapeidx.distance.METRICS`: ``"weighted"`` (the paper's, the
+        default), ``"all"``, ``"avg3"``, ``"avg4"``, ``"combined"``, ``"combined-angle"``,
+        ``"all-angle"``.
     entry : str, optional
-        Instead of ``part``, a path of an entry of the store (relative to its root).
+        Instead of ``part``, an entry of the store (its path relative to the root).
     file_type : str, optional
         As for :func:`load`.
+    where : sequence of str
+        Metadata conditions, all of which must hold (``"material=steel"``,
+        ``"revision>=3"``, ``"path~Connector_*"``; :mod:`shapeidx.search.where`).
+    exclude_self : bool
+        Leave out the query's own entry.
+    max_distance : float, optional
+        Leave out hits farther than this.
+    scale : str
+        ``"invariant"`` (the paper's) or ``"sensitive"`` (parts of another size left out).
 
     Returns
     -------
     list of dict
-        ``{"rank", "path", "distance"}`` per hit; ``path`` is relative to the store's root.
+        ``{"rank", "distance", "path", "relative_path", "metadata"}`` per hit: ``path`` is
+        absolute, ``relative_path`` the entry (what ``entry`` takes). Empty when nothing
+        answers (filters that match no entry, every hit beyond ``max_distance``).
+
+    Raises
+    ------
+    UsageError
+        A ``where`` on a key the store does not have, or not of the form KEY OP VALUE.
     """
-    from .ranking import query_store
+    from .search import Filters, Searcher, parse_where
     from .system import available_cores
 
     if (part is None) == (entry is None):
         raise ValueError("give a part or an entry, not both or neither")
-    return query_store(store, part, entry=entry, top=top, metric=metric, threads=available_cores(), file_type=file_type)
+    filters = Filters(exclude_self, max_distance, scale, parse_where(where))
+    searcher = store if isinstance(store, Searcher) else Searcher(store)
+    try:
+        question = searcher.query_of_entry(entry) if entry is not None else searcher.query_of_part(
+            part, file_type, threads=available_cores())
+        return [hit.to_dict() for hit in searcher.search(question, top, metric, filters).hits]
+    finally:
+        if searcher is not store:
+            searcher.close()

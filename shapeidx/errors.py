@@ -97,3 +97,14 @@ class StoreLockedError(StoreError):
 
 class StoreDamagedError(StoreError):
     """The store's files fail their checks (checksums, offsets, structure): see ``shapeidx check``."""
+
+
+class UsageError(ShapeidxError):
+    """A request that cannot be meant as given (a ``--where`` on a key the store does not
+    have, a format that does not exist): the command line exits with its usage status, 2."""
+
+
+class NoAnswer(ShapeidxError):
+    """A sound question that nothing answers: filters that match no entry, hits all beyond
+    ``--max-distance``, a store with no entry yet. ``str()`` says which; the command line
+    exits with status 6 (docs/cli.md), so a script tells an empty answer from a failure."""

@@ -161,13 +161,11 @@ def test_a_bad_upload_is_a_message_on_the_page(server, browser, tmp_path):
 def test_a_long_sheet_pages_in_the_browser(server, browser, tmp_path):
     """A 2,000-hit sheet opened from disk: 100 hits per page, the pager moves between them."""
     from shapeidx.pictures.sheet import PAGE, SheetHit, SheetPart, sheet_html
-    from shapeidx.pictures.similarity import signatures_of
-    from shapeidx.ranking import SignatureTable
-    from shapeidx.store import open_store
+    from shapeidx.search import Searcher
 
     _, _, tmp = server
-    with open_store(tmp / "s.h5") as reader:
-        signatures = signatures_of(reader, SignatureTable.load(reader).rows)
+    with Searcher(tmp / "s.shapeidx") as searcher:
+        signatures = [searcher.signature_at(i) for i in range(len(searcher))]
     hits = [SheetHit(SheetPart(f"part {k}", None, signatures[k % len(signatures)]), k + 1, 0.001 * k) for k in range(2000)]
     sheet = tmp_path / "long.html"
     sheet.write_text(sheet_html("long", SheetPart("q", None, signatures[0]), hits, []))

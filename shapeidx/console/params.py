@@ -10,8 +10,8 @@ import math
 
 import click
 
-#: = shapeidx.distance.METRICS
-METRICS = ("all", "avg3", "avg4", "weighted", "combined", "combined-angle", "all-angle")
+from ..distance.metrics import METRICS, metric_help  # noqa: F401 (the registry imports nothing heavy)
+from ..io.formats import FORMAT_NAMES as PART_FORMATS  # noqa: F401 (the list of formats imports nothing)
 #: = shapeidx.signing.parameters.DEFAULT_POINTS, DEFAULT_SEED
 DEFAULT_POINTS = 1024
 DEFAULT_SEED = 20020101

@@ -105,12 +105,12 @@ class HistogramBank:
         for bins, rows, counts, totals in groups:
             width = max(bins, len(query_p))
             if width:
-                out[rows] = _padded_l1(counts, totals, query_p, width, verify) / width
+                out[rows] = padded_l1(counts, totals, query_p, width, verify) / width
             elif verify and np.any(totals != 1):
                 raise ValueError("histogram counts disagree with their totals")
 
 
-def _padded_l1(counts: np.ndarray, totals: np.ndarray, query_p: np.ndarray, width: int, verify: bool = False) -> np.ndarray:
+def padded_l1(counts: np.ndarray, totals: np.ndarray, query_p: np.ndarray, width: int, verify: bool = False) -> np.ndarray:
     """Row sums of ``|counts / total - query|`` over ``width`` bins, both zero-padded, in
     blocks small enough to stay in the CPU cache (``verify``: see :meth:`HistogramBank.distances_into`)."""
     bins = counts.shape[1]

@@ -111,7 +111,7 @@ REGISTRY: dict[str, Metric] = {
                histograms=_CLASSES, features=_d(*_CLASSES), formula=".paper:avg3", paper=True),
         Metric("avg4", "AvgOf4", "the paper's AvgOf4: mean D of the ALL, IN, OUT and MIXED histograms",
                histograms=_HISTOGRAMS, features=_d(*_HISTOGRAMS), formula=".paper:avg4", paper=True),
-        Metric("weighted", "Weighted", "the paper's Weighted: each class's D divided by 1 - |%A - %B| (query's default)",
+        Metric("weighted", "Weighted", "the paper's Weighted: each class's D weighted by 1 / (1 - the gap of its class fractions); query's default",
                histograms=_CLASSES, features=_d(*_CLASSES) + _gaps(), formula=".paper:weighted", paper=True),
         Metric("combined", "combined", "learned: the four D, class-fraction gaps and class-mean ratios (NCA on kicad6)",
                histograms=_HISTOGRAMS, features=_d(*_HISTOGRAMS) + _gaps() + _scales(),
@@ -164,3 +164,17 @@ def metric_help() -> str:
 def duplicate_metrics() -> tuple:
     """The metrics ``duplicates`` offers: those with measured thresholds."""
     return tuple(name for name, m in REGISTRY.items() if m.duplicate_thresholds is not None)
+
+
+def markdown_table() -> str:
+    """The metric table of the README and docs/cli.md (``python scripts/docs_tables.py`` writes
+    it there; tests/test_docs.py checks that they hold this very table)."""
+    rows = ["| `--metric` | label | what it is | reads | `duplicates` |", "|---|---|---|---|---|"]
+    for m in REGISTRY.values():
+        reads = ", ".join([f"D of {'/'.join(h.upper() for h in m.histograms)}"] if m.histograms else [])
+        extra = [what for what, used in (("class fractions", any(f.startswith("gap_") for f in m.features)),
+                                         ("class means", any(f.startswith("scale_") for f in m.features)),
+                                         ("normal-angle histograms", m.angles)) if used]
+        reads = "; ".join([reads] + extra if reads else extra)
+        rows.append(f"| `{m.name}` | {m.label} | {m.summary} | {reads} | {'yes' if m.duplicate_thresholds else 'no'} |")
+    return "\n".join(rows) + "\n"

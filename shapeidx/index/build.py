@@ -57,6 +57,8 @@ class BuildOptions:
     scheduler: str | None = None
     #: Where the cluster's workers see the tree, when not at the same path.
     worker_root: str | None = None
+    #: A CSV of metadata (a path column and any others) joined to the entries (shapeidx.store.metadata).
+    metadata: str | None = None
 
 
 @dataclass
@@ -75,6 +77,9 @@ class BuildSummary:
     store_failed: int = 0
     store_bytes: int = 0
     failures: list = field(default_factory=list)  # (path, reason) of this build
+    #: Rows of the metadata table this build read (None: no --metadata), and whether it changed.
+    metadata_rows: int | None = None
+    metadata_changed: bool = False
 
     def line(self) -> str:
         return f"{self.indexed} indexed, {self.unchanged} unchanged, {self.removed} removed, {self.failed} failed"
@@ -94,6 +99,8 @@ class BuildSummary:
             "seconds": round(self.seconds, 3),
             "store": {"path": str(store), "root": self.root, "ok": self.store_ok, "failed": self.store_failed, "bytes": self.store_bytes},
             "failures": [{"path": path, "reason": reason} for path, reason in self.failures],
+            "metadata": None if self.metadata_rows is None else {"rows": self.metadata_rows,
+                                                                  "changed": self.metadata_changed},
         }
 
 
@@ -152,12 +159,15 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         return _dry_run(root, store, params, options, reporter, summary)
     walk = walk_parts(root, options.follow_outside_links)
     _refuse_empty(given, walk)
+    table = _metadata_table(options, root, walk, reporter)  # a bad table is refused before the store changes
     with _sigterm_as_interrupt(), StoreWriter(store, params, root, options.wait, reporter.waiting,
                                               options.wait_timeout, options.repair, reporter.warning) as writer:
         if options.wait:  # walk again: the tree may have changed while another build held the lock
             walk = walk_parts(root, options.follow_outside_links)
         for warning in walk.warnings:
             reporter.warning(warning)
+        if table is not None:
+            summary.metadata_rows, summary.metadata_changed = len(table), _store_metadata(store, table)
         with open_store(store) as reader:
             plan = make_plan(walk, reader, options)
         summary.found, summary.unchanged, summary.planned = plan.found, plan.unchanged, len(plan.tasks)
@@ -185,6 +195,35 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     summary.seconds = time.monotonic() - started
     _store_counts(store, summary)
     return summary
+
+
+def _metadata_table(options: BuildOptions, root: Path, walk, reporter):
+    """The ``--metadata`` table read and checked (None without it), with a warning for rows
+    that name no part file of the tree."""
+    if not options.metadata:
+        return None
+    from ..store.metadata import read_csv_table
+
+    table, warnings = read_csv_table(options.metadata, root)
+    for warning in warnings:
+        reporter.warning(warning)
+    known = {f.path for f in walk.files}
+    strays = [p for p in table.paths if p not in known]
+    if strays:
+        reporter.warning(f"--metadata {options.metadata}: {len(strays)} of its {len(table)} rows name no part file of"
+                         f" {root} (first: {strays[0]}); they are kept and match no entry")
+    return table
+
+
+def _store_metadata(store: Path, table) -> bool:
+    """Write the table into the store (the lock is held) unless it holds the same; True if it changed."""
+    from ..store.metadata import load_table, write_table
+
+    current = load_table(store)
+    if current is not None and current.sha256 == table.sha256 and current.source == table.source:
+        return False
+    write_table(store, table)
+    return True
 
 
 def check_tree(given, root: Path) -> None:
@@ -224,6 +263,9 @@ def _dry_run(root: Path, store: Path, params: StoreParams, options, reporter, su
     walk = walk_parts(root, options.follow_outside_links)
     for warning in walk.warnings:
         reporter.warning(warning)
+    table = _metadata_table(options, root, walk, reporter)
+    if table is not None:
+        summary.metadata_rows = len(table)
     if store.exists() or store.with_name(store.name + ".converting").exists():
         with open_store(store) as reader:
             check_params(reader, params)

@@ -156,6 +156,8 @@ class PolygonMesh:
         Short name of what was read: ``stl``, ``obj``, ``off``, ``ply``, ``vrml1``, ``vrml2``.
     warnings : list of str
         Things the loader repaired or skipped, one sentence each.
+    metadata : dict
+        What the file says about itself (:mod:`shapeidx.io.metadata`: ``title``, ``product_id``).
     """
 
     vertices: np.ndarray
@@ -163,6 +165,7 @@ class PolygonMesh:
     face_indices: np.ndarray
     format: str
     warnings: list[str] = field(default_factory=list)
+    metadata: dict = field(default_factory=dict)
 
     @classmethod
     def from_triangles(cls, vertices, triangles, format: str, warnings=None) -> "PolygonMesh":

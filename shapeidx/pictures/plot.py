@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..distance import PAPER_METRICS, compare
-from ..distance.metrics import label
+from ..distance.metrics import label as metric_label
 from ..signing.parameters import BIN_DIVISOR, HISTOGRAMS
 
 #: Colours of the parts, in order (matplotlib's tab10, colour-blind tolerable pairs first).
@@ -37,7 +37,7 @@ def pair_distances(named: list) -> list[tuple[str, str, dict]]:
 
 
 def distance_line(a: str, b: str, distances: dict, metrics=PAPER_METRICS) -> str:
-    return f"{a} - {b}: " + ", ".join(f"{label(m)} {distances[m]:.3g}" for m in metrics)
+    return f"{a} - {b}: " + ", ".join(f"{metric_label(m)} {distances[m]:.3g}" for m in metrics)
 
 
 def figure_of(named: list, title: str | None = None, divisor: int = BIN_DIVISOR, size=(10.0, 7.5)):

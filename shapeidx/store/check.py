@@ -38,7 +38,7 @@ from .layout import (
     CONTENT_HASH,
     COUNT_DTYPE,
     ENTRY_COLUMNS,
-    OPTIONAL_COLUMNS,
+    MAY_BE_ABSENT,
     FRACTION_CLASSES,
     STATUS_FAILED,
     STATUS_OK,
@@ -154,7 +154,7 @@ def scan_file(path: Path, seq: int, points: int | None, derived: bool = True) ->
             scan.problem("entries/size", f"missing or unreadable ({_first_line(exc)})", fatal=True)
             return scan
         scan.entries = n
-        expected = [name for name in ENTRY_COLUMNS if name not in OPTIONAL_COLUMNS or _present(f, name)]  # older files lack some
+        expected = [name for name in ENTRY_COLUMNS if name not in MAY_BE_ABSENT or _present(f, name)]  # older files lack some
         for name, (dtype, _) in ENTRY_COLUMNS.items():
             if name not in expected:
                 continue
@@ -358,6 +358,16 @@ def check_store(store, files: bool = False) -> CheckReport:
     if not report.checksummed:
         report.notes.append("some datasets have no checksums (written by an older shapeidx): a build's next"
                             " merge that rewrites the main file adds them (build --full does)")
+    if not report.problems:  # every file sound: is one missing? (a gap in the journal)
+        from ..errors import StoreDamagedError
+        from .reader import open_store
+
+        try:
+            open_store(store).close()
+        except StoreDamagedError as exc:
+            text = str(exc)
+            what = text[text.index("damaged (") + 9 : text.rindex("): ")] if "damaged (" in text and "): " in text else text
+            report.problems.append(Problem(store.name, "journal", what))
     if files and not report.problems:
         _check_files(store, attrs.get("root"), report)
     return report

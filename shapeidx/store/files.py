@@ -8,6 +8,7 @@ A store is one directory, the unit a user copies, moves, archives or deletes (``
         journal/             segments committed since the main file was last written
             batch-0000000007.h5  same entry layout, plus /touched and /removed
         lock                 held (flock) by the one build that may write
+        committed            the newest sequence number committed: a missing segment is noticed
         build.json           the last build: running, finished or stopped (shapeidx stats)
         verified             which main file a build last verified (shapeidx.store.verified)
         thumbs/              rendered thumbnails and the similarity calibration (a cache)
@@ -150,6 +151,30 @@ def journal_dir(store: Path) -> Path:
 
 def lock_path(store: Path) -> Path:
     return Path(store) / "lock"
+
+
+def committed_path(store: Path) -> Path:
+    return Path(store) / "committed"
+
+
+def read_committed(store: Path) -> int:
+    """The newest journal sequence number a build committed (``STORE/committed``; 0 when none)."""
+    try:
+        return int(committed_path(store).read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
+def write_committed(store: Path, seq: int) -> None:
+    """Record ``seq`` as committed (atomically), after its segment or main file is in place:
+    a reader that then finds no file holding ``seq`` knows that a file of the store is missing."""
+    path = committed_path(store)
+    tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
+    try:
+        tmp.write_text(f"{int(seq)}\n")
+        os.replace(tmp, path)
+    except OSError:  # a check only: without it a missing newest segment goes unnoticed, nothing breaks
+        _unlink_quietly(tmp)
 
 
 def build_state_path(store: Path) -> Path:

@@ -27,7 +27,7 @@ from .layout import (
     DEFAULT_STORE,
     ENTRY_COLUMNS,
     SCHEMA_VERSION,
-    OPTIONAL_COLUMNS,
+    MAY_BE_ABSENT,
     SHAPE_COLUMNS,
     STORE_ENV,
     StoreParams,
@@ -103,7 +103,7 @@ class _SourceFile:
         """Every column holds one row per entry (cheap: shapes only)."""
         n = len(self)
         for name in ENTRY_COLUMNS:
-            if name in OPTIONAL_COLUMNS and name not in self.file:
+            if name in MAY_BE_ABSENT and name not in self.file:
                 continue  # a file of layout 1: these columns read as NaN
             shape = self.dataset(name).shape
             if not shape or shape[0] != n:
@@ -128,7 +128,7 @@ class _SourceFile:
 
     def column(self, name: str) -> np.ndarray:
         if name not in self._columns:
-            if name in OPTIONAL_COLUMNS and name not in self.file:  # a file of layout 1
+            if name in MAY_BE_ABSENT and name not in self.file:  # a file of layout 1
                 self._columns[name] = missing_column(name, len(self))
             else:
                 self._columns[name] = self._read(name, ENTRY_COLUMNS[name][0])
@@ -202,7 +202,7 @@ class _SourceFile:
 
     def value_at(self, name: str, row: int):
         """One row of a numeric column, read alone."""
-        if name in OPTIONAL_COLUMNS and name not in self.file:
+        if name in MAY_BE_ABSENT and name not in self.file:
             return missing_column(name, 1)[0]
         return self._read(name, ENTRY_COLUMNS[name][0], np.s_[int(row)])
 
@@ -245,6 +245,7 @@ class StoreReader:
         self.params = StoreParams.from_attrs(self.attrs)
         self.journal = len(batches)
         self._sources = [main] + batches
+        self.missing = None  # what is missing from the journal (only a build's view may have a gap)
         self._assembled = False
 
     # -- assembly: which row of which file holds each live entry; done on first use, so that a
@@ -391,7 +392,19 @@ class StoreReader:
         return Signature(points=self.params.points, seed=self.params.seed, histograms=histograms, angles=angles)
 
     def size_on_disk(self) -> int:
-        """Bytes of the main file and the journal."""
+        """Bytes of the store: every file of its directory (main file, journal, metadata,
+        thumbnails), what a copy of it takes."""
+        total = 0
+        for folder, _, names in os.walk(self.path):
+            for name in names:
+                try:
+                    total += os.lstat(os.path.join(folder, name)).st_size
+                except FileNotFoundError:  # a segment a merge removed meanwhile
+                    pass
+        return total
+
+    def files_size(self) -> int:
+        """Bytes of the HDF5 files of this view (main file and segments): what a merge rewrites."""
         total = 0
         for source in self._sources:
             try:
@@ -450,7 +463,12 @@ def open_store(path: str | os.PathLike, attempts: int = 20, skip_damaged: bool =
                         raise FileNotFoundError(batch)  # it vanished: a merge finished meanwhile
             if _same_file(main.path, main):  # no merge replaced the main file while the batches were listed
                 batches = _drop_covered(batches)
-                return StoreReader(path, main, batches, skipped)
+                missing = _missing_segments(path, merged, batches, skipped)
+                if missing and not skip_damaged:
+                    raise damaged(path, missing, as_text(main.file.attrs.get("root", "")) or None)
+                reader = StoreReader(path, main, batches, skipped)
+                reader.missing = missing
+                return reader
         except FileNotFoundError:  # a batch went: a merge finished meanwhile
             pass
         except (OSError, RuntimeError, KeyError, ValueError) as exc:  # HDF5 metadata that cannot be read
@@ -470,6 +488,13 @@ def _open_main(path: Path) -> _SourceFile:
     try:
         return _SourceFile(main, 0, path)
     except FileNotFoundError:
+        from .files import build_state_path, committed_path, journal_dir, lock_path
+
+        if any(p.exists() for p in (journal_dir(path), committed_path(path))) or (
+                build_state_path(path).exists() and not lock_path(path).exists()):
+            raise damaged(path, f"its main file {main.name} is missing") from None
+        if lock_path(path).exists():
+            raise StoreError(f"the store {path} is being created (a first build has just begun); try again") from None
         raise StoreError(f"{path} is not a shapeidx store (it holds no {main.name})") from None
     except PermissionError:
         raise StoreError(f"{path}: cannot open the store: permission denied") from None
@@ -527,6 +552,27 @@ def _open_batch(store: Path, batch: Path, seq: int):
         text = str(exc)
         return None, text[text.index("(") + 1 : text.index(" of batch-")] if " of batch-" in text else "damaged"
     return source, None
+
+
+def _missing_segments(store: Path, merged: int, batches: list, skipped: list) -> str | None:
+    """What is missing from the journal, in words (None: nothing). The segments after the
+    main file's ``journal_seq`` must follow one another without a gap (a merged segment
+    covers ``first_seq``..seq), up to the newest sequence number committed
+    (``STORE/committed``)."""
+    from .files import read_committed
+
+    if skipped:
+        return None  # a build that drops damaged segments redoes their work and folds the journal
+    expected = merged + 1
+    for batch in sorted(batches, key=lambda b: b.seq):
+        if batch.first_seq > expected:
+            return f"journal segments {expected}..{batch.first_seq - 1} are missing"
+        expected = max(expected, batch.seq + 1)
+    committed = read_committed(store)
+    if committed >= expected:
+        return f"journal segment {committed} (the newest committed) is missing" if committed == expected else (
+            f"journal segments {expected}..{committed} (the newest committed) are missing")
+    return None
 
 
 def _drop_covered(batches: list) -> list:

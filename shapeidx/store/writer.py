@@ -36,7 +36,8 @@ from .. import __version__
 from ..errors import StoreError, StoreLockedError
 from ..ragged import offsets_of
 from ..signing.parameters import HISTOGRAMS
-from .files import batch_files, build_state_path, journal_dir, lock_path, main_file, remove_if_empty, write_atomically
+from .files import (batch_files, build_state_path, journal_dir, lock_path, main_file, remove_if_empty, write_atomically,
+                    write_committed)
 from .layout import (
     COUNT_DTYPE,
     ENTRY_COLUMNS,
@@ -281,9 +282,14 @@ class StoreWriter:
             check_root(reader, self.root)
             self.merged_seq = int(reader.attrs["journal_seq"])
             skipped = reader.skipped
+            missing = reader.missing
         for batch, reason in skipped:  # its work is redone: its files differ from their entries
             self.on_warning(f"dropped the damaged journal batch {batch.name} ({reason}); its files are indexed again")
             batch.unlink(missing_ok=True)
+        if missing:
+            self.on_warning(f"{missing}: their files are indexed again")
+        # a gap in the journal (a segment dropped or lost) is closed by folding it into the main file
+        self.must_fold = bool(skipped or missing)
         self.next_seq = max([self.merged_seq] + [seq for seq, _ in batch_files(self.path)]) + 1
         self.uncompacted = len(batch_files(self.path))  # a killed build's batches are merged at the next finish
 
@@ -359,6 +365,7 @@ class StoreWriter:
             write_paths(f, "removed/path", sorted(batch.removed))
 
         write_atomically(folder / f"batch-{seq:010d}.h5", fill, 2 * _bytes_of(columns, counts, batch))
+        write_committed(self.path, seq)
         self.next_seq += 1
         self.uncompacted += 1
         return seq
@@ -414,6 +421,9 @@ class StoreWriter:
         example reads it), while a build that changes 100 files of 10^6 rewrites about 100
         entries. Folding at that share costs each entry O(1) rewrites over its life (the
         main file is rewritten only after it has grown by a fixed fraction)."""
+        if getattr(self, "must_fold", False):
+            self.must_fold = False
+            return self.compact(full=True)
         return self.compact(fold=True)
 
     def _merge_all(self, reader: StoreReader) -> None:
@@ -421,9 +431,10 @@ class StoreWriter:
         through = max(source.seq for source in reader._sources)
         attrs = self._main_attrs(through, {"created": reader.attrs.get("created", utc_now())})
         # the merged file holds no more than the files it merges, their checksums and ranking arrays
-        estimate = int(reader.size_on_disk() * 2.2)
+        estimate = int(reader.files_size() * 2.2)
         write_atomically(main_file(self.path), lambda f: _write_snapshot(f, reader, attrs), estimate)
         mark_verified(self.path)  # written from checked reads: the next build need not read it again
+        write_committed(self.path, through)
         self.merged_seq = through
         for seq, batch in batch_files(self.path):
             if seq <= through:
