@@ -38,6 +38,7 @@ import numpy as np  # noqa: E402
 from _common import machine  # noqa: E402
 from make_store import real_signatures, write_store  # noqa: E402
 from shapeidx.search import Searcher  # noqa: E402
+from shapeidx.store import open_store  # noqa: E402
 
 TARGETS = {100_000: 0.2, 1_000_000: 2.0}
 
