@@ -109,7 +109,7 @@ def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
     existing = None
     if store.exists():
         try:
-            with open_store(store) as reader:
+            with open_store(store, skip_damaged=True) as reader:  # a damaged or missing segment is redone
                 existing = reader.params
         except StoreDamagedError:
             if not options.repair:
@@ -125,14 +125,19 @@ def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
 
 
 def _params_of_damaged(store: Path) -> StoreParams | None:
-    """The parameters a damaged store was built with, if its attributes can still be read."""
+    """The parameters a damaged store was built with, if the attributes of its main file or
+    of one of its segments can still be read."""
     import h5py
 
-    try:
-        with h5py.File(store, "r") as f:
-            return StoreParams.from_attrs(f.attrs)
-    except (OSError, KeyError, ValueError):
-        return None
+    from ..store.files import batch_files, main_file
+
+    for path in [main_file(store)] + [p for _, p in reversed(batch_files(store))]:
+        try:
+            with h5py.File(path, "r") as f:
+                return StoreParams.from_attrs(f.attrs)
+        except (OSError, KeyError, ValueError):
+            continue
+    return None
 
 
 def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
@@ -151,6 +156,11 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     root = Path(root).resolve()
     check_tree(given, root)
     store = Path(store)
+    if not options.dry_run:
+        from ..store.convert import convert_one_file_store
+
+        if convert_one_file_store(store, options.wait, reporter.waiting, options.wait_timeout):
+            reporter.warning(f"converted {store} from the one-file layout into a store directory (renames only)")
     params = resolve_params(store, options)
     summary = BuildSummary(root=str(root))
     if options.worker_root and not options.scheduler:
@@ -168,7 +178,7 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
             reporter.warning(warning)
         if table is not None:
             summary.metadata_rows, summary.metadata_changed = len(table), _store_metadata(store, table)
-        with open_store(store) as reader:
+        with open_store(store, skip_damaged=True) as reader:  # the writer dropped what is damaged
             plan = make_plan(walk, reader, options)
         summary.found, summary.unchanged, summary.planned = plan.found, plan.unchanged, len(plan.tasks)
         reporter.planned(plan)

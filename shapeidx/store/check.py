@@ -339,7 +339,9 @@ def check_store(store, files: bool = False) -> CheckReport:
     store = Path(store)
     check_store_directory(store)
     if not main_file(store).exists():
-        raise StoreError(f"{store} is not a shapeidx store (it holds no {main_file(store).name})")
+        from .reader import open_store
+
+        open_store(store).close()  # the reader's one line: not a store, being created, or damaged (5)
     report = CheckReport(store)
     sources, points, attrs = _store_files(store)
     if attrs and ("schema_version" not in attrs or "points" not in attrs):

@@ -566,7 +566,9 @@ def _missing_segments(store: Path, merged: int, batches: list, skipped: list) ->
     expected = merged + 1
     for batch in sorted(batches, key=lambda b: b.seq):
         if batch.first_seq > expected:
-            return f"journal segments {expected}..{batch.first_seq - 1} are missing"
+            gap = batch.first_seq - 1
+            return (f"journal segment {gap} is missing" if gap == expected
+                    else f"journal segments {expected}..{gap} are missing")
         expected = max(expected, batch.seq + 1)
     committed = read_committed(store)
     if committed >= expected:

@@ -73,7 +73,7 @@ def _make_store_directory(store: Path) -> None:
     mistake must not put a store inside it.
     """
     if store.is_dir():
-        ours = {"main.h5", "journal", "lock", "build.json", "verified", "thumbs"}
+        ours = {"main.h5", "journal", "lock", "build.json", "verified", "thumbs", "committed", "metadata.h5"}
         others = [p.name for p in store.iterdir() if p.name not in ours and ".tmp-" not in p.name
                   and not p.name.startswith("main.h5.")]
         if others and not main_file(store).exists():
@@ -267,15 +267,21 @@ class StoreWriter:
                 for line in repair_store(self.path):
                     self.on_warning(line)
             refuse_damaged(self.path)  # with the lock held: no merge can change it meanwhile
-            self._prepare()
+            self._prepare(repair)
             record_build(self.path, "running")
         except BaseException:
             self.lock.release()
             raise
 
-    def _prepare(self) -> None:
+    def _prepare(self, repair: bool = False) -> None:
+        from .files import committed_path
+
         self._remove_leftovers()
         if not main_file(self.path).exists():
+            if not repair and (journal_dir(self.path).exists() or committed_path(self.path).exists()):
+                from .reader import damaged
+
+                raise damaged(self.path, f"its main file {main_file(self.path).name} is missing")
             self._create_empty()
         with open_store(self.path, skip_damaged=True) as reader:
             check_params(reader, self.params)
@@ -287,7 +293,7 @@ class StoreWriter:
             self.on_warning(f"dropped the damaged journal batch {batch.name} ({reason}); its files are indexed again")
             batch.unlink(missing_ok=True)
         if missing:
-            self.on_warning(f"{missing}: their files are indexed again")
+            self.on_warning(f"{missing}: the files it held are indexed again")
         # a gap in the journal (a segment dropped or lost) is closed by folding it into the main file
         self.must_fold = bool(skipped or missing)
         self.next_seq = max([self.merged_seq] + [seq for seq, _ in batch_files(self.path)]) + 1
@@ -390,7 +396,7 @@ class StoreWriter:
         Returns what was merged: ``"main"`` (everything into the main file), ``"segments"``
         (the newest segments into one), or None (nothing was due).
         """
-        with open_store(self.path) as reader:
+        with open_store(self.path, skip_damaged=True) as reader:  # a gap is folded away, not refused
             segments = reader._sources[1:]
             if not segments and not (full and reader._sources[0].rank is None):
                 self.uncompacted = 0
