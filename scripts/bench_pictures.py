@@ -3,7 +3,7 @@
 
 Usage::
 
-    python scripts/bench_pictures.py --source kicad6.h5 [--size 100000] [--work DIR]
+    python scripts/bench_pictures.py --source kicad6.shapeidx [--size 100000] [--work DIR]
 
 ``--source`` is a store of the kicad6 folder built by ``shapeidx build`` (the sheet's hits
 and the synthetic store's signatures come from it). Measured, in one run:

@@ -3,7 +3,7 @@
 
 Usage::
 
-    python scripts/bench_query.py --source kicad6.h5 [--sizes 100000 1000000] [--work DIR]
+    python scripts/bench_query.py --source kicad6.shapeidx [--sizes 100000 1000000] [--work DIR]
 
 ``--source`` is a store built by ``shapeidx build`` from real parts (e.g. kicad6 at the
 default 1024 points). The synthetic stores of N entries are made from its ok signatures by
