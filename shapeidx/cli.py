@@ -26,6 +26,7 @@ from .console.params import (
     PART_FORMATS,
     STORE_ENV,
     FiniteFloat,
+    duplicate_metrics,
     metric_help,
 )
 from .errors import plain_reason
@@ -646,7 +647,7 @@ def serve(store, host, port, max_upload):
         raise ShapeidxError(f"shapeidx serve needs the web extra ({exc.name} is missing): pip install 'shapeidx[web]'") from None
     service = StoreService(_store_path(store))
     app = create_app(service, max_upload * 1024 * 1024)
-    click.echo(f"shapeidx serve: {len(service.table):,} parts of {service.store} on http://{host}:{port}/ (Ctrl-C stops)")
+    click.echo(f"shapeidx serve: {len(service.searcher):,} parts of {service.store} on http://{host}:{port}/ (Ctrl-C stops)")
     try:
         uvicorn.run(app, host=host, port=port, log_level="warning", access_log=False)
     finally:
@@ -884,7 +885,7 @@ def classify(parts, store, k, metric, label_depth, labels_file, where, scale, ou
 @store_option
 @click.option("--clusters", type=click.IntRange(1), help="How many clusters [default: one per ten entries].")
 @click.option("--threshold", type=click.FloatRange(0), help="Cut the tree at this height instead.")
-@click.option("--metric", type=click.Choice(METRICS), default="combined", show_default=True, help="The distance.")
+@metric_option("combined")
 @scale_option
 @click.option("--csv", "as_csv", is_flag=True, help="Rows of path,cluster,distance.")
 @click.option("--plot", "plot_output", metavar="OUT", type=click.Path(dir_okay=False, path_type=str),
@@ -931,7 +932,7 @@ def cluster(store, clusters, threshold, metric, scale, as_csv, plot_output, outp
 
 @main.command(context_settings=CONTEXT)
 @store_option
-@click.option("--metric", type=click.Choice(METRICS), default="combined", show_default=True, help="The distance.")
+@metric_option("combined", choices=duplicate_metrics())  # only metrics whose duplicate thresholds were measured
 @scale_option
 @click.option("--csv", "as_csv", is_flag=True, help="One row per pair (same as --format csv).")
 @format_options
