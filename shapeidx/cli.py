@@ -821,9 +821,12 @@ def _family_table(store):
 
 
 def _empty_store_error(store):
-    from .errors import ShapeidxError
+    """No entry to work on: no answer (status 6), with why (as the search road says it)."""
+    from .errors import NoAnswer
+    from .search import Searcher
 
-    return ShapeidxError(f"store {_store_path(store)} has no indexed entries (run 'shapeidx build DIR' first)")
+    with Searcher(_store_path(store)) as searcher:
+        return NoAnswer(f"store {_store_path(store)} has no indexed entries: {searcher.empty_reason()}")
 
 
 @main.command(context_settings=CONTEXT)
@@ -855,9 +858,7 @@ def classify(parts, store, k, metric, label_depth, labels_file, where, scale, ou
     filters = Filters(scale=scale, where=parse_where(where))
     with Searcher(_store_path(store)) as searcher:
         if len(searcher) == 0:
-            from .errors import NoAnswer
-
-            raise NoAnswer(searcher.empty_reason())
+            raise _empty_store_error(store)
         paths = searcher.metadata_column("path")
         if labels_file:
             labels, unknown = labels_from_csv(labels_file, paths)

@@ -96,8 +96,18 @@ def class_of(path: str) -> str | None:
     return head if sep else None
 
 
-def labelled_features(searcher) -> LabelledFeatures:
-    """Features between all labelled ok entries (sorted by path), through the search road of ``query``."""
+def labelled_features(store) -> LabelledFeatures:
+    """Features between all labelled ok entries (sorted by path), through the search road of ``query``.
+
+    ``store``: an open :class:`~shapeidx.search.Searcher`, or an open store reader (its store
+    is searched).
+    """
+    from ..search import Searcher
+
+    if not isinstance(store, Searcher):
+        with Searcher(store.path) as searcher:
+            return labelled_features(searcher)
+    searcher = store
     paths = searcher.metadata_column("path")
     order = np.argsort(paths.astype(str), kind="stable")
     classes = [class_of(str(paths[i])) for i in order]
