@@ -85,9 +85,10 @@ def merge_in_progress(store: Path, pid: int) -> bool:
     The temporary file's name carries the writer's pid: one left by an earlier killed build
     does not count.
     """
-    if store.exists() and store.with_name(f"{store.name}.tmp-{pid}").exists():
+    main = store / "main.h5"
+    if main.exists() and main.with_name(f"{main.name}.tmp-{pid}").exists():
         return True
-    journal = store.with_name(store.name + ".journal")
+    journal = store / "journal"
     try:
         return any(tmp.name.split(".tmp-")[0] and (journal / tmp.name.split(".tmp-")[0]).exists()
                    for tmp in journal.glob(f"batch-*.h5.tmp-{pid}"))

@@ -106,8 +106,10 @@ class BuildSummary:
 
 def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
     """The build's parameters: those asked, else the existing store's, else the defaults."""
+    from ..store.files import journal_dir, main_file
+
     existing = None
-    if store.exists():
+    if main_file(store).exists() or store.is_file():
         try:
             with open_store(store, skip_damaged=True) as reader:  # a damaged or missing segment is redone
                 existing = reader.params
@@ -115,6 +117,9 @@ def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
             if not options.repair:
                 raise
             existing = _params_of_damaged(store)
+    elif journal_dir(store).exists():  # its main file is missing: the segments still say the parameters
+        existing = _params_of_damaged(store)
+    # (a directory without either is new, or a first build is creating it: the writer decides under its lock)
     points = options.points or (existing.points if existing else DEFAULT_POINTS)
     seed = options.seed if options.seed is not None else (existing.seed if existing else DEFAULT_SEED)
     faceting = existing.faceting if existing else Faceting()
