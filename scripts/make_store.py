@@ -215,7 +215,7 @@ def main() -> int:
     real = real_signatures(args.source)
     write_store(args.out, args.n, real, args.seed)
     print(f"wrote {args.out}: {args.n:,} entries from {len(real['paths']):,} real signatures of {args.source}"
-          f" ({args.out.stat().st_size / 1e6:.1f} MB) in {time.perf_counter() - started:.1f} s")
+          f" ({sum(p.stat().st_size for p in args.out.rglob('*') if p.is_file()) / 1e6:.1f} MB) in {time.perf_counter() - started:.1f} s")
     return 0
 
 

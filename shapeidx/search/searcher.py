@@ -111,7 +111,6 @@ class Searcher:
 
     def __init__(self, store: str | os.PathLike):
         from ..store import open_store
-        from ..store.metadata import load_table
         from ..store.ranked import ranked_view
 
         self.store = Path(store)
@@ -119,7 +118,6 @@ class Searcher:
         try:
             check_usable(self.reader)
             self.view = ranked_view(self.reader)
-            self.table = load_table(self.store)
         except BaseException:
             self.reader.close()
             raise
@@ -129,6 +127,15 @@ class Searcher:
 
     def __len__(self) -> int:
         return len(self.view)
+
+    @property
+    def table(self):
+        """The store's metadata table (``build --metadata``), or None; read on first use."""
+        if not hasattr(self, "_table"):
+            from ..store.metadata import load_table
+
+            self._table = load_table(self.store)
+        return self._table
 
     # -- the store's entries, as StoreReader reads them (what shapeidx.open_store documents)
     @property
@@ -168,7 +175,8 @@ class Searcher:
         CSV answer."""
         if "__present__" not in self._columns:
             table_keys = tuple(self.table.columns) if self.table is not None else ()
-            files = tuple(k for k in FILE_KEYS if k not in table_keys and (self.metadata_column(k) != "").any())
+            files = tuple(k for k in FILE_KEYS if k not in table_keys
+                          and any(source.text_present(f"entries/{k}") for source in self.view.sources))
             self._columns["__present__"] = files + table_keys
         return self._columns["__present__"]
 
@@ -191,13 +199,20 @@ class Searcher:
         return values
 
     def metadata_at(self, position: int) -> dict:
-        """Every key with a value for the entry at ``position`` (not ``path``)."""
-        positions = np.array([position])
+        """Every key with a value for the entry at ``position`` (not ``path``): one row read of
+        each (a hit of a store of a million entries reads its own rows, not the columns)."""
+        i, row = self.view.locate(position)
+        source = self.view.sources[i]
         found = {}
-        for key in self.metadata_keys()[1:]:
-            value = self.metadata_column(key, positions)[0] if key not in self._columns else self._columns[key][position]
+        for key in FILE_KEYS:
+            value = self._columns[key][position] if key in self._columns else source.text_at(f"entries/{key}", row)
             if value != "":
                 found[key] = str(value)
+        if self.table is not None:
+            table_row = self._table_rows(np.array([position]))[0]
+            for key, values in self.table.columns.items():
+                if table_row >= 0 and values[table_row] != "":
+                    found[key] = str(values[table_row])
         return found
 
     def _file_column(self, name: str, positions) -> np.ndarray:
@@ -211,6 +226,11 @@ class Searcher:
 
     def _table_rows(self, positions) -> np.ndarray:
         key = "__table_rows__"
+        if key not in self._columns and positions is not None and len(positions) <= 64:
+            keys = np.zeros((len(positions), 2), dtype=np.uint64)
+            for i, mine, rows in self.view.rows_of(np.asarray(positions, dtype=np.int64)):
+                keys[mine] = self.view.sections[i].array("path_key")[rows]
+            return self.table.rows_of(keys)  # a few hits: their keys alone, not every entry's
         if key not in self._columns:
             keys = np.zeros((len(self.view), 2), dtype=np.uint64)
             for i, mine, rows in self.view.rows_of(np.arange(len(self.view))):

@@ -265,6 +265,12 @@ def write_columns(f: h5py.File, columns: dict) -> None:
         dataset = f.create_dataset(name, data=data, dtype=file_dtype, **options)
         if file_dtype is _STR:
             dataset.attrs[CONTENT_HASH] = strings_hash(data)
+        if name in TEXT_COLUMNS:  # whether any entry has a value: what a CSV answer's columns are
+            dataset.attrs[TEXT_PRESENT] = bool(len(data) and any(v != "" for v in data))
+
+
+#: Attribute of a text column (:data:`TEXT_COLUMNS`): whether any of its values is not empty.
+TEXT_PRESENT = "any_value"
 
 
 def missing_column(name: str, rows: int) -> np.ndarray:

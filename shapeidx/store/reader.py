@@ -206,6 +206,25 @@ class _SourceFile:
             return missing_column(name, 1)[0]
         return self._read(name, ENTRY_COLUMNS[name][0], np.s_[int(row)])
 
+    def text_at(self, name: str, row: int) -> str:
+        """One row of a text column (:data:`~shapeidx.store.layout.TEXT_COLUMNS`), read alone, for
+        showing (its content hash covers the whole column: a filter reads the column whole)."""
+        if name not in self.file:
+            return ""
+        try:
+            value = self.dataset(name)[int(row)]
+        except (OSError, RuntimeError, ValueError, IndexError) as exc:
+            raise self.damaged(f"{name} cannot be read: {_first_line(exc)}") from None
+        return value.decode("utf-8", "replace") if isinstance(value, bytes) else str(value)
+
+    def text_present(self, name: str) -> bool:
+        """Whether any entry of this file has a value in text column ``name`` (written with it;
+        read from the column for a file written before)."""
+        if name not in self.file:
+            return False
+        flag = self.dataset(name).attrs.get("any_value")
+        return bool(flag) if flag is not None else bool((self.column(name) != "").any())
+
     def close(self) -> None:
         if getattr(self, "_rank", None) is not None:
             self._rank.close()

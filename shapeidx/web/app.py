@@ -126,13 +126,14 @@ class StoreService:
         from ..distance.metrics import REGISTRY
         from ..io.formats import PART_SUFFIXES, SUFFIXES
 
-        listing = self.listing()
+        ok = len(self.searcher)  # the ranked entries: the ok ones
+        entries = len(self.reader.column("entries/status")) if self._listing is None else len(self._listing["paths"])
         return {
             "store": str(self.store),
             "root": str(self.root),
-            "entries": int(len(listing["paths"])),
-            "ok": int(listing["ok"].sum()),
-            "failed": int((~listing["ok"]).sum()),
+            "entries": int(entries),
+            "ok": int(ok),
+            "failed": int(entries - ok),
             "metrics": [{"name": m.name, "label": m.label, "summary": m.summary} for m in REGISTRY.values()],
             "formats": {name: list(suffixes) for name, suffixes in SUFFIXES.items()},
             "suffixes": list(PART_SUFFIXES),
