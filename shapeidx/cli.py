@@ -721,9 +721,6 @@ def check(store, check_files, repair, output_format, as_json):
         sys.exit(exits.DAMAGED)
 
 
-METRIC_LABELS = {"all": "ALL (plain D2)", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted": "Weighted", "combined": "combined", "combined-angle": "combined-angle",
-                 "all-angle": "all-angle"}
-
 
 @main.command(context_settings=CONTEXT)
 @click.argument("directory")
@@ -753,6 +750,7 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
     from .evaluation.evaluate import check_labelled_tree, evaluate as evaluate_store
     from .index.build import BuildOptions, run_build
     from .index.progress import BuildReporter
+    from .distance.metrics import label as metric_label
     from .search import Searcher
 
     fmt = chosen_format(output_format, as_json)
@@ -786,14 +784,14 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
     )
     click.echo(f"{'distance':30s} {'NN':>6s} {'FT':>6s} {'ST':>6s} {'E':>6s} {'DCG':>6s}   {'kNN':>6s} {'NMI':>6s} {'ARI':>6s}")
     for name, figures in result["metrics"].items():
-        label = METRIC_LABELS.get(name, name) + (" (in-sample)" if figures.get("in_sample") else "")
+        label = metric_label(name) + (" (in-sample)" if figures.get("in_sample") else "")
         family = "   " + " ".join(f"{figures[s]:6.3f}" for s in ("knn", "nmi", "ari")) if "knn" in figures else ""
         click.echo(f"{label:30s} " + " ".join(f"{figures[s]:6.3f}" for s in scores) + family)
         for cls, per in figures.get("per_class", {}).items():
             click.echo(f"  {cls[:28]:28s} " + " ".join(f"{per[s]:6.3f}" for s in scores))
     for name, figures in result["metrics"].items():
         if figures.get("in_sample"):
-            click.echo(f"note: {METRIC_LABELS.get(name, name)}'s weights were learned on this collection"
+            click.echo(f"note: {metric_label(name)}'s weights were learned on this collection"
                        f" ({figures['learned_on']}): its figures are in-sample and flatter it;"
                        " --cross-validate gives out-of-sample ones")
 
