@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 """The screenshots of docs/: a result sheet and the web page, taken in headless chromium.
 
-    python scripts/screenshots.py --store kicad6.h5 [--out docs/images]
+    python scripts/screenshots.py --store kicad6.shapeidx [--out docs/images]
 
 ``--store`` is a store of the kicad6 folder (``shapeidx build ../shared/data/kicad6 --store
-kicad6.h5``). Writes ``sheet.png`` (``shapeidx query BatteryHolder_Keystone_500.wrl --sheet``),
+kicad6.shapeidx``). Writes ``sheet.png`` (``shapeidx query BatteryHolder_Keystone_500.wrl --sheet``),
 ``serve-query.png`` (the page after uploading that part) and ``serve-compare.png`` (the
 compare view of its third hit). Needs Debian's chromium and the test extra (Playwright).
 """
@@ -22,8 +22,8 @@ from pathlib import Path
 
 from playwright.sync_api import sync_playwright
 
-from shapeidx.pictures.sheet import query_sheet
-from shapeidx.store import open_store
+from shapeidx.pictures.sheet import answer_sheet
+from shapeidx.search import Searcher
 
 REPO = Path(__file__).resolve().parents[1]
 ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -48,13 +48,15 @@ def main() -> int:
     parser.add_argument("--chromium", default="/usr/bin/chromium")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    with open_store(args.store) as reader:
-        part = Path(reader.attrs["root"]) / QUERY
+    with Searcher(args.store) as searcher:
+        part = Path(searcher.root) / QUERY
     with tempfile.TemporaryDirectory() as tmp, sync_playwright() as p:
         browser = p.chromium.launch_persistent_context(Path(tmp) / "profile", executable_path=args.chromium, args=ARGS,
                                                        headless=True, viewport={"width": 1280, "height": 1000})
         sheet = Path(tmp) / "sheet.html"
-        query_sheet(args.store, sheet, file=part, top=12)
+        with Searcher(args.store) as searcher:  # the command line's road: shapeidx query PART --sheet
+            question = searcher.query_of_part(part, threads=2)
+            answer_sheet(searcher, searcher.search(question, 12, "weighted"), question, sheet)
         page = browser.new_page()
         page.goto(sheet.as_uri())
         all_images_loaded(page)
