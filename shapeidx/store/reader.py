@@ -461,8 +461,13 @@ def open_store(path: str | os.PathLike, attempts: int = 20, skip_damaged: bool =
     StoreDamagedError
         A file of the store fails its checks (a damaged segment included, unless ``skip_damaged``).
     """
+    from .files import read_committed
+
     path = Path(path)
     for _ in range(attempts):
+        # read before the segments are listed: a segment is in place before its number is
+        # recorded, so every number read here names a file the listing can see (or merged away)
+        committed = read_committed(path)
         main = _open_main(path)
         batches, skipped = [], []
         try:
@@ -482,7 +487,7 @@ def open_store(path: str | os.PathLike, attempts: int = 20, skip_damaged: bool =
                         raise FileNotFoundError(batch)  # it vanished: a merge finished meanwhile
             if _same_file(main.path, main):  # no merge replaced the main file while the batches were listed
                 batches = _drop_covered(batches)
-                missing = _missing_segments(path, merged, batches, skipped)
+                missing = _missing_segments(merged, batches, skipped, committed)
                 if missing and not skip_damaged:
                     raise damaged(path, missing, as_text(main.file.attrs.get("root", "")) or None)
                 reader = StoreReader(path, main, batches, skipped)
@@ -573,13 +578,11 @@ def _open_batch(store: Path, batch: Path, seq: int):
     return source, None
 
 
-def _missing_segments(store: Path, merged: int, batches: list, skipped: list) -> str | None:
+def _missing_segments(merged: int, batches: list, skipped: list, committed: int) -> str | None:
     """What is missing from the journal, in words (None: nothing). The segments after the
     main file's ``journal_seq`` must follow one another without a gap (a merged segment
     covers ``first_seq``..seq), up to the newest sequence number committed
-    (``STORE/committed``)."""
-    from .files import read_committed
-
+    (``STORE/committed``, read before the segments were listed)."""
     if skipped:
         return None  # a build that drops damaged segments redoes their work and folds the journal
     expected = merged + 1
@@ -589,7 +592,6 @@ def _missing_segments(store: Path, merged: int, batches: list, skipped: list) ->
             return (f"journal segment {gap} is missing" if gap == expected
                     else f"journal segments {expected}..{gap} are missing")
         expected = max(expected, batch.seq + 1)
-    committed = read_committed(store)
     if committed >= expected:
         return f"journal segment {committed} (the newest committed) is missing" if committed == expected else (
             f"journal segments {expected}..{committed} (the newest committed) are missing")
