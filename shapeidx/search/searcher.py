@@ -123,7 +123,8 @@ class Searcher:
             raise
         self.params = self.reader.params
         self.root = self.reader.attrs.get("root") or ""
-        self._columns: dict = {}
+        self._columns: dict = {}  # metadata key -> its values for every ranked entry, once read
+        self._cache: dict = {}  # the metadata table's row of every entry, the keys with a value
 
     def __len__(self) -> int:
         return len(self.view)
@@ -173,12 +174,12 @@ class Searcher:
     def present_metadata_keys(self) -> tuple:
         """The metadata keys some entry has a value for (``path`` left out): the columns of a
         CSV answer."""
-        if "__present__" not in self._columns:
+        if "present" not in self._cache:
             table_keys = tuple(self.table.columns) if self.table is not None else ()
             files = tuple(k for k in FILE_KEYS if k not in table_keys
                           and any(source.text_present(f"entries/{k}") for source in self.view.sources))
-            self._columns["__present__"] = files + table_keys
-        return self._columns["__present__"]
+            self._cache["present"] = files + table_keys
+        return self._cache["present"]
 
     def metadata_column(self, key: str, positions: np.ndarray | None = None) -> np.ndarray:
         """``key``'s value for the ranked entries at ``positions`` (default all), "" where none.
@@ -225,18 +226,17 @@ class Searcher:
         return out
 
     def _table_rows(self, positions) -> np.ndarray:
-        key = "__table_rows__"
-        if key not in self._columns and positions is not None and len(positions) <= 64:
+        if "table_rows" not in self._cache and positions is not None and len(positions) <= 64:
             keys = np.zeros((len(positions), 2), dtype=np.uint64)
             for i, mine, rows in self.view.rows_of(np.asarray(positions, dtype=np.int64)):
                 keys[mine] = self.view.sections[i].array("path_key")[rows]
             return self.table.rows_of(keys)  # a few hits: their keys alone, not every entry's
-        if key not in self._columns:
+        if "table_rows" not in self._cache:
             keys = np.zeros((len(self.view), 2), dtype=np.uint64)
             for i, mine, rows in self.view.rows_of(np.arange(len(self.view))):
                 keys[mine] = self.view.sections[i].array("path_key")[rows]
-            self._columns[key] = self.table.rows_of(keys)
-        rows = self._columns[key]
+            self._cache["table_rows"] = self.table.rows_of(keys)
+        rows = self._cache["table_rows"]
         return rows if positions is None else rows[np.asarray(positions, dtype=np.int64)]
 
     # -- what is asked
