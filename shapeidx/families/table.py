@@ -114,6 +114,13 @@ class RaggedHistograms:
         return out
 
 
+def _take_ragged(ragged: RaggedHistograms, rows: np.ndarray) -> RaggedHistograms:
+    """Rows ``rows`` of a ragged table, as one."""
+    lengths = ragged.lengths[rows]
+    starts = np.repeat(ragged.offsets[:-1][rows] - offsets_of(lengths)[:-1], lengths)
+    return RaggedHistograms(ragged.p[starts + np.arange(int(lengths.sum()))], offsets_of(lengths))
+
+
 def _padded_values(p, starts, lengths, k, width) -> np.ndarray:
     starts_r = np.repeat(starts, width)
     inside = k < np.repeat(lengths, width)
@@ -189,6 +196,25 @@ class FamilyTable:
 
     def __len__(self) -> int:
         return len(self.paths)
+
+    def subset(self, keep) -> "FamilyTable":
+        """The entries ``keep`` selects (a boolean mask over the entries, or their indices), as a
+        table of their own: what a ``--where`` filter's keep-mask makes of the store."""
+        keep = np.asarray(keep)
+        rows = np.flatnonzero(keep) if keep.dtype == bool else np.asarray(keep, dtype=np.int64)
+        if keep.dtype == bool and len(keep) != len(self):
+            raise ValueError(f"keep-mask of {len(keep)} values for a table of {len(self)} entries")
+
+        def take(values):
+            return None if values is None else values[rows]
+
+        return FamilyTable(
+            paths=self.paths[rows], rows=self.rows[rows],
+            histograms={h: _take_ragged(r, rows) for h, r in self.histograms.items()},
+            fractions=self.fractions[rows], means=self.means[rows], hashes=self.hashes[rows],
+            extents=self.extents[rows], handedness=self.handedness[rows], missing_columns=self.missing_columns,
+            bounds=take(self.bounds), moments=take(self.moments), angles=take(self.angles),
+        )
 
     def index_of(self, path: str) -> int | None:
         """Position of the entry with this relative path, or None."""
