@@ -213,6 +213,8 @@ def _cross_distances(ta, tb, ia, ib, metric):
         extents=np.concatenate([ta.extents[ia], tb.extents[ib]]),
         handedness=np.concatenate([ta.handedness[ia], tb.handedness[ib]]),
         missing_columns=[],
+        moments=np.concatenate([ta.moments[ia], tb.moments[ib]]),
+        angles=np.concatenate([ta.angles[ia], tb.angles[ib]]),
     )
     n = len(ia)
     return both.pair_distances(np.arange(n), np.arange(n) + n, metric)

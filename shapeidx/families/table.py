@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..distance import ANGLE_METRICS, FEATURES, METRIC_HISTOGRAMS, METRICS, metric_values
+from ..distance import ANGLE_FEATURES, ANGLE_METRICS, FEATURES, METRIC_HISTOGRAMS, METRICS, metric_values
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
-from ..distance.combined import angle_features, class_scales
+from ..distance.combined import class_scales
 from ..errors import StoreError
 from ..ragged import offsets_of
 from ..signing.parameters import HISTOGRAMS, SIGNATURE_VERSION
@@ -226,18 +226,34 @@ class FamilyTable:
         """Each part's size in file units: its mean pair distance (ALL)."""
         return self.means[:, 0]
 
-    def pair_features(self, a: np.ndarray, b: np.ndarray, histograms=HISTOGRAMS) -> dict:
-        """The per-pair :data:`~shapeidx.distance.FEATURES` of entries ``a[k]``, ``b[k]``."""
+    def _cached(self, name: str, make):
+        """A per-entry array derived once (the tables are not changed after loading)."""
+        cache = self.__dict__.setdefault("_derived", {})
+        if name not in cache:
+            cache[name] = make()
+        return cache[name]
+
+    def pair_features(self, a: np.ndarray, b: np.ndarray, histograms=HISTOGRAMS, angles=("l1", "hellinger")) -> dict:
+        """The per-pair :data:`~shapeidx.distance.FEATURES` of entries ``a[k]``, ``b[k]``, and
+        the normal-angle histograms' distances named in ``angles`` (L1, Hellinger)."""
         a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
         features = {f"d_{h}": self.histograms[h].distances(a, b) if h in histograms else np.zeros(len(a)) for h in HISTOGRAMS}
         for i, c in enumerate(HISTOGRAMS[1:]):
             features[f"gap_{c}"] = np.abs(self.fractions[a, i] - self.fractions[b, i])
-        scales = class_scales(self.means)
+        scales = self._cached("scales", lambda: class_scales(self.means))
         gap = np.abs(scales[a] - scales[b])
         for i, c in enumerate(HISTOGRAMS[1:]):
             features[f"scale_{c}"] = gap[:, i]
-        if self.angles is not None:  # NaN for entries whose angles are unknown
-            features.update(angle_features(self.angles[a], self.angles[b]))
+        if self.angles is not None and angles:  # NaN for entries whose angles are unknown
+            # angle_features' L1 and Hellinger distances, from square roots taken once per entry
+            count = len(ANGLE_HISTOGRAMS)
+            if "l1" in angles:
+                l1 = np.abs(self.angles[a] - self.angles[b]).sum(axis=-1)
+                features.update({name: l1[:, i] for i, name in enumerate(ANGLE_FEATURES[:count])})
+            if "hellinger" in angles:
+                roots = self._cached("angle_roots", lambda: np.sqrt(self.angles))
+                hellinger = np.sqrt(((roots[a] - roots[b]) ** 2).sum(axis=-1) / 2)
+                features.update({name: hellinger[:, i] for i, name in enumerate(ANGLE_FEATURES[count:])})
         assert set(FEATURES) <= set(features)
         return features
 
@@ -248,11 +264,18 @@ class FamilyTable:
         missing = set(METRIC_HISTOGRAMS[metric]) - set(self.histograms)
         if missing:
             raise ValueError(f"metric {metric} needs histograms not loaded: {', '.join(sorted(missing))}")
-        if metric in ANGLE_METRICS and (self.angles is None or not np.isfinite(self.angles).all()):
+        known = self._cached("angles_known", lambda: self.angles is not None and bool(np.isfinite(self.angles).all()))
+        if metric in ANGLE_METRICS and not known:
             raise StoreError(f"metric {metric} needs the normal-angle histograms, which entries of this store lack"
                              " (built before them): rebuild it with 'shapeidx build DIR --full'")
-        features = self.pair_features(a, b, METRIC_HISTOGRAMS[metric])
-        return np.asarray(metric_values(features, (metric,))[metric], dtype=np.float64)
+        a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+        angles = {"combined-angle": ("hellinger",), "all-angle": ("l1",)}.get(metric, ())
+        out = np.empty(len(a))
+        step = PAIR_BLOCK_VALUES // 64  # bounds the (pairs, 4, bins) copies of the angle road
+        for lo in range(0, len(a), step):
+            features = self.pair_features(a[lo : lo + step], b[lo : lo + step], METRIC_HISTOGRAMS[metric], angles)
+            out[lo : lo + step] = metric_values(features, (metric,))[metric]
+        return out
 
     @property
     def radii(self) -> np.ndarray:
