@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark of the whole-store commands on synthetic stores of real signatures.
 
-    python scripts/bench_families.py --source kicad6.h5 [--sizes 10000 100000] [--work DIR]
+    python scripts/bench_families.py --source kicad6.shapeidx [--sizes 10000 100000] [--work DIR]
 
 Synthetic stores come from ``scripts/bench_query.py``'s generator (each entry one of the
 source's real signatures, every count scaled by a random factor in [0.9, 1.1] and 0-5 last

@@ -3,7 +3,7 @@
 
 Usage::
 
-    python scripts/bench_pictures.py --source kicad6.h5 [--size 100000] [--work DIR]
+    python scripts/bench_pictures.py --source kicad6.shapeidx [--size 100000] [--work DIR]
 
 ``--source`` is a store of the kicad6 folder built by ``shapeidx build`` (the sheet's hits
 and the synthetic store's signatures come from it). Measured, in one run:
@@ -164,19 +164,18 @@ def start_server(store: Path):
 
 def serve(source: Path, size: int, work: Path, data: Path, repeats: int) -> None:
     make_store = load_script("make_store")
-    store = work / f"synthetic-{size}.h5"
+    store = work / f"synthetic-{size}.shapeidx"
     if not store.exists():
         make_store.write_store(store, size, make_store.real_signatures(source))
-    from shapeidx.ranking import SignatureTable, top_hits
+    from shapeidx.search import Searcher
 
-    with open_store(store) as reader:
-        table = SignatureTable.load(reader)
-        entry = str(table.paths[len(table) // 3])
-        signature = reader.signature(int(table.rows[len(table) // 3]))
-    bare, _ = best_of(lambda: top_hits(table.distances(signature, "weighted"), table.paths, 10), repeats)
-    print(f"serve      bare ranking (SignatureTable.distances + top_hits, in process) of {size:,} entries: {bare:.3f} s")
-    table = signature = None  # the server holds its own copy
-    for old in Path(str(store) + ".thumbs").glob("calibration-*.npz"):
+    with Searcher(store) as searcher:
+        position = len(searcher) // 3
+        entry = searcher.path_at(position)
+        query = searcher.query_of_entry(entry)
+        bare, _ = best_of(lambda: searcher.search(query, 10, "weighted"), repeats)
+    print(f"serve      the search road in process (Searcher.search, k 10) on {size:,} entries: {bare:.3f} s")
+    for old in (store / "thumbs").glob("calibration-*.npz"):
         old.unlink()  # the first start calibrates the words; the second finds them kept
     for start in ("first", "second"):
         process, base, ready = start_server(store)

@@ -3,7 +3,7 @@
 
 Usage::
 
-    python scripts/bench_query.py --source kicad6.h5 [--sizes 100000 1000000] [--work DIR]
+    python scripts/bench_query.py --source kicad6.shapeidx [--sizes 100000 1000000] [--work DIR]
 
 ``--source`` is a store built by ``shapeidx build`` from real parts (e.g. kicad6 at the
 default 1024 points). The synthetic stores of N entries are made from its ok signatures by
@@ -35,10 +35,9 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from shapeidx.distance import METRIC_HISTOGRAMS  # noqa: E402
-from shapeidx.ranking import SignatureTable, top_hits  # noqa: E402
 from _common import machine  # noqa: E402
 from make_store import real_signatures, write_store  # noqa: E402
+from shapeidx.search import Searcher  # noqa: E402
 from shapeidx.store import open_store  # noqa: E402
 
 TARGETS = {100_000: 0.2, 1_000_000: 2.0}
@@ -46,17 +45,20 @@ TARGETS = {100_000: 0.2, 1_000_000: 2.0}
 
 def measure(store: Path, metric: str, repeats: int) -> dict:
     started = time.perf_counter()
-    with open_store(store) as reader:
-        table = SignatureTable.load(reader, METRIC_HISTOGRAMS[metric])
-        query = reader.signature(int(table.rows[len(table) // 3]))
+    searcher = Searcher(store)
+    query = searcher.query_of_entry(searcher.path_at(len(searcher) // 3))
     load = time.perf_counter() - started
     times = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        hits = top_hits(table.distances(query, metric), table.paths, 10)
-        times.append(time.perf_counter() - started)
-    assert hits[0]["distance"] == 0.0
-    bins = sum(int(sum(g[2].size for g in table.banks[h].groups)) for h in table.banks)
+    try:
+        for _ in range(repeats):  # a long-lived searcher: the second query on finds the store mapped
+            started = time.perf_counter()
+            hits = searcher.search(query, 10, metric).hits
+            times.append(time.perf_counter() - started)
+        bins = sum(int(s.array(f"{h}/counts", verify=False).size) for s in searcher.view.sections
+                   for h in ("all", "in", "out", "mixed"))
+    finally:
+        searcher.close()
+    assert hits[0].distance == 0.0
     return {"load": load, "best": min(times), "median": float(np.median(times)), "values": bins}
 
 
@@ -76,7 +78,7 @@ def main() -> int:
     args.work.mkdir(parents=True, exist_ok=True)
     failed = False
     for size in args.sizes:
-        store = args.work / f"synthetic-{size}.h5"
+        store = args.work / f"synthetic-{size}.shapeidx"
         if not store.exists():
             started = time.perf_counter()
             write_store(store, size, real)

@@ -39,7 +39,7 @@ def main() -> int:
     python = sys.executable
     cases = {
         "python -c pass (reference)": [python, "-c", "pass"],
-        "old up-front imports (reference)": [python, "-c", "import shapeidx.index.build, shapeidx.ranking, "
+        "old up-front imports (reference)": [python, "-c", "import shapeidx.index.build, shapeidx.search.searcher, "
                                              "shapeidx.api, shapeidx.store, shapeidx.signing.pipeline"],
         "shapeidx --version": [args.command, "--version"],
         "shapeidx --help": [args.command, "--help"],

@@ -176,7 +176,7 @@ def bench_recall(store: Path, queries: int, top: int, metric: str, embedding: st
                  overfetch: int | None = None) -> None:
     """The pruned query's top ``top`` against the full exact ranking of every entry, for
     ``queries`` entries of the store as queries: recall, equal distances, time of each."""
-    from shapeidx.ranking import top_hits
+    from shapeidx.search.distances import distances, nearest
     from shapeidx.store import open_store
     from shapeidx.store.ranked import ranked_view
 
@@ -206,9 +206,9 @@ def bench_recall(store: Path, queries: int, top: int, metric: str, embedding: st
         for position in rng.choice(len(view), queries, replace=False).tolist():
             signature = view.signature(view.locate(position), reader.params)
             t0 = time.perf_counter()
-            chosen, exact = view.nearest(signature, metric, top)
+            chosen, exact = nearest(view, signature, metric, top)
             t1 = time.perf_counter()
-            everything = view.distances(signature, metric)
+            everything = distances(view, signature, metric)
             t2 = time.perf_counter()
             best = set(np.argsort(everything, kind="stable")[:top].tolist())
             mine = set(chosen[np.argsort(exact, kind="stable")[:top]].tolist())
@@ -222,7 +222,7 @@ def bench_recall(store: Path, queries: int, top: int, metric: str, embedding: st
                 t3 = time.perf_counter()
                 _, proposed = index.search(index.vectors[position : position + 1], OVERFETCH * top)
                 proposed = proposed[0][proposed[0] >= 0]
-                exact_proposed = view.exact_distances(signature, metric, proposed)
+                exact_proposed = distances(view, signature, metric, proposed)
                 faiss_s.append(time.perf_counter() - t3)
                 faiss_found += len(best & set(proposed[np.argsort(exact_proposed, kind="stable")[:top]].tolist()))
     print(f"load average after: {_load()}\n")

@@ -10,7 +10,7 @@
    re-faceted or re-exported copy changes for D2. The ``same`` threshold is the 99th
    percentile of those distances times :data:`SAME_MARGIN`; ``near`` is :data:`NEAR_FACTOR`
    times ``same``.
-   Written to shapeidx/families/thresholds.json.
+   Written to shapeidx/distance/thresholds.json.
 2. The copies. For every kicad6 part (its cleaned Solid, as the store signs it), and six
    more members of its families from Debian's KiCad 6 library (:data:`DEBIAN_FAMILY`), in
    ``WORK/parts/GROUP`` (:data:`GROUPS`): the original (a link), a byte copy, and as binary
@@ -65,7 +65,7 @@ VARIANTS = ("copy", "rotated", "rescaled", "mirrored", "refaceted", "step")
 RESCALE = 25.4
 #: KiCad's VRML is in units of 0.1 inch, its STEP in millimetres: a STEP twin is 2.54 times larger.
 STEP_SCALE = 2.54
-THRESHOLDS = REPO / "shapeidx" / "families" / "thresholds.json"
+THRESHOLDS = REPO / "shapeidx" / "distance" / "thresholds.json"
 
 
 def write_stl(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:

@@ -23,7 +23,7 @@ from shapeidx.signing.mesh import unit_normals
 from shapeidx.distance import PAPER_METRICS, compare
 from shapeidx.system import keep_freed_memory
 from shapeidx.signing.pipeline import signature_of_solid, solid_of_file
-from shapeidx.ranking import query_store
+from shapeidx.api import query as query_store
 from shapeidx.signing.sampling import sample_surface
 
 NDR = DATA / "ndr"
@@ -209,7 +209,7 @@ def queries(lines: list[str], store: Path) -> dict:
     for metric in ("weighted", "combined"):
         hits = query_store(store, part=query_file, top=6, metric=metric)
         lines += [f"`shapeidx query {query_file.relative_to(NDR.parent)} --metric {metric} --top 6`:", "", "| rank | distance | part |", "|---|---|---|"]
-        lines += [f"| {h['rank']} | {h['distance']:.5f} | {h['path']} |" for h in hits]
+        lines += [f"| {h['rank']} | {h['distance']:.5f} | {h['relative_path']} |" for h in hits]
         lines.append("")
     lines += [
         "### The same part from two CAD systems",
@@ -227,9 +227,9 @@ def queries(lines: list[str], store: Path) -> dict:
         ranks, nearest = {}, None
         for metric in ("weighted", "combined"):
             hits = query_store(store, part=NDR / (stem + ".wrl"), top=16, metric=metric)
-            ranks[metric] = next(h["rank"] for h in hits if h["path"] == twin)
+            ranks[metric] = next(h["rank"] for h in hits if h["relative_path"] == twin)
             if metric == "weighted":
-                nearest = next(h["path"] for h in hits if h["path"] not in (twin, stem + ".wrl"))
+                nearest = next(h["relative_path"] for h in hits if h["relative_path"] not in (twin, stem + ".wrl"))
         lines.append(f"| {name} | {ranks['weighted']} | {ranks['combined']} | {nearest} |")
         twins[name] = ranks
     lines.append("")
@@ -274,7 +274,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     keep_freed_memory()
     with tempfile.TemporaryDirectory() as tmp:
-        store = args.store or Path(tmp) / "ndr.h5"
+        store = args.store or Path(tmp) / "ndr.shapeidx"
         quiet_build(NDR, store)
         signatures = {
             exporter: {name: signature_of_solid(solid_of_file(NDR / (stem + suffix))) for name, stem in MODELS.items()}

@@ -48,18 +48,18 @@ def build_store(folder: Path, store: Path, workers: int) -> float | None:
 
 def twin_ranks(step_store: Path, vrml_store: Path, metric: str = "weighted") -> list:
     """For every ok STEP entry: (path, rank of its VRML twin, the first hit, distance gap)."""
-    from shapeidx.ranking import SignatureTable
-    from shapeidx.store import open_store
+    from shapeidx.search import Searcher
+    from shapeidx.search.distances import distances as distances_to
 
     rows = []
-    with open_store(vrml_store) as vrml, open_store(step_store) as step:
-        table = SignatureTable.load(vrml)
-        paths = [str(p) for p in table.paths]
+    with Searcher(vrml_store) as vrml, Searcher(step_store) as step:
+        paths = [str(p) for p in vrml.metadata_column("path")]
+        by_path = np.argsort(paths, kind="stable")  # ties broken by path, as a query breaks them
+        paths = [paths[i] for i in by_path]
         where = {p: i for i, p in enumerate(paths)}
-        step_table = SignatureTable.load(step)
-        for k, path in enumerate(step_table.paths):
-            signature = step.signature(int(step_table.rows[k]))
-            distances = table.rank(signature, metric)
+        for k, path in enumerate(step.metadata_column("path")):
+            signature = step.signature_at(k)
+            distances = distances_to(vrml.view, signature, metric)[by_path]
             twin = where.get(str(Path(str(path)).with_suffix(".wrl")))
             order = np.argsort(distances, kind="stable")
             rank = int(np.flatnonzero(order == twin)[0]) + 1 if twin is not None else None
@@ -92,18 +92,19 @@ def baseline_ranks(vrml_store: Path, vrml_folder: Path, parts: list, workers: in
     """
     import multiprocessing
 
-    from shapeidx.ranking import SignatureTable
-    from shapeidx.store import open_store
+    from shapeidx.search import Searcher
+    from shapeidx.search.distances import distances as distances_to
 
     files = [str(vrml_folder / f"{p}.wrl") for p in parts]
     with multiprocessing.get_context("spawn").Pool(workers) as pool:
         signatures = pool.map(_vrml_resampled, files, chunksize=4)
     out = {}
-    with open_store(vrml_store) as vrml:
-        table = SignatureTable.load(vrml)
-        where = {str(p): i for i, p in enumerate(table.paths)}
+    with Searcher(vrml_store) as vrml:
+        paths = [str(p) for p in vrml.metadata_column("path")]
+        by_path = np.argsort(paths, kind="stable")
+        where = {paths[i]: k for k, i in enumerate(by_path)}
         for part, (signature, watertight) in zip(parts, signatures):
-            distances = table.rank(signature, metric)
+            distances = distances_to(vrml.view, signature, metric)[by_path]
             own = where[f"{part}.wrl"]
             order = np.argsort(distances, kind="stable")
             out[part] = (int(np.flatnonzero(order == own)[0]) + 1, float(distances[own]), watertight)

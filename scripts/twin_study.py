@@ -38,7 +38,8 @@ import numpy as np
 
 from _common import DATA, REPO, quiet_build
 from shapeidx.distance import METRICS
-from shapeidx.ranking import SignatureTable
+from shapeidx.search import Searcher
+from shapeidx.search.distances import distances
 from shapeidx.store import open_store
 
 LIBRARY = Path("/work/debian/root/usr/share/kicad/3dmodels")
@@ -107,17 +108,16 @@ def pair_facts(name: str) -> dict:
 def twin_ranks(query_store: Path, store: Path, twin_of, metrics=METRICS) -> dict:
     """Per query entry of ``query_store``: its twin's rank in ``store`` by each metric."""
     out = {}
-    with open_store(query_store) as queries, open_store(store) as reader:
-        table = SignatureTable.load(reader)
-        query_table = SignatureTable.load(queries)
-        for k, path in enumerate(query_table.paths):
-            twin = table.index_of(twin_of(str(path)))
+    with Searcher(query_store) as queries, Searcher(store) as searcher:
+        where = {str(p): i for i, p in enumerate(searcher.metadata_column("path"))}
+        for k, path in enumerate(queries.metadata_column("path")):
+            twin = where.get(twin_of(str(path)))
             if twin is None:
                 continue
-            signature = queries.signature(int(query_table.rows[k]))
+            signature = queries.signature_at(k)
             ranks = {}
             for metric in metrics:
-                d = table.distances(signature, metric)
+                d = distances(searcher.view, signature, metric)
                 # ties count against the twin: entries at its distance or nearer, itself included
                 ranks[metric] = int((d <= d[twin]).sum())
             out[str(path)] = ranks

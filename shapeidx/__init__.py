@@ -5,10 +5,11 @@ Modeling 2002). The data flows one way, a package per stage::
 
     io/          file -> PolygonMesh               (a reader per format, load())
     signing/     -> Solid -> points -> classified pairs -> Signature
-    distance/    Signature x Signature -> distances (the paper's four, combined)
-    store/       Signatures of a tree -> HDF5 store (crash-safe, journalled)
+    distance/    Signature x Signature -> distances (the metric registry: the paper's four, ours)
+    store/       Signatures of a tree -> a store directory of HDF5 files (crash-safe, journalled)
     index/       a directory tree -> the store (``shapeidx build``)
-    ranking.py   a part -> the store's nearest entries
+    search/      a part -> the store's nearest entries (the one road of every query)
+    families/    the whole store at once: classify, cluster, duplicates
     evaluation/  a labelled collection -> retrieval figures
 
 The public API (:mod:`shapeidx.api`)::
@@ -17,7 +18,7 @@ The public API (:mod:`shapeidx.api`)::
     part = shapeidx.load("bracket.stl")              # a clean, oriented triangle mesh
     sig = shapeidx.signature(part)                   # or a path, file object, arrays, trimesh
     shapeidx.compare("a.wrl", "b.wrl")["weighted"]   # the paper's distances, and combined
-    shapeidx.query("parts.h5", "bracket.stl", top=5)  # the store's nearest entries
+    shapeidx.query("parts.shapeidx", "bracket.stl", top=5, where=["material=steel"])  # nearest entries
 
 Names load on first use, so ``import shapeidx`` costs almost nothing.
 """
@@ -31,7 +32,7 @@ _NAMES = {
     **dict.fromkeys(["ShapeidxError", "LoadError", "StoreError"], ".errors"),
     "Signature": ".signing.histogram",
     "Solid": ".signing.solid",
-    "METRICS": ".distance.combined",
+    "METRICS": ".distance.metrics",
 }
 __all__ = sorted(_NAMES)
 __getattr__, __dir__ = attach(__name__, _NAMES)

@@ -18,18 +18,10 @@ from :class:`~shapeidx.errors.ShapeidxError`.
 
 from __future__ import annotations
 
-import os
-import tempfile
-from dataclasses import replace
-from pathlib import Path
 
-import numpy as np
 
-from .errors import LoadError
 from .signing.parameters import DEFAULT_POINTS, DEFAULT_SEED
 
-#: Name given in errors to a file object that has no ``name``.
-STREAM_NAME = "<stream>"
 
 
 def load(part, file_type: str | None = None, limits=None):
@@ -42,8 +34,8 @@ def load(part, file_type: str | None = None, limits=None):
     ----------
     part : path, binary file object, (vertices, faces), trimesh.Trimesh or Solid
     file_type : str, optional
-        Format name (``"stl"``, ``"obj"``, ``"off"``, ``"ply"``, ``"vrml"``) for a path or file
-        object whose name or content does not tell it.
+        Format name (``"stl"``, ``"obj"``, ``"off"``, ``"ply"``, ``"vrml"``, ``"step"``,
+        ``"iges"``) for a path or file object whose name or content does not tell it.
     limits : shapeidx.io.LoadLimits, optional
         Bounds on what a hostile file may make the reader do.
 
@@ -58,48 +50,9 @@ def load(part, file_type: str | None = None, limits=None):
     LoadError
         The part cannot be read or has no usable surface.
     """
-    from . import io
-    from .signing.solid import Solid, make_solid
+    from .signing.part import load_part
 
-    if isinstance(part, Solid):
-        return part
-    if isinstance(part, (str, os.PathLike)):
-        return make_solid(io.load(part, limits, file_type), part)
-    if hasattr(part, "read"):
-        name = getattr(part, "name", None)
-        name = os.fspath(name) if isinstance(name, (str, os.PathLike)) else STREAM_NAME
-        data = part.read()
-        if not isinstance(data, (bytes, bytearray, memoryview)):
-            raise LoadError(name, "the file object is not binary (open it with 'rb')")
-        if len(data) == 0:
-            raise LoadError(name, "is empty (0 bytes)")
-        limits = limits or io.LoadLimits()
-        if name == STREAM_NAME and limits.root is None:
-            # a stream has no folder: its VRML Inline references must not reach the working directory
-            with tempfile.TemporaryDirectory() as nowhere:
-                return make_solid(io.load_bytes(bytes(data), name, file_type, replace(limits, root=Path(nowhere))), name)
-        return make_solid(io.load_bytes(bytes(data), name, file_type, limits), name)
-    vertices, faces, label = _arrays_of(part)
-    mesh = io.PolygonMesh.from_triangles(vertices, faces, format=label)
-    io.check_polygon_mesh(label, mesh, limits or io.LoadLimits())
-    if len(mesh.face_indices) and (mesh.face_indices.min() < 0 or mesh.face_indices.max() >= len(mesh.vertices)):
-        raise LoadError(f"<{label}>", "face indices outside the vertex array")
-    return make_solid(mesh, f"<{label}>")
-
-
-def _arrays_of(part):
-    """(vertices, faces, what it was) of a mesh object or a (vertices, faces) pair."""
-    if hasattr(part, "vertices") and hasattr(part, "faces"):
-        return np.asarray(part.vertices), np.asarray(part.faces), type(part).__name__.lower()
-    if isinstance(part, (tuple, list)) and len(part) == 2:
-        vertices, faces = (np.asarray(a) for a in part)
-        if vertices.ndim == 2 and vertices.shape[1] == 3 and faces.ndim == 2 and faces.shape[1] == 3:
-            return vertices, faces, "arrays"
-        raise LoadError("<arrays>", f"expected (n, 3) vertices and (k, 3) faces, got {vertices.shape} and {faces.shape}")
-    raise TypeError(
-        f"cannot load a part from {type(part).__name__}: give a path, a binary file object, "
-        "(vertices, faces) arrays or a mesh with vertices and faces"
-    )
+    return load_part(part, file_type, limits)
 
 
 def signature(part, points: int = DEFAULT_POINTS, seed: int = DEFAULT_SEED, file_type: str | None = None, threads: int | None = None):
@@ -137,13 +90,13 @@ def signature(part, points: int = DEFAULT_POINTS, seed: int = DEFAULT_SEED, file
 
 
 def compare(a, b, points: int = DEFAULT_POINTS, seed: int = DEFAULT_SEED) -> dict:
-    """Every distance between two parts (or signatures): the paper's four and ``combined``.
+    """Every distance between two parts (or signatures), one per metric of the registry
+    (:data:`shapeidx.distance.METRICS`: the paper's four, combined, combined-angle, all-angle).
 
     Returns
     -------
     dict
-        ``{"all", "avg3", "avg4", "weighted", "combined"}`` -> float; 0 means identical
-        histograms.
+        Metric name -> float; 0 means identical histograms.
     """
     from .distance import compare as distances_between
 
@@ -151,41 +104,73 @@ def compare(a, b, points: int = DEFAULT_POINTS, seed: int = DEFAULT_SEED) -> dic
 
 
 def open_store(path):
-    """Open a signature store for reading (main file and journal, as one consistent view).
+    """Open a store to read and query it; keep it open to answer many queries quickly.
 
-    Use it as a context manager, or close it. See :class:`~shapeidx.store.StoreReader`
-    for what it offers (``paths``, ``column(name)``, ``signature(i)``, ``params``).
+    Use it as a context manager, or close it. It is a :class:`~shapeidx.search.Searcher`:
+    pass it to :func:`query`; ``paths``, ``column(name)``, ``counts(name, rows)``,
+    ``signature(i)``, ``params`` and ``attrs`` read the store's entries
+    (:class:`~shapeidx.store.StoreReader`).
     """
-    from .store import open_store as open_reader
+    from .search import Searcher
 
-    return open_reader(path)
+    return Searcher(path)
 
 
-def query(store, part=None, top: int = 10, metric: str = "weighted", entry: str | None = None, file_type: str | None = None):
-    """The entries of ``store`` nearest to ``part``, nearest first.
+def query(store, part=None, top: int = 10, metric: str = "weighted", entry: str | None = None,
+          file_type: str | None = None, where=(), exclude_self: bool = False, max_distance: float | None = None,
+          scale: str = "invariant") -> list:
+    """The entries of ``store`` nearest to ``part`` (or to its entry ``entry``), nearest first.
+
+    The same road as ``shapeidx query``, the web page and sheets (:mod:`shapeidx.search`):
+    the same hits, distances and fields.
 
     Parameters
     ----------
-    store : path of a store, or a store opened with :func:`open_store`
+    store : path of a store, or a store opened with :func:`open_store` (faster for many queries)
     part : anything :func:`load` takes, or a Signature made with the store's parameters
     top : int
         How many hits.
     metric : str
-        ``"weighted"`` (the paper's, the default), ``"all"``, ``"avg3"``, ``"avg4"`` or
-        ``"combined"``.
+        A name of :data:`shapeidx.distance.METRICS`: ``"weighted"`` (the paper's, the
+        default), ``"all"``, ``"avg3"``, ``"avg4"``, ``"combined"``, ``"combined-angle"``,
+        ``"all-angle"``.
     entry : str, optional
-        Instead of ``part``, a path of an entry of the store (relative to its root).
+        Instead of ``part``, an entry of the store (its path relative to the root).
     file_type : str, optional
         As for :func:`load`.
+    where : sequence of str
+        Metadata conditions, all of which must hold (``"material=steel"``,
+        ``"revision>=3"``, ``"path~Connector_*"``; :mod:`shapeidx.search.where`).
+    exclude_self : bool
+        Leave out the query's own entry.
+    max_distance : float, optional
+        Leave out hits farther than this.
+    scale : str
+        ``"invariant"`` (the paper's) or ``"sensitive"`` (parts of another size left out).
 
     Returns
     -------
     list of dict
-        ``{"rank", "path", "distance"}`` per hit; ``path`` is relative to the store's root.
+        ``{"rank", "distance", "path", "relative_path", "metadata"}`` per hit: ``path`` is
+        absolute, ``relative_path`` the entry (what ``entry`` takes). Empty when nothing
+        answers (filters that match no entry, every hit beyond ``max_distance``).
+
+    Raises
+    ------
+    UsageError
+        A ``where`` on a key the store does not have, or not of the form KEY OP VALUE.
     """
-    from .ranking import query_store
+    from .search import Filters, Searcher, parse_where
     from .system import available_cores
 
     if (part is None) == (entry is None):
         raise ValueError("give a part or an entry, not both or neither")
-    return query_store(store, part, entry=entry, top=top, metric=metric, threads=available_cores(), file_type=file_type)
+    filters = Filters(exclude_self, max_distance, scale, parse_where(where))
+    searcher = store if isinstance(store, Searcher) else Searcher(store)
+    try:
+        question = searcher.query_of_entry(entry) if entry is not None else searcher.query_of_part(
+            part, file_type, threads=available_cores())
+        return [hit.to_dict() for hit in searcher.search(question, top, metric, filters).hits]
+    finally:
+        if searcher is not store:
+            searcher.close()

@@ -23,10 +23,13 @@ from .console.params import (
     MAX_SEED,
     MERGE_AFTER,
     METRICS,
+    PART_FORMATS,
     STORE_ENV,
     FiniteFloat,
+    duplicate_metrics,
+    metric_help,
 )
-from .console.text import plain_reason
+from .errors import plain_reason
 from .errors import printable
 
 CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
@@ -34,8 +37,10 @@ CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
 
 def _error_line(exc: BaseException) -> str:
     """One line for an error that ends the command (see :mod:`shapeidx.console.exits`)."""
-    from .errors import ShapeidxError
+    from .errors import NoAnswer, ShapeidxError
 
+    if isinstance(exc, NoAnswer):
+        return f"shapeidx: {plain_reason(exc)}"
     if isinstance(exc, ShapeidxError):
         return f"shapeidx: error: {plain_reason(exc)}"
     reason = exits.environment_reason(exc)
@@ -94,8 +99,8 @@ def main(ctx):
 
     \b
     Example:
-      shapeidx build parts/ --store parts.h5
-      shapeidx query bracket.stl --store parts.h5 --top 5
+      shapeidx build parts/ --store parts.shapeidx
+      shapeidx query bracket.stl --store parts.shapeidx --top 5
 
     \b
     Exit status: 0 ok, 1 error (bad file, unusable store, disk full), 2 usage error,
@@ -224,9 +229,6 @@ def signature(file, points, seed, as_json):
         click.echo("  note: not watertight; inside/outside judged by generalized winding numbers")
 
 
-PAPER_LABELS = (("all", "ALL (plain D2)"), ("avg3", "AvgOf3"), ("avg4", "AvgOf4"), ("weighted", "Weighted"))
-
-
 @main.command(context_settings=CONTEXT)
 @click.argument("a")
 @click.argument("b")
@@ -235,7 +237,7 @@ PAPER_LABELS = (("all", "ALL (plain D2)"), ("avg3", "AvgOf3"), ("avg4", "AvgOf4"
 @format_options
 @click.option("--sheet", type=click.Path(dir_okay=False, path_type=str), help="Also write an HTML sheet of the two parts.")
 def compare(a, b, points, seed, output_format, as_json, sheet):
-    """The paper's four distances (and combined) between parts A and B (0 = same shape).
+    """Every distance between parts A and B (0 = same shape): the paper's four, then ours.
 
     \b
     Example:
@@ -259,8 +261,11 @@ def compare(a, b, points, seed, output_format, as_json, sheet):
     if fmt != "table":
         emit_rows(fmt, ["metric", "distance"], [{"metric": m, "distance": d} for m, d in distances.items()])
         return
-    for name, label in PAPER_LABELS:
-        click.echo(f"{label:15s} {distances[name]:.6g}")
+    from .distance.metrics import label
+
+    width = max(len(label(name)) for name in distances) + 2
+    for name, value in distances.items():
+        click.echo(f"{label(name):{width}s} {value:.6g}")
 
 
 # --------------------------------------------------------------------------- the store
@@ -314,6 +319,10 @@ def _store_path(store):
 @click.option("--repair", is_flag=True, help="Rebuild the damaged entries of a damaged store (see shapeidx check).")
 @click.option("--follow-outside-links", is_flag=True,
               help="Also follow symbolic links that lead out of DIRECTORY (not followed by default).")
+@click.option("--metadata", metavar="TABLE.csv",
+              help="A CSV joined to the parts for --where: a path column (path, file or filename) and any others"
+                   " (part number, material, project, ...). Read again by every build given it; no part is signed"
+                   " again for it. Without it the store keeps the table it has.")
 @click.option("--quiet", "-q", is_flag=True, help="Print only warnings, errors and files that failed for the first time.")
 @click.option("--verbose", "-v", is_flag=True, help="A line per indexed file and per commit.")
 @click.option("--dry-run", is_flag=True, help="Only say what a build would do: walk and plan, change nothing.")
@@ -325,13 +334,14 @@ def _store_path(store):
 @click.pass_context
 def build(ctx, directory, store, points, seed, linear_deflection, angular_deflection, workers, full, rehash,
           retry_failed, timeout, worker_memory, commit_interval, wait, wait_timeout, strict, repair,
-          follow_outside_links, quiet, verbose, dry_run, as_json, scheduler, worker_root, merge_after):
+          follow_outside_links, metadata, quiet, verbose, dry_run, as_json, scheduler, worker_root, merge_after):
     """Index every part file under DIRECTORY into the store (incremental).
 
     \b
     Example:
-      shapeidx build parts/ --store parts.h5
-      shapeidx build parts/ --store parts.h5 -q --strict   # in a crontab
+      shapeidx build parts/ --store parts.shapeidx
+      shapeidx build parts/ --store parts.shapeidx -q --strict   # in a crontab
+      shapeidx build parts/ --store parts.shapeidx --metadata parts.csv
     """
     from .index.build import BuildOptions, run_build
     from .index.progress import BuildReporter, duration
@@ -342,7 +352,7 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
                            dry_run=dry_run, repair=repair, follow_outside_links=follow_outside_links,
                            linear_deflection=linear_deflection, angular_deflection=angular_deflection,
                            worker_memory=None if worker_memory is None else int(worker_memory * (1 << 30)),
-                           scheduler=scheduler or None, worker_root=worker_root)
+                           scheduler=scheduler or None, worker_root=worker_root, metadata=metadata)
     reporter = BuildReporter(quiet=quiet, verbose=verbose)
     store_path = _store_path(store)
     try:
@@ -367,15 +377,30 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
         ctx.exit(EXIT_FAILED_FILES)
 
 
+def metric_option(default: str, choices=None):
+    """``--metric``: its choices and help come from the metric registry (shapeidx.distance.metrics)."""
+    return click.option("--metric", type=click.Choice(choices or METRICS), default=default, show_default=True,
+                        help=metric_help())
+
+
+where_option = click.option(
+    "--where", "where", multiple=True, metavar="COND",
+    help="Only entries whose metadata satisfy COND: KEY=VALUE, KEY!=VALUE, KEY<N, KEY<=N, KEY>N, KEY>=N,"
+         " KEY~GLOB, KEY!~GLOB (keys: the build's --metadata table, title, product_id, path). Repeatable:"
+         " all must hold.")
+
+
 @main.command(context_settings=CONTEXT)
 @click.argument("files", nargs=-1, metavar="[FILE|DIR|-]...")
 @store_option
 @click.option("--top", "-k", default=10, show_default=True, type=click.IntRange(1), help="How many hits per query.")
-@click.option("--metric", type=click.Choice(METRICS), default="weighted", show_default=True, help="The distance.")
+@metric_option("weighted")
 @click.option("--id", "entries", metavar="PATH", multiple=True,
               help="Query with an entry of the store: its path relative to the indexed folder, or a path"
                    " (absolute or from here) of a file inside it. May be repeated.")
-@click.option("--type", "file_type", metavar="FORMAT", help="Format of '-' (standard input): stl, obj, off, ply, vrml.")
+@click.option("--type", "file_type", type=click.Choice(PART_FORMATS), metavar="FORMAT",
+              help=f"Format of '-' (standard input): {', '.join(PART_FORMATS)}.")
+@where_option
 @click.option("--exclude-self", is_flag=True, help="Leave out the query's own entry when it is in the store.")
 @click.option("--max-distance", type=FiniteFloat(0), metavar="D", help="Leave out hits farther than D.")
 @click.option("--scale", type=click.Choice(("invariant", "sensitive")), default="invariant", show_default=True,
@@ -386,87 +411,107 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
               help="Also write the answer as one self-contained HTML file (thumbnails, histograms, words).")
 @click.option("--thumbnails", default=200, show_default=True, type=click.IntRange(0),
               help="With --sheet: thumbnails for the first N hits (each new one is rendered and cached).")
-def query(files, store, top, metric, entries, file_type, exclude_self, max_distance, scale, relative, output_format,
-          as_json, sheet, thumbnails):
+def query(files, store, top, metric, entries, file_type, where, exclude_self, max_distance, scale, relative,
+          output_format, as_json, sheet, thumbnails):
     """The store's parts nearest to each FILE (or every part of DIR, or '-': a part on
     standard input; or --id PATH), nearest first: one result block per query.
 
+    Exits 6 when a query has no hit (filters that match nothing, --max-distance), saying why.
+
     \b
     Example:
-      shapeidx query bracket.stl --store parts.h5 --top 5
-      shapeidx query new-parts/ --store parts.h5 --exclude-self --format csv
+      shapeidx query bracket.stl --store parts.shapeidx --top 5
+      shapeidx query bracket.stl --store parts.shapeidx --where material=steel --where 'revision>=3'
+      shapeidx query new-parts/ --store parts.shapeidx --exclude-self --format csv
       cat part.stl | shapeidx query - --type stl --json
-      shapeidx query --id Battery/holder.wrl --max-distance 0.05
+      shapeidx query --id Battery/holder.wrl --metric combined-angle --sheet holder.html
     """
-    from .console.queries import query_inputs, result_block
-    from .errors import LoadError, ShapeidxError
-    from .ranking import query_store, resolve_entry
-    from .store import open_store
+    from .console.queries import query_inputs
+    from .errors import LoadError, NoAnswer, ShapeidxError, StoreDamagedError
+    from .search import Filters, Searcher, parse_where
     from .system import available_cores
 
     fmt = chosen_format(output_format, as_json)
     if not files and not entries:
         raise click.UsageError("give either FILE or --id PATH")
-    store_path = _store_path(store)
+    if file_type and "-" not in files:
+        raise click.UsageError("--type names the format of '-' (standard input); give '-' or leave --type out")
     several = len(files) + len(entries) > 1 or any(f != "-" and os.path.isdir(f) for f in files)
-    if sheet and (several or files == ("-",)):
-        raise click.UsageError("--sheet draws one query: give one FILE or one --id PATH")
-    if sheet and (exclude_self or max_distance is not None or scale != "invariant"):
-        raise click.UsageError("--sheet shows the top hits as ranked: leave out --exclude-self, --max-distance and --scale")
-    failures = 0
+    if sheet and several:
+        raise click.UsageError("--sheet draws one query: give one FILE, one '-' or one --id PATH")
+    if sheet and not os.path.isdir(os.path.dirname(os.path.abspath(sheet))):
+        from .errors import ShapeidxError
+
+        raise ShapeidxError(f"{sheet}: no folder {os.path.dirname(os.path.abspath(sheet))} to write the sheet in")
+    filters = Filters(exclude_self, max_distance, scale, parse_where(where))
+    store_path = _store_path(store)
+    failures = empty = 0
     blocks = []
-    with open_store(store_path) as reader:
-        _warn_skipped(reader)
-        root = reader.attrs.get("root")
-        inputs = query_inputs(files, [resolve_entry(reader, e) for e in entries], file_type)
+    with Searcher(store_path) as searcher:
+        inputs = query_inputs(files, [searcher.resolve_entry(e) for e in entries], file_type)
+        keys = searcher.present_metadata_keys() if fmt in ("csv", "tsv") else ()
         for number, item in enumerate(inputs):
             try:
-                # a one-off query shares its ray queries among all cores
-                if sheet:  # the sheet's ranking is the answer printed too
-                    from .pictures.sheet import query_sheet
-
-                    hits = query_sheet(store_path, sheet, file=item.part, entry=item.entry, top=top, metric=metric,
-                                       thumbnails=thumbnails, threads=available_cores())
-                    click.echo(f"shapeidx: wrote {sheet}", err=True)
-                else:
-                    hits = query_store(reader, part=item.part, entry=item.entry, top=top, metric=metric,
-                                       threads=available_cores(), file_type=file_type if item.label == "-" else None,
-                                       exclude_self=exclude_self, max_distance=max_distance, scale=scale)
+                if item.entry is not None:
+                    question = searcher.query_of_entry(item.entry)
+                else:  # a one-off query shares its ray queries among all cores
+                    question = searcher.query_of_part(item.part, file_type if item.label == "-" else None,
+                                                      label=item.label, threads=available_cores())
+                answer = searcher.search(question, top, metric, filters)
+            except StoreDamagedError:
+                raise
             except (LoadError, ShapeidxError) as exc:
                 if not several:
                     raise
                 click.echo(_error_line(exc), err=True)
                 failures += 1
                 continue
-            block = result_block(item, hits, metric, store_path, root)
-            _print_block(block, fmt, several, first=number == 0, relative=relative)
+            if answer.reason is not None:
+                empty += 1
+                if not several and fmt == "table" and not sheet:
+                    raise NoAnswer(f"no answer for {item.label}: {answer.reason}")
+                click.echo(f"shapeidx: no answer for {printable(item.label)}: {answer.reason}", err=True)
+            if sheet:
+                from .pictures.sheet import answer_sheet
+
+                answer_sheet(searcher, answer, question, sheet, thumbnails)
+                click.echo(f"shapeidx: wrote {sheet}", err=True)
+            block = answer.to_dict()
+            if answer.reason is not None:
+                block["reason"] = answer.reason
+            _print_block(block, fmt, several, first=number == 0, relative=relative, keys=keys)
             if fmt == "json":
                 blocks.append(block)
     if fmt == "json":
-        emit_json(blocks if several else blocks[0])
+        emit_json(blocks if several else blocks[0] if blocks else {})
     if failures:
         sys.exit(exits.ERROR)
+    if empty:
+        sys.exit(exits.NO_ANSWER)
 
 
 QUERY_COLUMNS = ["query", "rank", "distance", "path", "relative_path"]
 
 
-def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bool) -> None:
+def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bool, keys=()) -> None:
     if fmt == "json":
         return
-    rows = [{"query": block["query"], **hit} for hit in block["hits"]]
+    named = {key: (key if key not in QUERY_COLUMNS + ["metric"] else f"metadata.{key}") for key in keys}
+    rows = [{"query": block["query"], **{k: v for k, v in hit.items() if k != "metadata"},
+             **{named[key]: hit["metadata"].get(key, "") for key in keys}} for hit in block["hits"]]
     if fmt == "jsonl":
         emit_rows(fmt, QUERY_COLUMNS, [{**row, "metric": block["metric"]} for row in rows])
         return
     if relative:
         rows = [{**row, "path": row["relative_path"]} for row in rows]
     if fmt in ("csv", "tsv"):
-        emit_rows(fmt, QUERY_COLUMNS, rows, header=first)
+        emit_rows(fmt, QUERY_COLUMNS + list(named.values()), rows, header=first)
         return
     if several:
         click.echo(("" if first else "\n") + f"query {printable(block['query'])}")
-    for row in rows:
-        click.echo(f"{row['rank']:>4}  {row['distance']:<11.6g} {printable(row['path'])}")
+    for row, hit in zip(rows, block["hits"]):
+        shown = "  ".join(f"{key}={printable(value)}" for key, value in hit["metadata"].items())
+        click.echo(f"{row['rank']:>4}  {row['distance']:<11.6g} {printable(row['path'])}" + (f"  {shown}" if shown else ""))
 
 
 @main.command(context_settings=CONTEXT)
@@ -486,11 +531,10 @@ def plot(parts, output, entries, store, labels, title, points, seed):
     \b
     Example:
       shapeidx plot a.wrl b.wrl -o ab.png
-      shapeidx plot --id Battery/holder.wrl --id Battery/clip.wrl --store parts.h5 -o pair.pdf
+      shapeidx plot --id Battery/holder.wrl --id Battery/clip.wrl --store parts.shapeidx -o pair.pdf
     """
     from .api import signature as signature_of
     from .pictures.plot import check_format, labels_for, plot_signatures
-    from .store import open_store
 
     check_format(output)
     if not parts and not entries:
@@ -499,14 +543,11 @@ def plot(parts, output, entries, store, labels, title, points, seed):
         raise click.UsageError(f"{len(labels)} --label for {len(parts) + len(entries)} parts")
     signatures = []
     if entries:
-        from .pictures.similarity import signatures_of
+        from .search import Searcher
 
-        from .ranking import ok_entry_row
-
-        with open_store(_store_path(store)) as reader:
-            rows = [ok_entry_row(reader, entry) for entry in entries]
-            stored = signatures_of(reader, rows)
-            points, seed = points or reader.params.points, reader.params.seed if seed is None else seed
+        with Searcher(_store_path(store)) as searcher:
+            stored = [searcher.query_of_entry(entry).signature for entry in entries]
+            points, seed = points or searcher.params.points, searcher.params.seed if seed is None else seed
     for part in parts:
         signatures.append(signature_of(part, points or DEFAULT_POINTS, DEFAULT_SEED if seed is None else seed))
     if entries:
@@ -514,12 +555,6 @@ def plot(parts, output, entries, store, labels, title, points, seed):
     names = list(labels) + labels_for(list(parts) + list(entries))[len(labels):]
     plot_signatures(list(zip(names, signatures)), output, title)
     click.echo(f"wrote {output}")
-
-
-def _warn_skipped(reader) -> None:
-    for path, reason in getattr(reader, "skipped", []):
-        click.echo(f"shapeidx: warning: skipped the damaged journal batch {printable(str(path))} ({reason});"
-                   " the next build redoes its work", err=True)
 
 
 @main.command(context_settings=CONTEXT)
@@ -531,18 +566,19 @@ def stats(store, list_failed, output_format, as_json):
 
     \b
     Example:
-      shapeidx stats --store parts.h5
-      shapeidx stats --store parts.h5 --failed --format tsv
+      shapeidx stats --store parts.shapeidx
+      shapeidx stats --store parts.shapeidx --failed --format tsv
     """
     from .store import describe_store, open_store
 
     fmt = chosen_format(output_format, as_json)
     store_path = _store_path(store)
     with open_store(store_path) as reader:
-        _warn_skipped(reader)
         facts = describe_store(reader)
         failed = _failed_entries(reader) if list_failed else None
     if list_failed:
+        if not failed:
+            click.echo(f"shapeidx: no failed file in {printable(facts['store'])} ({facts['entries']:,} entries)", err=True)
         if fmt == "json":
             emit_json({"store": facts["store"], "root": facts["root"], "failed": failed})
         elif fmt == "table":
@@ -566,8 +602,22 @@ def stats(store, list_failed, output_format, as_json):
                f" angular {p['angular_deflection']:g} rad")
     click.echo(f"  versions    signature {p['signature_version']}, layout {facts['schema_version']},"
                f" shapeidx {facts['shapeidx_version']}")
+    build = facts.get("build") or {}
+    if build:
+        state = build.get("state")
+        counts = ", ".join(f"{build[k]:,} {k}" for k in ("indexed", "unchanged", "removed", "failed") if k in build)
+        when = {"running": f"running since {build.get('started')} (pid {build.get('pid')} on {build.get('host')})",
+                "finished": f"finished {build.get('at')}" + (f": {counts}" if counts else ""),
+                "interrupted": f"interrupted {build.get('at')}, after committing its work; the next build goes on",
+                "stopped": f"stopped before it finished (killed?), started {build.get('started')};"
+                           " everything it committed is kept, the next build does the rest"}.get(state, state)
+        click.echo(f"  last build  {when}")
     if facts["journal_batches"]:
-        click.echo(f"  journal     {facts['journal_batches']} committed batch(es) not merged yet (a build runs or was stopped)")
+        click.echo(f"  journal     {facts['journal_batches']} segment(s) beside the main file"
+                   " (folded in as the store grows)")
+    table = facts.get("metadata")
+    if table:
+        click.echo(f"  metadata    {table['rows']:,} rows, keys {', '.join(table['keys'])} (from {table['source']})")
     for item in facts["failure_reasons"][:5]:
         click.echo(f"  failed      {item['count']:>5}  {item['reason']}")
     if facts["failed"]:
@@ -584,8 +634,8 @@ def serve(store, host, port, max_upload):
 
     \b
     Example:
-      shapeidx serve --store parts.h5                 # then open http://127.0.0.1:8765/
-      shapeidx serve --store parts.h5 --port 9000 --max-upload 200
+      shapeidx serve --store parts.shapeidx                 # then open http://127.0.0.1:8765/
+      shapeidx serve --store parts.shapeidx --port 9000 --max-upload 200
     """
     from .errors import ShapeidxError
 
@@ -597,7 +647,7 @@ def serve(store, host, port, max_upload):
         raise ShapeidxError(f"shapeidx serve needs the web extra ({exc.name} is missing): pip install 'shapeidx[web]'") from None
     service = StoreService(_store_path(store))
     app = create_app(service, max_upload * 1024 * 1024)
-    click.echo(f"shapeidx serve: {len(service.table):,} parts of {service.store} on http://{host}:{port}/ (Ctrl-C stops)")
+    click.echo(f"shapeidx serve: {len(service.searcher):,} parts of {service.store} on http://{host}:{port}/ (Ctrl-C stops)")
     try:
         uvicorn.run(app, host=host, port=port, log_level="warning", access_log=False)
     finally:
@@ -618,7 +668,7 @@ def _failed_entries(reader) -> list[dict]:
 
 
 main.add_command(click.Command("info", callback=stats.callback, params=stats.params,
-                               help="Same as stats.\n\n\b\nExample:\n  shapeidx info --store parts.h5",
+                               help="Same as stats.\n\n\b\nExample:\n  shapeidx info --store parts.shapeidx",
                                context_settings=CONTEXT))
 
 
@@ -634,9 +684,9 @@ def check(store, check_files, repair, output_format, as_json):
 
     \b
     Example:
-      shapeidx check --store parts.h5
-      shapeidx check --store parts.h5 --files --json
-      shapeidx check --store parts.h5 --repair
+      shapeidx check --store parts.shapeidx
+      shapeidx check --store parts.shapeidx --files --json
+      shapeidx check --store parts.shapeidx --repair
     """
     from .store.check import check_store
 
@@ -703,7 +753,7 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
     from .evaluation.evaluate import check_labelled_tree, evaluate as evaluate_store
     from .index.build import BuildOptions, run_build
     from .index.progress import BuildReporter
-    from .store import open_store
+    from .search import Searcher
 
     fmt = chosen_format(output_format, as_json)
     store_path = _store_path(store)
@@ -714,8 +764,8 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
         run_build(directory, store_path, options, reporter)
     finally:
         reporter.close()
-    with open_store(store_path) as reader:
-        result = evaluate_store(reader, metrics or METRICS, per_class=per_class, cross_validated=cross_validate)
+    with Searcher(store_path) as searcher:
+        result = evaluate_store(searcher, metrics or METRICS, per_class=per_class, cross_validated=cross_validate)
     if fmt == "json":
         emit_json({"collection": directory, "store": str(store_path), **result})
         return
@@ -771,46 +821,53 @@ def _family_table(store):
 
 
 def _empty_store_error(store):
-    from .errors import ShapeidxError
+    """No entry to work on: no answer (status 6), with why (as the search road says it)."""
+    from .errors import NoAnswer
+    from .search import Searcher
 
-    return ShapeidxError(f"store {_store_path(store)} has no indexed entries (run 'shapeidx build DIR' first)")
+    with Searcher(_store_path(store)) as searcher:
+        return NoAnswer(f"store {_store_path(store)} has no indexed entries: {searcher.empty_reason()}")
 
 
 @main.command(context_settings=CONTEXT)
 @click.argument("parts", nargs=-1, required=True)
 @store_option
 @click.option("--k", "-k", "k", default=None, type=click.IntRange(1), help="Voters [default: 3, measured on kicad6].")
-@click.option("--metric", type=click.Choice(METRICS), default="combined", show_default=True, help="The distance.")
+@metric_option("combined")
 @click.option("--label-depth", default=1, show_default=True, type=click.IntRange(1),
               help="An entry's label is its first N folders.")
 @click.option("--labels", "labels_file", metavar="FILE.csv",
               help="CSV of path,label (paths as in the store) instead of folders.")
+@where_option
 @scale_option
 @format_options
-def classify(parts, store, k, metric, label_depth, labels_file, scale, output_format, as_json):
+def classify(parts, store, k, metric, label_depth, labels_file, where, scale, output_format, as_json):
     """The category of each PART (a file, or a path of the store) by its nearest labelled entries.
 
     \b
     Example:
-      shapeidx classify new/bracket.stl --store parts.h5
-      shapeidx classify new/*.wrl --store parts.h5 --labels categories.csv --json
+      shapeidx classify new/bracket.stl --store parts.shapeidx
+      shapeidx classify new/*.wrl --store parts.shapeidx --labels categories.csv --json
+      shapeidx classify new/bracket.stl --store parts.shapeidx --where 'project!=legacy'
     """
     from .families.classify import DEFAULT_K, classify_parts
     from .families.labels import labels_from_csv, labels_from_paths
-    from .store import open_store
+    from .search import Filters, Searcher, parse_where
     from .system import available_cores
 
-    with open_store(_store_path(store)) as reader:
-        if (reader.column("entries/status") == 0).sum() == 0:
+    filters = Filters(scale=scale, where=parse_where(where))
+    with Searcher(_store_path(store)) as searcher:
+        if len(searcher) == 0:
             raise _empty_store_error(store)
+        paths = searcher.metadata_column("path")
         if labels_file:
-            labels, unknown = labels_from_csv(labels_file, reader.paths)
+            labels, unknown = labels_from_csv(labels_file, paths)
             if unknown:
                 click.echo(f"shapeidx: warning: {labels_file}: {len(unknown)} path(s) not in the store, ignored"
                            f" (first: {unknown[0]!r})", err=True)
         else:
-            labels = labels_from_paths(reader.paths, label_depth)
-        results = classify_parts(reader, list(parts), labels, k or DEFAULT_K, metric, scale, available_cores())
+            labels = labels_from_paths(paths, label_depth)
+        results = classify_parts(searcher, list(parts), labels, k or DEFAULT_K, metric, filters, available_cores())
     fmt = chosen_format(output_format, as_json)
     if fmt == "json":
         emit_json(results)
@@ -820,16 +877,16 @@ def classify(parts, store, k, metric, label_depth, labels_file, scale, output_fo
         return
     for r in results:
         label = r["label"] if r["label"] is not None else "(no voter)"
-        click.echo(f"{r['path']}: {label} (confidence {r['confidence']:.2f})")
+        click.echo(f"{printable(r['path'])}: {printable(label)} (confidence {r['confidence']:.2f})")
         for nb in r["neighbours"]:
-            click.echo(f"    {nb['distance']:<11.6g} {nb['label']:24s} {nb['path']}")
+            click.echo(f"    {nb['distance']:<11.6g} {printable(nb['label']):24s} {printable(nb['path'])}")
 
 
 @main.command(context_settings=CONTEXT)
 @store_option
 @click.option("--clusters", type=click.IntRange(1), help="How many clusters [default: one per ten entries].")
 @click.option("--threshold", type=click.FloatRange(0), help="Cut the tree at this height instead.")
-@click.option("--metric", type=click.Choice(METRICS), default="combined", show_default=True, help="The distance.")
+@metric_option("combined")
 @scale_option
 @click.option("--csv", "as_csv", is_flag=True, help="Rows of path,cluster,distance.")
 @click.option("--plot", "plot_output", metavar="OUT", type=click.Path(dir_okay=False, path_type=str),
@@ -841,9 +898,9 @@ def cluster(store, clusters, threshold, metric, scale, as_csv, plot_output, outp
 
     \b
     Example:
-      shapeidx cluster --store parts.h5 --clusters 50
-      shapeidx cluster --store parts.h5 --threshold 0.05 --format csv
-      shapeidx cluster --store parts.h5 --plot families.png
+      shapeidx cluster --store parts.shapeidx --clusters 50
+      shapeidx cluster --store parts.shapeidx --threshold 0.05 --format csv
+      shapeidx cluster --store parts.shapeidx --plot families.png
     """
     from .families.cluster import cluster_store
     from .system import available_cores
@@ -876,7 +933,7 @@ def cluster(store, clusters, threshold, metric, scale, as_csv, plot_output, outp
 
 @main.command(context_settings=CONTEXT)
 @store_option
-@click.option("--metric", type=click.Choice(METRICS), default="combined", show_default=True, help="The distance.")
+@metric_option("combined", choices=duplicate_metrics())  # only metrics whose duplicate thresholds were measured
 @scale_option
 @click.option("--csv", "as_csv", is_flag=True, help="One row per pair (same as --format csv).")
 @format_options
@@ -887,8 +944,8 @@ def duplicates(store, metric, scale, as_csv, output_format, as_json):
 
     \b
     Example:
-      shapeidx duplicates --store parts.h5
-      shapeidx duplicates --store parts.h5 --csv > duplicates.csv
+      shapeidx duplicates --store parts.shapeidx
+      shapeidx duplicates --store parts.shapeidx --csv > duplicates.csv
     """
     from .families.duplicates import find_duplicates
     from .system import available_cores

@@ -34,6 +34,23 @@ def printable(text: object) -> str:
     return _UNPRINTABLE.sub(_escape, text) if _UNPRINTABLE.search(text) else text
 
 
+_BYTES_REPR = re.compile(r"""\bb(['"])((?:\\.|(?!\1).)*)\1""")
+
+
+def plain_reason(text: str) -> str:
+    """A failure reason as a user reads it: Python's ``b'...'`` reprs become ``'...'``,
+    control characters are escaped, all on one line."""
+    text = _BYTES_REPR.sub(lambda m: "'" + m.group(2) + "'", str(text))
+    return printable(" ".join(text.split()))
+
+
+def timestamp() -> str:
+    """Local time with its UTC offset, to the second: ``2026-12-01T18:02:11+0000``."""
+    import time
+
+    return time.strftime("%Y-%m-%dT%H:%M:%S%z")
+
+
 class ShapeidxError(Exception):
     """Base class of every error shapeidx reports to its user as one line.
 
@@ -80,3 +97,14 @@ class StoreLockedError(StoreError):
 
 class StoreDamagedError(StoreError):
     """The store's files fail their checks (checksums, offsets, structure): see ``shapeidx check``."""
+
+
+class UsageError(ShapeidxError):
+    """A request that cannot be meant as given (a ``--where`` on a key the store does not
+    have, a format that does not exist): the command line exits with its usage status, 2."""
+
+
+class NoAnswer(ShapeidxError):
+    """A sound question that nothing answers: filters that match no entry, hits all beyond
+    ``--max-distance``, a store with no entry yet. ``str()`` says which; the command line
+    exits with status 6 (docs/cli.md), so a script tells an empty answer from a failure."""

@@ -145,24 +145,23 @@ def small_store(data_dir, tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("angles")
     tree = small_kicad(data_dir, tmp, ("Diode_SMD", "LED_SMD"))
-    store = tmp / "s.h5"
+    store = tmp / "s.shapeidx"
     assert build(tree, store).exit_code == 0
     return tree, store
 
 
 def test_store_ranking_equals_pairwise_compare(small_store):
-    from shapeidx.ranking import SignatureTable
-    from shapeidx.store import open_store
+    from shapeidx.search import Searcher
+    from shapeidx.search.distances import distances
 
     _, store = small_store
-    with open_store(store) as reader:
-        table = SignatureTable.load(reader)
-        signatures = [reader.signature(int(r)) for r in table.rows]
+    with Searcher(store) as searcher:
+        signatures = [searcher.signature_at(i) for i in range(len(searcher))]
+        ranked = {m: distances(searcher.view, signatures[3], m) for m in ("combined-angle", "all-angle")}
     assert all(s.angles is not None and s.angles.sum(axis=1)[0] == s.histograms["all"].total for s in signatures)
     for metric in ("combined-angle", "all-angle"):
-        ranked = table.distances(signatures[3], metric)
         pairwise = [compare(signatures[3], s)[metric] for s in signatures]
-        np.testing.assert_array_equal(ranked, pairwise)
+        np.testing.assert_array_equal(ranked[metric], pairwise)
     # all-angle is ALL's D plus the weighted angle term, computed here from the histograms
     from shapeidx.distance.combined import ALL_ANGLE_WEIGHT
 
@@ -179,13 +178,17 @@ def test_a_store_without_angles_refuses_only_the_angle_metrics(small_store, tmp_
     from clitools import cli
 
     tree, store = small_store
-    old = tmp_path / "old.h5"
-    shutil.copy(store, old)
-    with h5py.File(old, "a") as f:  # what a store written before the angle histograms holds (layout 2)
+    old = tmp_path / "old.shapeidx"
+    shutil.copytree(store, old)
+    with h5py.File(old / "main.h5", "a") as f:  # what a store written before the angle histograms holds (layout 2)
         del f["entries/angles"]
         del f["rank"]
         f.attrs["schema_version"] = 2
     part = next(tree.rglob("*.wrl"))
+    refused = cli("query", part, "--store", old, "--metric", "weighted", "--top", "2")
+    assert refused.exit_code == 1 and "check --repair" in refused.stderr  # no ranking arrays: one line says how
+    repair = cli("check", "--store", old, "--repair")
+    assert repair.exit_code == 0, repair.output + repair.stderr
     ok = cli("query", part, "--store", old, "--metric", "weighted", "--top", "2")
     assert ok.exit_code == 0, ok.stderr
     check = cli("check", "--store", old)

@@ -89,10 +89,13 @@ class TestDistancesAndQueries:
         assert build(tree, tmp_path / "s.h5").exit_code == 0
         part = next(iter(sorted(tree.glob("LED_SMD/*.wrl"))))
         hits = shapeidx.query(tmp_path / "s.h5", part, top=3)
-        assert hits[0] == {"rank": 1, "path": f"LED_SMD/{part.name}", "distance": 0.0}
+        # the command line's fields: path absolute, relative_path the entry, and the metadata
+        assert hits[0] == {"rank": 1, "path": str(tree.resolve() / "LED_SMD" / part.name),
+                           "relative_path": f"LED_SMD/{part.name}", "distance": 0.0, "metadata": {}}
         with shapeidx.open_store(tmp_path / "s.h5") as store:
-            assert shapeidx.query(store, entry=hits[1]["path"], top=1)[0]["path"] == hits[1]["path"]
+            assert shapeidx.query(store, entry=hits[1]["relative_path"], top=1)[0]["path"] == hits[1]["path"]
             assert shapeidx.query(store, part, top=3, metric="combined")[0]["path"] == hits[0]["path"]
+            assert len(store.paths) == 10 and store.params.points == int(store.attrs["points"])  # the reader's view too
 
 
 class TestErrors:

@@ -162,23 +162,23 @@ class TestExitStatuses:
 
     def test_usage_error_and_bug_differ(self, monkeypatch, tmp_path):
         assert cli("query", "--top", "zero").exit_code == exits.USAGE
-        import shapeidx.ranking
+        import shapeidx.search
 
         def bug(*args, **kwargs):
             raise ZeroDivisionError("a bug")
 
-        (tmp_path / "x").write_text("")
-        monkeypatch.setattr(shapeidx.ranking, "query_store", bug)
-        monkeypatch.setattr(shapeidx.ranking, "resolve_entry", lambda reader, e: e)
-        monkeypatch.setattr("shapeidx.store.open_store", _fake_open)
+        monkeypatch.setattr(shapeidx.search, "Searcher", _FakeSearcher)
+        _FakeSearcher.search = bug
         result = cli("query", "--id", "a", "--store", tmp_path / "x")
         assert result.exit_code == exits.INTERNAL and "internal error: ZeroDivisionError" in result.stderr
         assert len(result.stderr.strip().splitlines()) == 1
 
 
-class _FakeReader:
-    attrs = {"root": "/"}
-    skipped = []
+class _FakeSearcher:
+    """A searcher whose search is a bug: the command line must say so in one line."""
+
+    def __init__(self, store):
+        pass
 
     def __enter__(self):
         return self
@@ -186,9 +186,14 @@ class _FakeReader:
     def __exit__(self, *exc):
         pass
 
+    def resolve_entry(self, entry):
+        return entry
 
-def _fake_open(path):
-    return _FakeReader()
+    def metadata_keys(self):
+        return ("path",)
+
+    def query_of_entry(self, entry):
+        return None
 
 
 class TestUnreadableInput:

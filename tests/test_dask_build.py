@@ -24,7 +24,7 @@ from clitools import run_shapeidx, shapeidx_command
 from storetools import FAST_POINTS, copy_tree, cpu_seconds, load_script, slow_assembly, small_kicad, summary_counts
 
 from shapeidx.errors import StoreError
-from shapeidx.ranking import query_store
+from shapeidx.api import query as query_store
 from shapeidx.signing.parameters import HISTOGRAMS
 from shapeidx.store import STATUS_OK, open_store
 

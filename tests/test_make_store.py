@@ -11,7 +11,8 @@ import pytest
 from clitools import run_shapeidx
 from storetools import REPO, build, small_kicad
 
-from shapeidx.ranking import SignatureTable
+from shapeidx.search import Searcher
+from shapeidx.search.distances import distances
 from shapeidx.signing.parameters import BIN_DIVISOR, CLASS_NAMES, HISTOGRAMS
 from shapeidx.store import STATUS_OK, open_store
 
@@ -89,13 +90,12 @@ def test_every_made_signature_is_consistent_and_near_its_source(stores):
 def test_a_made_store_ranks_each_entry_nearest_to_its_siblings(stores):
     """The perturbation keeps shapes apart: what came from one real part ranks together."""
     _, made = stores
-    with open_store(made) as reader:
-        table = SignatureTable.load(reader)
-        paths = [str(p) for p in table.paths]
+    with Searcher(made) as searcher:
+        paths = [str(p) for p in searcher.metadata_column("path")]
         nearest_sibling = 0
         with_siblings = 0
         for i, path in enumerate(paths):
-            d = table.distances(reader.signature(int(table.rows[i])), "weighted")
+            d = distances(searcher.view, searcher.signature_at(i), "weighted")
             assert d[i] == 0.0 and np.count_nonzero(d == 0.0) == 1
             siblings = [j for j, p in enumerate(paths) if j != i and source_of(p) == source_of(path)]
             if siblings:

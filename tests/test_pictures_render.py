@@ -14,8 +14,8 @@ from storetools import build, small_kicad
 
 from shapeidx.pictures.render import DEFAULT_MARGIN, png_bytes, render_rgba
 from shapeidx.pictures.thumbcache import StoreThumbnails, ThumbnailCache, cache_dir_of_store
+from shapeidx.search import Searcher
 from shapeidx.signing.pipeline import solid_of_file
-from shapeidx.store import open_store
 
 SIZE = 200
 # The image plane of a camera on the +x+y+z diagonal with +z up, written out independently.
@@ -144,17 +144,17 @@ class TestCache:
         tree = small_kicad(data_dir, tmp_path, ("LED_SMD",))
         store = tmp_path / "s.h5"
         assert build(tree, store).exit_code == 0
-        with open_store(store) as reader:
-            thumbs = StoreThumbnails(reader, 64)
-            entry = str(reader.paths[0])
+        with Searcher(store) as searcher:
+            thumbs = StoreThumbnails(searcher, 64)
+            entry = str(searcher.paths[0])
             first = thumbs.png(entry)
             assert thumbs.png(entry) == first and thumbs.cache.rendered == 1
-        assert cache_dir_of_store(store) == tmp_path / "s.h5.thumbs" and any((tmp_path / "s.h5.thumbs").iterdir())
+        assert cache_dir_of_store(store) == store / "thumbs" and any((store / "thumbs").iterdir())
         # the store is untouched by the cache and still opens
-        with open_store(store) as reader:
-            assert len(reader) == 10
+        with Searcher(store) as searcher:
+            assert len(searcher) == 10
             # the file is replaced by another part after the build: its picture follows
-            other = tree / str(reader.paths[1])
+            other = tree / str(searcher.paths[1])
             os.replace(other, tree / entry)
-            thumbs = StoreThumbnails(reader, 64)
+            thumbs = StoreThumbnails(searcher, 64)
             assert thumbs.png(entry) != first and thumbs.cache.rendered == 1

@@ -18,9 +18,9 @@ from storetools import small_kicad
 from shapeidx.distance import compare
 from shapeidx.pictures.plot import figure_of
 from shapeidx.pictures.sheet import PAGE, SheetHit, SheetPart, sheet_html
-from shapeidx.pictures.similarity import MAX_DRAWS, WORDS, SimilarityScale, signatures_of
+from shapeidx.pictures.similarity import MAX_DRAWS, WORDS, SimilarityScale
+from shapeidx.search import Searcher
 from shapeidx.signing.pipeline import signature_of_solid, solid_of_file
-from shapeidx.ranking import SignatureTable
 from shapeidx.signing.parameters import BIN_DIVISOR, HISTOGRAMS
 from shapeidx.store import open_store
 
@@ -30,7 +30,7 @@ def store(data_dir, tmp_path_factory):
     """Three small KiCad class folders (30 parts) built by the real command, full 1024 points."""
     tmp = tmp_path_factory.mktemp("sheet")
     tree = small_kicad(data_dir, tmp)
-    path = tmp / "s.h5"
+    path = tmp / "s.shapeidx"
     result = cli("build", tree, "--store", path)
     assert result.exit_code == 0, result.output
     return tree, path
@@ -73,7 +73,7 @@ class TestPlot:
                 assert labels == [f"a ({100 * a.fractions[name]:.2f}%)", f"b ({100 * b.fractions[name]:.2f}%)"]
         title = "\n".join(t.get_text() for t in fig.texts)
         d = compare(a, b)
-        assert f"ALL {d['all']:.3g}, AvgOf3 {d['avg3']:.3g}, AvgOf4 {d['avg4']:.3g}, Weighted {d['weighted']:.3g}" in title
+        assert f"ALL (plain D2) {d['all']:.3g}, AvgOf3 {d['avg3']:.3g}, AvgOf4 {d['avg4']:.3g}, Weighted {d['weighted']:.3g}" in title
 
     def test_command_writes_png_svg_pdf_and_store_entries_match_files(self, store, tmp_path):
         tree, path = store
@@ -91,7 +91,7 @@ class TestPlot:
         assert f"led (IN {100 * fractions[0]:.1f}%" in svg and "diode - led: ALL" in svg
         # the same part as a file and as an entry: one curve, so distance 0
         same = cli("plot", tree / entry, "--id", entry, "--store", path, "-o", tmp_path / "same.svg")
-        assert same.exit_code == 0 and "ALL 0, AvgOf3 0, AvgOf4 0, Weighted 0" in (tmp_path / "same.svg").read_text()
+        assert same.exit_code == 0 and "ALL (plain D2) 0, AvgOf3 0, AvgOf4 0, Weighted 0" in (tmp_path / "same.svg").read_text()
 
     def test_bad_arguments_are_one_line_errors(self, store, tmp_path):
         _, path = store
@@ -115,11 +115,10 @@ class TestSimilarity:
 
     def test_calibration_ranks_sampled_entries_against_all_others(self, store):
         _, path = store
-        with open_store(path) as reader:
-            table = SignatureTable.load(reader)
-            scale = SimilarityScale.of_table(reader, table, "weighted")
-            signatures = signatures_of(reader, table.rows)
-        n = len(table)
+        with Searcher(path) as searcher:
+            scale = SimilarityScale.of_store(searcher, "weighted")
+            signatures = [searcher.signature_at(i) for i in range(len(searcher))]
+            n = len(searcher)
         assert scale.draws == min(n, MAX_DRAWS) and scale.pairs == scale.draws * (n - 1)
         # with every entry drawn, the sample is exactly every ordered pair's distance
         expected = sorted(compare(signatures[i], signatures[j])["weighted"] for i in range(n) for j in range(n) if i != j)
@@ -127,18 +126,17 @@ class TestSimilarity:
 
     def test_calibration_is_kept_beside_the_store_until_it_changes(self, store, tmp_path):
         _, path = store
-        with open_store(path) as reader:
-            table = SignatureTable.load(reader)
-            fresh = SimilarityScale.of_table(reader, table, "avg4")
-            first = SimilarityScale.cached(reader, table, "avg4", tmp_path)
+        with Searcher(path) as searcher:
+            fresh = SimilarityScale.of_store(searcher, "avg4")
+            first = SimilarityScale.cached(searcher, "avg4", tmp_path)
             kept = list(tmp_path.glob("calibration-avg4-*.npz"))
-            again = SimilarityScale.cached(reader, table, "avg4", tmp_path)
+            again = SimilarityScale.cached(searcher, "avg4", tmp_path)
         assert len(kept) == 1 and np.array_equal(first.distances, fresh.distances)
         assert np.array_equal(again.distances, fresh.distances) and again.pairs == fresh.pairs
         # another store file (a new build): drawn again, the old sample replaced
-        os.utime(path, ns=(1, 1))
-        with open_store(path) as reader:
-            SimilarityScale.cached(reader, SignatureTable.load(reader), "avg4", tmp_path)
+        os.utime(path / "main.h5", ns=(1, 1))
+        with Searcher(path) as searcher:
+            SimilarityScale.cached(searcher, "avg4", tmp_path)
         assert [p.name for p in tmp_path.glob("calibration-avg4-*.npz")] != [p.name for p in kept]
         assert len(list(tmp_path.glob("calibration-avg4-*.npz"))) == 1
 
@@ -175,6 +173,8 @@ class TestQuerySheet:
         # each hit: distance, words, fractions, four histogram panels (query reused by <use>)
         with open_store(path) as reader:
             fractions = reader.column("entries/fractions")[reader.index_of(expected[1]["path"])]
+        # the metadata the command line prints (here what the files say: none for KiCad VRML)
+        assert all(h["metadata"] == {} for h in expected)
         assert f"IN {100 * fractions[0]:.1f}% · OUT {100 * fractions[1]:.1f}% · MIXED {100 * fractions[2]:.1f}%" in text
         assert len(page.all("svg", **{"class": "overlay"})) == 7
         assert len([a for t, a in page.tags if t == "use"]) == 7 * 4
@@ -182,7 +182,7 @@ class TestQuerySheet:
 
     def test_second_sheet_renders_nothing_new(self, store, tmp_path):
         tree, path = store
-        thumbs = Path(str(path) + ".thumbs")
+        thumbs = path / "thumbs"
         args = ("query", "--id", "LED_SMD/" + sorted(p.name for p in (tree / "LED_SMD").iterdir())[0], "--store", path, "-k", "10")
         assert cli(*args, "--sheet", tmp_path / "a.html").exit_code == 0
         before = {p.name: p.stat().st_mtime_ns for p in thumbs.iterdir()}
@@ -233,9 +233,8 @@ class TestQuerySheet:
 class TestLongSheets:
     def test_two_thousand_hits_are_paged_and_lazy(self, store):
         _, path = store
-        with open_store(path) as reader:
-            table = SignatureTable.load(reader)
-            signatures = signatures_of(reader, table.rows)
+        with Searcher(path) as searcher:
+            signatures = [searcher.signature_at(i) for i in range(len(searcher))]
         query = SheetPart("q", None, signatures[0], None, "no picture")
         png = Image.new("RGBA", (8, 8))
         import io

@@ -9,9 +9,9 @@ import pytest
 from clitools import cli, cli_json
 from storetools import FAST_POINTS, build, copy_tree, small_kicad
 
-from shapeidx.distance import METRICS, HistogramBank, compare, histogram_distance, distances_to_many
-from shapeidx.ranking import SignatureTable, top_hits
-from shapeidx.store import open_store
+from shapeidx.distance import METRICS, HistogramBank, compare, histogram_distance
+from shapeidx.search import Searcher
+from shapeidx.search.distances import distances
 
 
 @pytest.fixture(scope="module")
@@ -19,7 +19,7 @@ def kicad_store(data_dir, tmp_path_factory):
     """A store of three small KiCad class folders, built by the real command."""
     tmp = tmp_path_factory.mktemp("query")
     tree = small_kicad(data_dir, tmp)
-    store = tmp / "s.h5"
+    store = tmp / "s.shapeidx"
     result = build(tree, store)
     assert result.exit_code == 0, result.output
     return tree, store
@@ -48,39 +48,44 @@ class TestHistogramBank:
 
 class TestRankingEqualsCompare:
     def test_every_pair_every_metric(self, kicad_store):
-        """The store ranking and compare() give identical numbers for the same pair."""
+        """The store ranking (the search road) and compare() give identical numbers for the same pair."""
         _, store = kicad_store
-        with open_store(store) as reader:
-            table = SignatureTable.load(reader)
-            signatures = [reader.signature(int(i)) for i in table.rows]
-        assert len(table) == 30
-        for i, query in enumerate(signatures):
-            ranked = distances_to_many(query, table.banks, table.fractions, table.means, METRICS, table.angles)
-            for j, other in enumerate(signatures):
-                expected = compare(query, other)
-                assert {m: ranked[m][j] for m in METRICS} == expected, (i, j)
-            assert table.distances(query, "avg4")[i] == 0.0
+        with Searcher(store) as searcher:
+            signatures = [searcher.signature_at(i) for i in range(len(searcher))]
+            assert len(searcher) == 30
+            for i, query in enumerate(signatures):
+                ranked = {m: distances(searcher.view, query, m) for m in METRICS}
+                for j, other in enumerate(signatures):
+                    expected = compare(query, other)
+                    assert {m: ranked[m][j] for m in METRICS} == expected, (i, j)
+                assert ranked["avg4"][i] == 0.0
 
-    def test_unknown_metric_or_missing_histograms(self, kicad_store):
+    def test_unknown_metric(self, kicad_store):
         _, store = kicad_store
-        with open_store(store) as reader:
-            table = SignatureTable.load(reader, ("in", "out", "mixed"))
-            sig = reader.signature(0)
-        assert len(table.distances(sig, "weighted")) == 30
-        with pytest.raises(ValueError, match="not loaded: all"):
-            table.distances(sig, "avg4")
-        with pytest.raises(ValueError, match="unknown metric"):
-            table.distances(sig, "euclid")
+        with Searcher(store) as searcher:
+            sig = searcher.signature_at(0)
+            assert len(distances(searcher.view, sig, "weighted")) == 30
+            with pytest.raises(ValueError, match="unknown metric"):
+                distances(searcher.view, sig, "euclid")
 
 
-class TestTopHits:
-    def test_ties_broken_by_path_and_the_query_itself_first(self):
-        paths = np.array(["a", "b", "c", "d"], dtype=object)
-        distances = np.array([0.5, 0.0, 0.0, 0.2])
-        assert [h["path"] for h in top_hits(distances, paths, 3)] == ["b", "c", "d"]
-        assert [h["path"] for h in top_hits(distances, paths, 2, first=2)] == ["c", "b"]
-        assert [h["rank"] for h in top_hits(distances, paths, 10)] == [1, 2, 3, 4]
-        assert top_hits(distances[:0], paths[:0], 5) == []
+class TestTies:
+    def test_ties_broken_by_path_and_the_query_itself_first(self, data_dir, tmp_path):
+        """Three byte copies of a part tie at 0: by path, except that the query's own file comes first."""
+        part = sorted((data_dir / "kicad6" / "Diode_SMD").glob("*.wrl"))[2]
+        tree = tmp_path / "tree"
+        tree.mkdir()
+        for name in ("a.wrl", "b.wrl", "c.wrl"):
+            (tree / name).write_bytes(part.read_bytes())
+        other = sorted((data_dir / "kicad6" / "Resistor_SMD").glob("*.wrl"))[0]
+        (tree / "d.wrl").write_bytes(other.read_bytes())
+        assert build(tree, tmp_path / "s.shapeidx").exit_code == 0
+        ranked = [h["relative_path"] for h in cli_json("query", tree / "b.wrl", "--store", tmp_path / "s.shapeidx")["hits"]]
+        assert ranked == ["b.wrl", "a.wrl", "c.wrl", "d.wrl"]
+        elsewhere = tmp_path / "copy.wrl"
+        elsewhere.write_bytes(part.read_bytes())
+        answer = cli_json("query", elsewhere, "--store", tmp_path / "s.shapeidx", "--top", "2")
+        assert [h["relative_path"] for h in answer["hits"]] == ["a.wrl", "b.wrl"] and answer["entry"] is None
 
 
 class TestQueryCommand:
@@ -95,7 +100,7 @@ class TestQueryCommand:
             assert hits[0]["path"] == str(tree.resolve() / hits[0]["relative_path"])
             assert hits[0]["distance"] == 0.0
             assert [h["rank"] for h in hits] == [1, 2, 3, 4, 5]
-            assert all(set(h) == {"rank", "path", "relative_path", "distance"} for h in hits)
+            assert all(set(h) == {"rank", "path", "relative_path", "distance", "metadata"} for h in hits)
             assert [h["distance"] for h in hits] == sorted(h["distance"] for h in hits)
 
     def test_a_copy_outside_the_tree_finds_the_original(self, kicad_store, tmp_path):
@@ -104,7 +109,8 @@ class TestQueryCommand:
         copy = copy_tree(original.parent, tmp_path / "elsewhere", [original.name]) / original.name
         hits = cli_json("query", copy, "--store", store, "--top", "1")["hits"]
         relative = original.relative_to(tree).as_posix()
-        assert hits == [{"rank": 1, "path": str(tree.resolve() / relative), "relative_path": relative, "distance": 0.0}]
+        assert hits == [{"rank": 1, "path": str(tree.resolve() / relative), "relative_path": relative, "distance": 0.0,
+                         "metadata": {}}]
 
     def test_id_and_metrics(self, kicad_store):
         tree, store = kicad_store
@@ -162,7 +168,7 @@ def test_stats_command(kicad_store):
     assert (facts["entries"], facts["ok"], facts["failed"]) == (30, 30, 0)
     assert facts["parameters"]["points"] == int(FAST_POINTS)
     assert facts["root"] == str(tree.resolve())
-    assert facts["bytes"] == store.stat().st_size
+    assert facts["bytes"] == sum(p.stat().st_size for p in store.rglob("*") if p.is_file())
     text = cli("info", "--store", store)
     assert text.exit_code == 0
     assert "30 ok, 0 failed" in text.stdout and f"{FAST_POINTS} points" in text.stdout

@@ -7,7 +7,7 @@ import pytest
 
 import analytic as A
 from shapeidx.signing.classify import pair_indices
-from shapeidx.distance import ANGLE_METRICS, METRICS, MIN_AGREEMENT, compare, histogram_distance, paper_distances
+from shapeidx.distance import ANGLE_METRICS, METRICS, MIN_AGREEMENT, compare, histogram_distance, metric_values
 from shapeidx.signing.pipeline import signature_of_file, signature_of_solid, solid_of_file
 from shapeidx.signing.sampling import sample_surface
 from shapeidx.signing.histogram import Histogram, Signature
@@ -105,7 +105,9 @@ class TestDistances:
         assert compare(a, b) == pytest.approx(compare(b, a))
 
     def test_paper_distances_work_on_arrays(self):
-        d = {h: np.array([0.1, 0.2]) for h in ("all", "in", "out", "mixed")}
-        gap = {c: np.array([0.0, 0.5]) for c in ("in", "out", "mixed")}
-        out = paper_distances(d, gap)
+        features = {f"d_{h}": np.array([0.1, 0.2]) for h in ("all", "in", "out", "mixed")}
+        features.update({f"gap_{c}": np.array([0.0, 0.5]) for c in ("in", "out", "mixed")})
+        out = metric_values(features, ("all", "avg3", "avg4", "weighted"))
         np.testing.assert_allclose(out["weighted"], [0.3, 1.2])
+        np.testing.assert_allclose(out["avg3"], [0.1, 0.2])
+        np.testing.assert_allclose(out["avg4"], [0.1, 0.2])

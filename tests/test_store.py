@@ -25,7 +25,7 @@ from shapeidx.store import (
     describe_store,
     open_store,
 )
-from shapeidx.store.files import batch_files, journal_dir
+from shapeidx.store.files import batch_files, journal_dir, main_file
 
 PARAMS = StoreParams(points=64, seed=7, bin_divisor=50, signature_version=SIGNATURE_VERSION)
 PARTS = (
@@ -105,8 +105,8 @@ class TestRoundTrip:
     def test_readable_with_h5py_alone_as_documented(self, tmp_path, real_entries):
         """The README's recipe: row i's histogram is counts[offsets[i]:offsets[i+1]]."""
         entries, signatures = real_entries
-        with h5py.File(merged_store(tmp_path, entries), "r") as f:
-            assert f.attrs["schema_version"] == 3 and f.attrs["points"] == 64 and f.attrs["seed_policy"] == "fixed"
+        with h5py.File(main_file(merged_store(tmp_path, entries)), "r") as f:
+            assert f.attrs["schema_version"] == 4 and f.attrs["points"] == 64 and f.attrs["seed_policy"] == "fixed"
             paths = list(f["entries/path"].asstr()[()])
             i = paths.index(PARTS[0])
             sig, _ = signatures[PARTS[0]]
@@ -176,13 +176,13 @@ class TestJournal:
         store = tmp_path / "s.h5"
         with writer(tmp_path) as w:
             w.commit(Batch(entries=real_entries[0][:1]))
-        (tmp_path / "s.h5.tmp-999").write_bytes(b"half a file")
+        (store / "main.h5.tmp-999").write_bytes(b"half a file")
         (journal_dir(store) / "batch-0000000009.h5.tmp-999").write_bytes(b"half a batch")
         with open_store(store) as r:
             assert len(r) == 1
         with writer(tmp_path):
             pass
-        assert not (tmp_path / "s.h5.tmp-999").exists()
+        assert not (store / "main.h5.tmp-999").exists()
         assert not list(journal_dir(store).glob("*.tmp-*"))
 
     def test_a_reader_keeps_its_view_while_a_merge_replaces_the_files(self, tmp_path, real_entries):
@@ -239,13 +239,17 @@ class TestRefusals:
         (tmp_path / "text.h5").write_text("not hdf5")
         with pytest.raises(StoreError, match="is not a shapeidx store"):
             open_store(tmp_path / "text.h5")
-        with h5py.File(tmp_path / "other.h5", "w") as f:
+        (tmp_path / "other").mkdir()
+        with h5py.File(tmp_path / "other" / "main.h5", "w") as f:  # an HDF5 file of another program
             f["x"] = 1
         with pytest.raises(StoreError, match="is not a shapeidx store"):
-            open_store(tmp_path / "other.h5")
+            open_store(tmp_path / "other")
+        (tmp_path / "empty").mkdir()
+        with pytest.raises(StoreError, match="is not a shapeidx store"):
+            open_store(tmp_path / "empty")
         with writer(tmp_path):
             pass
-        with h5py.File(tmp_path / "s.h5", "a") as f:
+        with h5py.File(main_file(tmp_path / "s.h5"), "a") as f:
             f.attrs["schema_version"] = 99
         with pytest.raises(StoreError, match="newer shapeidx"):
             open_store(tmp_path / "s.h5")
@@ -289,7 +293,7 @@ def test_stats_describes_the_store(tmp_path, real_entries):
     entries, _ = real_entries
     with writer(tmp_path) as w:
         w.commit(Batch(entries=entries))
-    shutil.copy(tmp_path / "s.h5", tmp_path / "copy.h5")
+    shutil.copy(main_file(tmp_path / "s.h5"), tmp_path / "copy.h5")
     with open_store(tmp_path / "s.h5") as r:
         facts = describe_store(r)
     assert (facts["entries"], facts["ok"], facts["failed"]) == (6, 5, 1)

@@ -20,7 +20,7 @@ from shapeidx.console import exits
 from shapeidx.index.workers import Task, index_file
 from shapeidx.signing.parameters import HISTOGRAMS
 from shapeidx.store import Batch, StoreWriter, open_store
-from shapeidx.store.files import batch_files
+from shapeidx.store.files import batch_files, main_file
 
 CUBE = "mesh-wild/trimesh-models/unit_cube.STL"
 
@@ -44,7 +44,7 @@ def pristine(data_dir, tmp_path_factory):
 def store(pristine, tmp_path):
     tree, original = pristine
     copy = tmp_path / "s.h5"
-    shutil.copy(original, copy)
+    shutil.copytree(original, copy)
     return tree, copy
 
 
@@ -54,9 +54,9 @@ def entry_of(tree):
 
 def flip_chunk(store, dataset: str, chunk: int) -> None:
     """Flip bytes inside one stored chunk of ``dataset`` (its checksum no longer matches)."""
-    with h5py.File(store, "r") as f:
+    with h5py.File(main_file(store), "r") as f:
         info = f[dataset].id.get_chunk_info(chunk)
-    with open(store, "r+b") as f:
+    with open(main_file(store), "r+b") as f:
         f.seek(info.byte_offset + 8)
         data = f.read(16)
         f.seek(info.byte_offset + 8)
@@ -70,12 +70,12 @@ def signatures(store) -> dict:
 
 def test_every_dataset_written_is_checksummed(pristine, tmp_path, data_dir):
     tree, store = pristine
-    shutil.copy(store, tmp_path / "s.h5")
+    shutil.copytree(store, tmp_path / "s.h5")
     with StoreWriter(tmp_path / "s.h5", _params(store), tree.resolve()) as w:
         task = Task("LED_SMD/extra.stl", str(data_dir / CUBE))
         w.commit(Batch(entries=[index_file(task, _params(store), str(tree.resolve())).entry],
                        touched=[("a", 1, 2)], removed=["b"]))
-        files = [tmp_path / "s.h5"] + [p for _, p in batch_files(tmp_path / "s.h5")]
+        files = [main_file(tmp_path / "s.h5")] + [p for _, p in batch_files(tmp_path / "s.h5")]
     assert len(files) == 2
     for path in files:
         with h5py.File(path, "r") as f:
@@ -100,7 +100,8 @@ def _params(store):
 def test_a_store_without_checksums_stays_readable(store, tmp_path):
     tree, path = store
     old = tmp_path / "old.h5"
-    with h5py.File(path, "r") as src, h5py.File(old, "w") as dst:  # as shapeidx wrote before checksums
+    old.mkdir()
+    with h5py.File(main_file(path), "r") as src, h5py.File(main_file(old), "w") as dst:  # as shapeidx wrote before checksums
         dst.attrs.update(src.attrs)
         dst.attrs["schema_version"] = 2
         names = []
@@ -108,6 +109,9 @@ def test_a_store_without_checksums_stays_readable(store, tmp_path):
         for name in (n for n in names if not n.startswith("rank/")):  # nor had it ranking arrays
             dst.create_dataset(name, data=src[name][()], dtype=src[name].dtype)
     expected = cli_json("query", "--id", entry_of(tree), "--store", path)["hits"]
+    refused = cli("query", "--id", entry_of(tree), "--store", old)  # no ranking arrays: one line says how
+    assert refused.exit_code == exits.ERROR and "check --repair" in refused.stderr
+    assert cli("check", "--store", old, "--repair").exit_code == 0
     assert cli_json("query", "--id", entry_of(tree), "--store", old)["hits"] == expected
     report = cli_json("check", "--store", old)
     assert report["ok"] and report["checksummed"] is False and report["notes"]
@@ -146,14 +150,14 @@ def test_a_flipped_chunk_is_found_named_refused_and_repaired(store, pristine):
 
 def test_offsets_out_of_bounds_are_one_line_not_an_index_error(store):
     tree, path = store
-    with h5py.File(path, "r+") as f:  # a consistent checksum, wrong values: what a bug could write
+    with h5py.File(main_file(path), "r+") as f:  # a consistent checksum, wrong values: what a bug could write
         offsets = f["histograms/all/offsets"]
         values = offsets[()]
         values[5] = values[-1] + 1000
         offsets[...] = values
         row = int(np.searchsorted(f["entries/path"].asstr()[()], entry_of(tree)))
     for query_row in (row, 5):  # the entry's own offsets, then the query of the damaged row
-        with h5py.File(path, "r") as f:
+        with h5py.File(main_file(path), "r") as f:
             entry = f["entries/path"].asstr()[query_row]
         result = cli("query", "--id", entry, "--store", path)
         if query_row == 5:
@@ -165,11 +169,12 @@ def test_offsets_out_of_bounds_are_one_line_not_an_index_error(store):
 def test_4_kib_overwritten_anywhere_gives_the_right_answer_or_one_line(store):
     tree, path = store
     expected = cli_json("query", "--id", entry_of(tree), "--store", path, "--top", "20")
-    size = path.stat().st_size
-    pristine_bytes = path.read_bytes()
+    main = main_file(path)
+    size = main.stat().st_size
+    pristine_bytes = main.read_bytes()
     for offset in range(0, size - 4096, size // 9):
-        path.write_bytes(pristine_bytes)
-        with open(path, "r+b") as f:
+        main.write_bytes(pristine_bytes)
+        with open(main, "r+b") as f:
             f.seek(offset)
             f.write(bytes(range(256)) * 16)
         result = cli("query", "--id", entry_of(tree), "--store", path, "--top", "20", "--json")
@@ -184,7 +189,7 @@ def test_4_kib_overwritten_anywhere_gives_the_right_answer_or_one_line(store):
         assert "internal error" not in checked.stderr
 
 
-def test_a_damaged_journal_batch_is_skipped_then_redone(store, data_dir):
+def test_a_damaged_journal_batch_is_refused_then_redone(store, data_dir):
     tree, path = store
     new = tree / "LED_SMD" / "new_cube.stl"
     shutil.copy(data_dir / CUBE, new)
@@ -195,11 +200,12 @@ def test_a_damaged_journal_batch_is_skipped_then_redone(store, data_dir):
     data = bytearray(batch.read_bytes())
     data[len(data) // 2 : len(data) // 2 + 2048] = b"\0" * 2048
     batch.write_bytes(bytes(data))
-    with open_store(path) as reader:
+    with open_store(path, skip_damaged=True) as reader:  # what the build sees: the batch left out
         assert reader.skipped and reader.skipped[0][0] == batch and len(reader) == 20
-    stats = cli("stats", "--store", path)
-    assert stats.exit_code == 0 and "skipped the damaged journal batch" in stats.stderr
-    assert cli("query", "--id", entry_of(tree), "--store", path).exit_code == 0
+    for command in (("stats", "--store", path), ("query", "--id", entry_of(tree), "--store", path)):
+        refused = cli(*command)  # never an answer over fewer entries than the store holds
+        assert_one_line_error(refused, path, status=exits.DAMAGED)
+        assert batch.name in refused.stderr
     again = build(tree, path, "--json")
     assert again.exit_code == 0, again.stderr
     assert "dropped the damaged journal batch" in again.stderr
@@ -236,7 +242,7 @@ def test_a_reader_racing_a_merge_retries(store, monkeypatch, data_dir):
 def test_a_full_disk_is_one_line_and_leaves_the_store_as_it_was(store, data_dir):
     tree, path = store
     shutil.copy(data_dir / CUBE, tree / "one_more.stl")
-    before = path.read_bytes()
+    before = {p.relative_to(path): p.read_bytes() for p in path.rglob("*") if p.is_file() and p.name != "lock"}
 
     def small_files():  # ulimit -f: a write past 256 KiB fails as on a full disk
         resource.setrlimit(resource.RLIMIT_FSIZE, (256 << 10, 256 << 10))
@@ -247,7 +253,10 @@ def test_a_full_disk_is_one_line_and_leaves_the_store_as_it_was(store, data_dir)
     errors = [line for line in proc.stderr.splitlines() if "error" in line]
     assert len(errors) == 1 and "cannot write" in errors[0] and "Traceback" not in proc.stderr
     assert "HDF5" not in proc.stderr and "errno" not in proc.stderr
-    assert path.read_bytes() == before and cli("check", "--store", path).exit_code == 0
+    after = {p.relative_to(path): p.read_bytes() for p in path.rglob("*") if p.is_file() and p.name != "lock"}
+    records = ("build.json", "verified")  # what the build records of itself; the data files are untouched
+    assert {k: v for k, v in after.items() if k.name not in records} == {k: v for k, v in before.items() if k.name not in records}
+    assert cli("check", "--store", path).exit_code == 0
 
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="a read-only bind mount needs root")

@@ -19,6 +19,7 @@ from shapeidx.signing.pipeline import signature_of_solid, solid_of_file
 from shapeidx.store import Batch, Entry, StoreParams, StoreWriter, open_store
 from shapeidx.store import check as store_check
 from shapeidx.store.known import known_files
+from shapeidx.store.files import main_file
 from shapeidx.store.verified import is_verified, verified_path
 
 PARAMS = StoreParams(points=64, seed=7, bin_divisor=50, signature_version=SIGNATURE_VERSION)
@@ -80,7 +81,7 @@ def test_the_live_entries_by_key_are_the_readers_assembly(tmp_path, signed):
 
 def test_files_without_path_keys_are_keyed_from_their_paths(tmp_path, signed):
     store = journal_store(tmp_path, signed)
-    with h5py.File(store, "r+") as f:  # as a file of layout 2 (no ranking section) is
+    with h5py.File(main_file(store), "r+") as f:  # as a file of layout 2 (no ranking section) is
         del f["rank"]
     assert assert_known_as_assembled(store) == 3
 
@@ -93,24 +94,23 @@ def test_a_build_reads_the_main_file_whole_only_when_it_is_not_the_file_verified
     monkeypatch.setattr(store_check, "scan_file", lambda *a, **k: scans.append(a[0]) or real_scan(*a, **k))
     StoreWriter(store, PARAMS, Path("/parts")).close()
     assert scans == []
-    os.utime(store)  # any change through the file system: verified again, then recorded again
+    os.utime(main_file(store))  # any change through the file system: verified again, then recorded again
     StoreWriter(store, PARAMS, Path("/parts")).close()
-    assert scans == [store] and is_verified(store)
+    assert scans == [main_file(store)] and is_verified(store)
     copy = tmp_path / "copy.h5"
-    shutil.copy(store, copy)
-    shutil.copy(verified_path(store), verified_path(copy))  # a copied record does not name the copy
+    shutil.copytree(store, copy)  # the store with its record: a copied record does not name the copy
     assert not is_verified(copy)
     verified_path(store).write_text("not json")
     StoreWriter(store, PARAMS, Path("/parts")).close()
-    assert scans == [store, store] and is_verified(store)
+    assert scans == [main_file(store), main_file(store)] and is_verified(store)
 
 
 def test_a_damaged_main_file_is_still_refused_after_it_was_verified(tmp_path, signed):
     store = journal_store(tmp_path, signed)
     assert is_verified(store)
-    with h5py.File(store, "r") as f:  # a flipped byte of a chunk, written through the file system
+    with h5py.File(main_file(store), "r") as f:  # a flipped byte of a chunk, written through the file system
         chunk = f["histograms/all/counts"].id.get_chunk_info(0)
-    with open(store, "r+b") as raw:
+    with open(main_file(store), "r+b") as raw:
         raw.seek(chunk.byte_offset + 8)
         byte = raw.read(1)
         raw.seek(chunk.byte_offset + 8)

@@ -25,8 +25,8 @@ with warnings.catch_warnings():  # Starlette 1.x would rather have httpx's succe
     from starlette.testclient import TestClient  # noqa: E402
 
 from shapeidx.distance import compare  # noqa: E402
-from shapeidx.pictures.similarity import signatures_of  # noqa: E402
-from shapeidx.store import open_store  # noqa: E402
+from shapeidx.distance.metrics import METRICS  # noqa: E402
+from shapeidx.search import Searcher  # noqa: E402
 from shapeidx.web.app import StoreService, create_app, upload_suffix  # noqa: E402
 
 LIMIT = 3 * 1024 * 1024
@@ -45,7 +45,7 @@ def served(data_dir, tmp_path_factory):
     (outside / "secret.wrl").write_bytes(first_led.read_bytes())
     (tree / "linked").mkdir()
     os.symlink(outside / "secret.wrl", tree / "linked" / "secret.wrl")
-    store = tmp / "s.h5"
+    store = tmp / "s.shapeidx"
     # the link leaves the tree: indexed only when asked, so that the server has such an entry to refuse
     result = cli("build", tree, "--store", store, "--points", FAST_POINTS, "--follow-outside-links")
     assert result.exit_code == 0, result.output
@@ -86,7 +86,7 @@ class TestAnswers:
     def test_query_by_id_equals_the_command(self, served):
         tree, store, client = served
         entry = "LED_SMD/" + sorted(p.name for p in (tree / "LED_SMD").iterdir())[2]
-        for metric in ("weighted", "combined"):
+        for metric in METRICS:  # every metric the menu offers answers (combined-angle and all-angle were 422)
             got = client.get("/api/query", params={"id": entry, "top": 8, "metric": metric}).json()["hits"]
             expected = cli_json("query", "--id", entry, "--store", store, "-k", "8", "--metric", metric)["hits"]
             assert [(h["id"], h["distance"]) for h in got] == [(h["relative_path"], h["distance"]) for h in expected]
@@ -95,9 +95,10 @@ class TestAnswers:
         tree, store, client = served
         a, b = (f"LED_SMD/{p.name}" for p in sorted((tree / "LED_SMD").iterdir())[:2])
         got = client.get("/api/compare", params={"a": a, "b": b}).json()
-        with open_store(store) as reader:
-            sa, sb = signatures_of(reader, [reader.index_of(a), reader.index_of(b)])
-        assert got["distances"] == compare(sa, sb)
+        with Searcher(store) as searcher:
+            sa, sb = searcher.query_of_entry(a).signature, searcher.query_of_entry(b).signature
+        assert got["distances"] == compare(sa, sb) and set(got["distances"]) == set(METRICS)
+        assert got["labels"]["all"] == "ALL (plain D2)"
         assert np.allclose(got["a"]["histograms"]["in"]["p"], sa.histograms["in"].p, atol=1e-7)
 
     def test_browse_lists_failed_files_with_reasons(self, served):
@@ -116,7 +117,7 @@ class TestAnswers:
 
 
 class TestHostileRequests:
-    @pytest.mark.parametrize("bad", ["../../../../etc/passwd", "/etc/passwd", "LED_SMD/../../s.h5", "LED_SMD", "", "nul\x00l"])
+    @pytest.mark.parametrize("bad", ["../../../../etc/passwd", "/etc/passwd", "LED_SMD/../../s.shapeidx/main.h5", "LED_SMD", "", "nul\x00l"])
     def test_ids_that_are_not_entries(self, served, bad):
         _, _, client = served
         for url in ("/api/thumbnail", "/api/query", "/api/entry"):

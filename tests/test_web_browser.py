@@ -47,7 +47,7 @@ def server(data_dir, tmp_path_factory):
     tree = small_kicad(data_dir, tmp, ("LED_SMD", "Diode_SMD", "Capacitor_Tantalum_SMD"))
     (tree / "broken").mkdir()
     (tree / "broken" / "truncated.wrl").write_text("#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord Coordinate { point [ 0 0 0,")
-    store = tmp / "s.h5"
+    store = tmp / "s.shapeidx"
     result = cli("build", tree, "--store", store, "--points", FAST_POINTS)
     assert result.exit_code == 0, result.output
     port = free_port()
@@ -142,6 +142,42 @@ def test_upload_query_compare_and_browse(server, browser):
     assert not errors, errors
 
 
+def test_every_metric_of_the_menu_answers_and_the_where_filter_narrows(server, browser):
+    """The distance menu is the registry's (labels and all); each metric answers (the angle
+    metrics were a 422 before); a where condition keeps only the matching parts, and one that
+    matches nothing says so on the page."""
+    from shapeidx.distance.metrics import REGISTRY
+
+    tree, url, tmp = server
+    page = browser.new_page()
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    entry = "LED_SMD/" + sorted(p.name for p in (tree / "LED_SMD").iterdir())[1]
+    page.goto(url + "#/query?id=" + entry)
+    page.wait_for_selector("[data-testid=hit]")
+    options = page.eval_on_selector_all("#metric option", "os => os.map(o => [o.value, o.textContent])")
+    assert options == [[m.name, m.label] for m in REGISTRY.values()]
+    for name, label in options:
+        page.select_option("#metric", name)
+        page.wait_for_function(f"() => location.hash.includes('metric={name}')")
+        page.wait_for_selector(f"[data-testid=query-card]:has-text('{label},')")
+        assert page.locator("[data-testid=hit]").first.get_attribute("data-id") == entry, name
+        assert page.locator("[data-testid=error]").is_hidden(), (name, page.locator("[data-testid=error]").inner_text())
+    page.fill("#where", "path~Diode_SMD/*")
+    page.dispatch_event("#where", "change")
+    page.wait_for_function("() => location.hash.includes('where=')")
+    page.wait_for_selector("[data-testid=query-card]:has-text('parts left')")
+    ids = [h.get_attribute("data-id") for h in page.locator("[data-testid=hit]").all()]
+    assert ids and all(i.startswith("Diode_SMD/") for i in ids)
+    page.fill("#where", "path~nothing/*")
+    page.dispatch_event("#where", "change")
+    page.wait_for_selector("[data-testid=no-answer]")
+    assert "no entry of the store matches" in page.locator("[data-testid=no-answer]").inner_text()
+    assert page.locator("[data-testid=hit]").count() == 0
+    page.screenshot(path=str(tmp / "where.png"))
+    assert not errors, errors
+
+
 def test_a_bad_upload_is_a_message_on_the_page(server, browser, tmp_path):
     _, url, _ = server
     bad = tmp_path / "bracket.stl"
@@ -161,13 +197,11 @@ def test_a_bad_upload_is_a_message_on_the_page(server, browser, tmp_path):
 def test_a_long_sheet_pages_in_the_browser(server, browser, tmp_path):
     """A 2,000-hit sheet opened from disk: 100 hits per page, the pager moves between them."""
     from shapeidx.pictures.sheet import PAGE, SheetHit, SheetPart, sheet_html
-    from shapeidx.pictures.similarity import signatures_of
-    from shapeidx.ranking import SignatureTable
-    from shapeidx.store import open_store
+    from shapeidx.search import Searcher
 
     _, _, tmp = server
-    with open_store(tmp / "s.h5") as reader:
-        signatures = signatures_of(reader, SignatureTable.load(reader).rows)
+    with Searcher(tmp / "s.shapeidx") as searcher:
+        signatures = [searcher.signature_at(i) for i in range(len(searcher))]
     hits = [SheetHit(SheetPart(f"part {k}", None, signatures[k % len(signatures)]), k + 1, 0.001 * k) for k in range(2000)]
     sheet = tmp_path / "long.html"
     sheet.write_text(sheet_html("long", SheetPart("q", None, signatures[0]), hits, []))

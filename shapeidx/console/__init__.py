@@ -1,7 +1,6 @@
 """What the command line needs beyond click, importable without numpy, h5py or Embree.
 
     exits.py    the exit-status table and how every error becomes one line and one status
-    text.py     log lines: timestamps, the ``shapeidx build:`` prefix, safe file names and reasons
     params.py   option types that refuse NaN, infinities and negative values; light defaults
     output.py   ``--format table|csv|tsv|json|jsonl``; a closed pipe ends the command quietly
     queries.py  what ``shapeidx query`` takes: files, directories, ``-`` (standard input)

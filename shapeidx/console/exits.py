@@ -21,6 +21,11 @@ LOCKED = 4
 #: The store is damaged (checksums, offsets, structure; ``shapeidx check`` names what) or,
 #: for ``check --files``, out of step with its files.
 DAMAGED = 5
+#: No answer: the question was sound but nothing answers it (a query's filters or
+#: ``--max-distance`` leave no hit, a store with no entry yet). One line on stderr says why.
+#: Not 1 (grep's "no match"): 1 already means "could not run" in every command, and a
+#: script must be able to tell an empty answer from a failure.
+NO_ANSWER = 6
 #: A bug in shapeidx: one line, the traceback with ``SHAPEIDX_DEBUG=1``. Please report it.
 INTERNAL = 70
 #: Interrupted (Ctrl-C, SIGTERM); a build commits the work done before it exits.
@@ -34,6 +39,8 @@ EXIT_STATUSES = {
     LOCKED: "another build holds the store's lock (without --wait, or --wait-timeout ran out)",
     DAMAGED: "the store is damaged (check names the problems; build refuses it without --repair), "
     "or check --files found entries whose files changed",
+    NO_ANSWER: "no answer: the query's filters or --max-distance leave no hit, or the store has no entry yet"
+    " (stderr says which)",
     INTERNAL: "internal error (a bug): run again with SHAPEIDX_DEBUG=1 for the traceback",
     INTERRUPTED: "interrupted (Ctrl-C or SIGTERM); a build commits its work first",
 }
@@ -43,8 +50,12 @@ from ..oserrors import environment_reason  # noqa: F401 (re-exported for the com
 
 def status_of(exc: BaseException) -> int:
     """The exit status for an exception that reached the command line."""
-    from ..errors import ShapeidxError, StoreDamagedError, StoreLockedError
+    from ..errors import NoAnswer, ShapeidxError, StoreDamagedError, StoreLockedError, UsageError
 
+    if isinstance(exc, UsageError):
+        return USAGE
+    if isinstance(exc, NoAnswer):
+        return NO_ANSWER
     if isinstance(exc, StoreLockedError):
         return LOCKED
     if isinstance(exc, StoreDamagedError):

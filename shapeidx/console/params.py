@@ -10,13 +10,13 @@ import math
 
 import click
 
-#: = shapeidx.distance.METRICS
-METRICS = ("all", "avg3", "avg4", "weighted", "combined", "combined-angle", "all-angle")
+from ..distance.metrics import METRICS, duplicate_metrics, metric_help  # noqa: F401 (the registry imports nothing heavy)
+from ..io.formats import FORMAT_NAMES as PART_FORMATS  # noqa: F401 (the list of formats imports nothing)
 #: = shapeidx.signing.parameters.DEFAULT_POINTS, DEFAULT_SEED
 DEFAULT_POINTS = 1024
 DEFAULT_SEED = 20020101
 #: = shapeidx.store.layout.DEFAULT_STORE, STORE_ENV
-DEFAULT_STORE = "shapeidx.h5"
+DEFAULT_STORE = "index.shapeidx"
 STORE_ENV = "SHAPEIDX_STORE"
 #: = shapeidx.index.commit.DEFAULT_COMMIT_INTERVAL, MERGE_AFTER; shapeidx.index.workers.DEFAULT_TIMEOUT
 DEFAULT_COMMIT_INTERVAL = 60.0

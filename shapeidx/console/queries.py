@@ -52,23 +52,3 @@ def _directory_inputs(folder: str) -> list[QueryInput]:
     if not walk.files:
         raise ShapeidxError(f"{folder}: no part files in this directory (nothing to query with)")
     return [QueryInput(os.path.join(folder, f.path), f.absolute, path=f.absolute) for f in walk.files]
-
-
-def hit_record(hit: dict, root: str | None) -> dict:
-    """A hit as the command prints it: ``path`` opens from anywhere, ``relative_path`` is the entry."""
-    relative = hit["path"]
-    absolute = os.path.join(root, relative) if root else relative
-    return {"rank": hit["rank"], "distance": hit["distance"], "path": absolute, "relative_path": relative}
-
-
-def result_block(query: QueryInput, hits: list[dict], metric: str, store: Path, root: str | None) -> dict:
-    """The JSON object of one query (docs/cli.md documents every field)."""
-    return {
-        "query": query.label,
-        "query_path": query.path,
-        "entry": query.entry,
-        "metric": metric,
-        "store": str(Path(store).resolve()),
-        "root": root,
-        "hits": [hit_record(hit, root) for hit in hits],
-    }

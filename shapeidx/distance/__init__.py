@@ -1,43 +1,25 @@
 """Distances between signatures.
 
+    metrics.py   the registry: one record per metric (name, label, what it reads, its formula,
+                 whether it can be bounded, its embedding, its duplicate thresholds)
     paper.py     the paper's D and its four distances: ALL, AvgOf3, AvgOf4, Weighted (3.2.5)
-    combined.py  the learned combined distances (combined, combined-angle), every metric from per-pair features
-    bank.py      one query against many signatures at once (what ranking a store runs)
+    combined.py  the learned combined distances (combined, combined-angle), all-angle, and every
+                 metric from per-pair features (metric_values)
+    bank.py      one query against many signatures at once (the arithmetic a store ranking runs)
     scale.py     --scale invariant | sensitive: a size band that keeps parts of other sizes apart
+
+Names load on first use: the command line reads the registry without importing numpy.
 """
 
-from .bank import METRIC_HISTOGRAMS, HistogramBank, distances_to_many, features_to_many
-from .combined import (
-    ANGLE_FEATURES,
-    ANGLE_METRICS,
-    FEATURES,
-    LEARNED,
-    METRICS,
-    combined_weights,
-    compare,
-    features_between,
-    learned_weights,
-    metric_values,
-)
-from .paper import MIN_AGREEMENT, PAPER_METRICS, histogram_distance, paper_distances
+from .._lazy import attach
 
-__all__ = [
-    "ANGLE_FEATURES",
-    "ANGLE_METRICS",
-    "LEARNED",
-    "learned_weights",
-    "FEATURES",
-    "METRICS",
-    "METRIC_HISTOGRAMS",
-    "MIN_AGREEMENT",
-    "PAPER_METRICS",
-    "HistogramBank",
-    "combined_weights",
-    "compare",
-    "features_between",
-    "histogram_distance",
-    "metric_values",
-    "paper_distances",
-    "distances_to_many",
-    "features_to_many",
-]
+_NAMES = {
+    **dict.fromkeys(["Metric", "REGISTRY", "METRICS", "PAPER_METRICS", "ANGLE_METRICS", "BOUNDED_METRICS", "metric",
+                     "label", "duplicate_metrics"], ".metrics"),
+    **dict.fromkeys(["MIN_AGREEMENT", "histogram_distance"], ".paper"),
+    **dict.fromkeys(["ANGLE_FEATURES", "FEATURES", "LEARNED", "combined_weights", "compare", "features_between",
+                     "learned_weights", "metric_values"], ".combined"),
+    **dict.fromkeys(["METRIC_HISTOGRAMS", "HistogramBank", "distances_to_many", "features_to_many"], ".bank"),
+}
+__all__ = sorted(_NAMES)
+__getattr__, __dir__ = attach(__name__, _NAMES)

@@ -12,21 +12,13 @@ import numpy as np
 from ..ragged import offsets_of
 from ..signing.histogram import Signature
 from ..signing.parameters import HISTOGRAMS
-from .combined import ANGLE_METRICS, angle_features, class_scales, metric_values, signature_means
 from ..signing.angles import angle_probabilities
-from .paper import PAPER_METRICS
+from .combined import angle_features, class_scales, metric_values, signature_means
+from .metrics import ANGLE_METRICS, PAPER_METRICS, REGISTRY
 
 
-#: Histograms each metric reads: ranking skips the others (Weighted never needs ALL).
-METRIC_HISTOGRAMS = {
-    "all": ("all",),
-    "avg3": HISTOGRAMS[1:],
-    "avg4": HISTOGRAMS,
-    "weighted": HISTOGRAMS[1:],
-    "combined": HISTOGRAMS,
-    "combined-angle": (),
-    "all-angle": ("all",),
-}
+#: Histograms each metric reads (its registry record's): ranking skips the others.
+METRIC_HISTOGRAMS = {name: m.histograms for name, m in REGISTRY.items()}
 #: Values per working block of :meth:`HistogramBank.distances`: small enough to stay in the
 #: CPU cache, so each stored probability is read from memory once per query.
 BLOCK_VALUES = 1 << 15
@@ -113,12 +105,12 @@ class HistogramBank:
         for bins, rows, counts, totals in groups:
             width = max(bins, len(query_p))
             if width:
-                out[rows] = _padded_l1(counts, totals, query_p, width, verify) / width
+                out[rows] = padded_l1(counts, totals, query_p, width, verify) / width
             elif verify and np.any(totals != 1):
                 raise ValueError("histogram counts disagree with their totals")
 
 
-def _padded_l1(counts: np.ndarray, totals: np.ndarray, query_p: np.ndarray, width: int, verify: bool = False) -> np.ndarray:
+def padded_l1(counts: np.ndarray, totals: np.ndarray, query_p: np.ndarray, width: int, verify: bool = False) -> np.ndarray:
     """Row sums of ``|counts / total - query|`` over ``width`` bins, both zero-padded, in
     blocks small enough to stay in the CPU cache (``verify``: see :meth:`HistogramBank.distances_into`)."""
     bins = counts.shape[1]

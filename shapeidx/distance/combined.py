@@ -38,10 +38,9 @@ import numpy as np
 from ..signing.angles import ANGLE_HISTOGRAMS, angle_probabilities
 from ..signing.histogram import Signature
 from ..signing.parameters import HISTOGRAMS
-from .paper import PAPER_METRICS, histogram_distance, paper_distances
+from .metrics import ANGLE_METRICS, METRICS, REGISTRY, metric
+from .paper import histogram_distance
 
-#: Every metric, by the name ``--metric`` takes.
-METRICS = PAPER_METRICS + ("combined", "combined-angle", "all-angle")
 #: The per-pair quantities all metrics are made of, in the order of the combined weights.
 FEATURES = tuple(f"d_{h}" for h in HISTOGRAMS) + tuple(f"gap_{c}" for c in HISTOGRAMS[1:]) + tuple(
     f"scale_{c}" for c in HISTOGRAMS[1:]
@@ -49,14 +48,9 @@ FEATURES = tuple(f"d_{h}" for h in HISTOGRAMS) + tuple(f"gap_{c}" for c in HISTO
 #: Distances of the normal-angle histograms (:mod:`shapeidx.signing.angles`), per histogram:
 #: L1 (``angle_*``, all-angle's) and Hellinger (``hellinger_angle_*``, combined-angle's).
 ANGLE_FEATURES = tuple(f"angle_{h}" for h in ANGLE_HISTOGRAMS) + tuple(f"hellinger_angle_{h}" for h in ANGLE_HISTOGRAMS)
-#: The learned metrics: their features, in the order of their weights, and their weights' file.
-LEARNED = {
-    "combined": (FEATURES, "combined_metric.json"),
-    "combined-angle": (tuple(f for f in FEATURES if not f.startswith("d_")) + ANGLE_FEATURES[len(ANGLE_HISTOGRAMS) :],
-                       "combined_angle_metric.json"),
-}
-#: Metrics that need the normal-angle histograms.
-ANGLE_METRICS = ("combined-angle", "all-angle")
+#: The learned metrics: their features, in the order of their weights, and their weights' file
+#: (from the registry, :mod:`shapeidx.distance.metrics`).
+LEARNED = {name: (m.features, m.learned) for name, m in REGISTRY.items() if m.learned}
 #: all-angle = D(ALL) + this times the L1 distance of the ALL angle histograms. Chosen on half A
 #: of the KiCad 2017 / KiCad 6 twin pairs (scripts/twin_study.py; docs/twins.md gives half B).
 ALL_ANGLE_WEIGHT = 5e-4
@@ -97,23 +91,38 @@ def signature_means(signature: Signature) -> np.ndarray:
 
 
 def metric_values(features: dict, metrics=METRICS) -> dict:
-    """Metrics from per-pair features (numbers, or arrays with one value per pair)."""
-    d = {h: features[f"d_{h}"] for h in HISTOGRAMS}
-    gap = {c: features[f"gap_{c}"] for c in HISTOGRAMS[1:]}
-    values = paper_distances(d, gap)
-    if "all-angle" in metrics:
-        if "angle_all" not in features:
-            raise ValueError("metric all-angle needs the normal-angle histograms, which are unknown here")
-        values["all-angle"] = features["d_all"] + ALL_ANGLE_WEIGHT * features["angle_all"]
-    for metric in LEARNED:
-        if metric in metrics:
-            names, _ = LEARNED[metric]
-            missing = [name for name in names if name not in features]
-            if missing:
-                raise ValueError(f"metric {metric} needs the normal-angle histograms, which are unknown here")
-            weights = learned_weights(metric)["weights"]
-            values[metric] = sum(weights[name] * features[name] for name in names)
-    return {m: values[m] for m in metrics}
+    """Metrics from per-pair features (numbers, or arrays with one value per pair): each by
+    its registry record's formula."""
+    values = {}
+    for name in metrics:
+        record = metric(name)
+        missing = [f for f in record.features if f not in features]
+        if missing:
+            what = "the normal-angle histograms" if record.angles else f"the features {', '.join(missing)}"
+            raise ValueError(f"metric {name} needs {what}, which are unknown here")
+        values[name] = record.value(features)
+    return values
+
+
+def _learned(name: str, features: dict):
+    weights = learned_weights(name)["weights"]
+    return sum(weights[f] * features[f] for f in REGISTRY[name].features)
+
+
+def combined(features: dict):
+    """**combined**: the learned weights of ``combined_metric.json`` over :data:`FEATURES`."""
+    return _learned("combined", features)
+
+
+def combined_angle(features: dict):
+    """**combined-angle**: the learned weights of ``combined_angle_metric.json`` over the class
+    features and the angle histograms' Hellinger distances."""
+    return _learned("combined-angle", features)
+
+
+def all_angle(features: dict):
+    """**all-angle**: ``D(ALL) +`` :data:`ALL_ANGLE_WEIGHT` ``x`` the L1 distance of the ALL angle histograms."""
+    return features["d_all"] + ALL_ANGLE_WEIGHT * features["angle_all"]
 
 
 @lru_cache(maxsize=None)

@@ -24,8 +24,6 @@ import numpy as np
 
 from ..signing.parameters import HISTOGRAMS
 
-#: The distances Ip et al. (2002) define.
-PAPER_METRICS = ("all", "avg3", "avg4", "weighted")
 #: Floor of ``1 - Diff`` in the Weighted distance (weights are at most its inverse).
 MIN_AGREEMENT = 1e-3
 
@@ -41,16 +39,26 @@ def histogram_distance(p: np.ndarray, q: np.ndarray) -> float:
     return float(np.abs(padded[0] - padded[1]).sum() / n)
 
 
-def paper_distances(d: dict, fraction_gap: dict) -> dict:
-    """The four distances from per-histogram ``D`` values and per-class ``|%A - %B|``.
+# The four formulas, each over per-pair features (``d_H``: ``D`` of histogram H; ``gap_C``:
+# ``|%A - %B|`` of class C). They work element-wise: numbers, or arrays with one value per pair.
 
-    Works element-wise, so the values may be numbers or numpy arrays (one per store entry).
-    """
-    classes = HISTOGRAMS[1:]
-    weighted = sum(d[c] / np.maximum(1.0 - fraction_gap[c], MIN_AGREEMENT) for c in classes)
-    return {
-        "all": d["all"],
-        "avg3": sum(d[c] for c in classes) / 3.0,
-        "avg4": sum(d[h] for h in HISTOGRAMS) / 4.0,
-        "weighted": weighted,
-    }
+
+def all_distance(f: dict):
+    """**ALL** (plain D2): ``D(all_A, all_B)``."""
+    return f["d_all"]
+
+
+def avg3(f: dict):
+    """**AvgOf3**: the mean ``D`` of IN, OUT and MIXED."""
+    return sum(f[f"d_{c}"] for c in HISTOGRAMS[1:]) / 3.0
+
+
+def avg4(f: dict):
+    """**AvgOf4**: the mean ``D`` of ALL, IN, OUT and MIXED."""
+    return sum(f[f"d_{h}"] for h in HISTOGRAMS) / 4.0
+
+
+def weighted(f: dict):
+    """**Weighted**: ``sum_c D(c_A, c_B) / (1 - |%c_A - %c_B|)``, the agreement floored at
+    :data:`MIN_AGREEMENT`."""
+    return sum(f[f"d_{c}"] / np.maximum(1.0 - f[f"gap_{c}"], MIN_AGREEMENT) for c in HISTOGRAMS[1:])

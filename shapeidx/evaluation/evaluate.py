@@ -2,8 +2,9 @@
 
 A labelled collection is a folder whose immediate sub-folders are the classes. Its store is
 built (or brought up to date) like ``shapeidx build`` does, then every model is ranked against
-all the others with the same store reader and distance code as ``shapeidx query``
-(:func:`shapeidx.distance.features_to_many`), and :mod:`shapeidx.evaluation.retrieval` scores the rankings.
+all the others through the search road of ``shapeidx query`` (its per-pair features:
+:func:`shapeidx.search.distances.entry_features`), and :mod:`shapeidx.evaluation.retrieval`
+scores the rankings.
 """
 
 from __future__ import annotations
@@ -13,12 +14,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..distance import ANGLE_FEATURES, ANGLE_METRICS, FEATURES, LEARNED, METRICS, metric_values, features_to_many
+from ..distance import ANGLE_FEATURES, ANGLE_METRICS, FEATURES, LEARNED, METRICS, metric_values
 from ..errors import ShapeidxError
+from ..search.distances import entry_features
+from ..signing.parameters import HISTOGRAMS
 from .learn import cross_validate
-from ..ranking import SignatureTable
 from .retrieval import SCORES, retrieval_scores
-from ..store import StoreReader
 
 
 @dataclass
@@ -71,7 +72,7 @@ def check_labelled_tree(directory, follow_outside_links: bool = False) -> None:
         )
 
 
-def in_sample(reader: StoreReader, models: int, classes: int, metric: str = "combined") -> dict | None:
+def in_sample(reader, models: int, classes: int, metric: str = "combined") -> dict | None:
     """``{"learned_on": name}`` when the combined metric's weights were learned on this collection.
 
     Judged by the indexed folder's name, or its size (models and classes) equal to the
@@ -95,24 +96,35 @@ def class_of(path: str) -> str | None:
     return head if sep else None
 
 
-def labelled_features(reader: StoreReader) -> LabelledFeatures:
-    """Features between all labelled ok entries, through the ranking code of ``query``."""
-    table = SignatureTable.load(reader)
-    classes = [class_of(str(p)) for p in table.paths]
-    chosen = np.array([i for i, c in enumerate(classes) if c is not None], dtype=np.int64)
-    with_angles = table.angles is not None and np.isfinite(table.angles[chosen]).all()
+def labelled_features(store) -> LabelledFeatures:
+    """Features between all labelled ok entries (sorted by path), through the search road of ``query``.
+
+    ``store``: an open :class:`~shapeidx.search.Searcher`, or an open store reader (its store
+    is searched).
+    """
+    from ..search import Searcher
+
+    if not isinstance(store, Searcher):
+        with Searcher(store.path) as searcher:
+            return labelled_features(searcher)
+    searcher = store
+    paths = searcher.metadata_column("path")
+    order = np.argsort(paths.astype(str), kind="stable")
+    classes = [class_of(str(paths[i])) for i in order]
+    chosen = order[[c is not None for c in classes]].astype(np.int64)
+    angle_p = searcher.view.angle_probabilities(chosen)
+    with_angles = np.isfinite(angle_p).all()
     names = FEATURES + (ANGLE_FEATURES if with_angles else ())
     features = np.zeros((len(names), len(chosen), len(chosen)))
-    for k, i in enumerate(chosen):
-        values = features_to_many(reader.signature(int(table.rows[i])), table.banks, table.fractions, table.means,
-                                  angles=table.angles if with_angles else None)
+    for k, i in enumerate(chosen.tolist()):
+        values = entry_features(searcher.view, searcher.signature_at(i), HISTOGRAMS, chosen, with_angles)
         for f, name in enumerate(names):
-            features[f, k] = values[name][chosen]
+            features[f, k] = values[name]
     return LabelledFeatures(
-        paths=table.paths[chosen],
-        labels=np.array([classes[i] for i in chosen], dtype=object),
+        paths=paths[chosen],
+        labels=np.array([class_of(str(paths[i])) for i in chosen], dtype=object),
         features=features[: len(FEATURES)],
-        unlabelled=len(table.paths) - len(chosen),
+        unlabelled=len(paths) - len(chosen),
         angle_features=features[len(FEATURES) :] if with_angles else None,
     )
 
@@ -134,12 +146,12 @@ def per_class_scores(scores: dict, labels: np.ndarray) -> dict:
     }
 
 
-def evaluate(reader: StoreReader, metrics=METRICS, per_class: bool = False, cross_validated: bool = False) -> dict:
+def evaluate(reader, metrics=METRICS, per_class: bool = False, cross_validated: bool = False) -> dict:
     """Retrieval scores of each metric over the labelled entries of a store.
 
     Parameters
     ----------
-    reader : StoreReader
+    reader : an open :class:`~shapeidx.search.Searcher`
         A store whose entries' first folders are their classes.
     metrics : iterable of str
     per_class : bool

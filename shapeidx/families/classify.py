@@ -15,7 +15,6 @@ from collections import defaultdict
 import numpy as np
 
 from ..errors import ShapeidxError
-from ..distance.scale import apply_scale
 
 #: Voters (measured by leave-one-out on kicad6, docs/results.md).
 DEFAULT_K = 3
@@ -94,19 +93,24 @@ def leave_one_out(matrix: np.ndarray, labels: np.ndarray, k: int = DEFAULT_K) ->
     return {"accuracy": float(correct.mean()) if n else float("nan"), "predicted": predicted, "confidence": confidence}
 
 
-def classify_parts(reader, parts, labels: np.ndarray, k: int = DEFAULT_K, metric: str = DEFAULT_METRIC,
-                   scale: str = "invariant", threads: int = 1) -> list[dict]:
-    """Classify each part (a path, or an entry path of the store) by the store's labelled entries.
+def classify_parts(searcher, parts, labels: np.ndarray, k: int = DEFAULT_K, metric: str = DEFAULT_METRIC,
+                   filters=None, threads: int = 1) -> list[dict]:
+    """Classify each part (a file, or an entry path of the store) by the store's labelled entries.
+
+    The voters are found by the one search road (:class:`~shapeidx.search.Searcher`): the
+    ``k + 1`` nearest labelled entries that ``filters`` keep (``--where``, ``--scale``), the
+    part's own entry left out.
 
     Parameters
     ----------
-    reader : StoreReader
+    searcher : an open :class:`~shapeidx.search.Searcher`
     parts : list of str
         Files to sign (with the store's parameters), or relative paths of store entries. A
         part that is itself in the store does not vote for itself.
-    labels : (len(reader),) object
-        Label of every store entry (None: not a voter), in the reader's order.
-    k, metric, scale : see :func:`vote` and :mod:`shapeidx.distance.scale`
+    labels : (len(searcher),) object
+        Label of every ranked entry (None: not a voter), in the searcher's order.
+    k, metric : see :func:`vote`
+    filters : :class:`~shapeidx.search.Filters`, optional
 
     Returns
     -------
@@ -115,42 +119,38 @@ def classify_parts(reader, parts, labels: np.ndarray, k: int = DEFAULT_K, metric
         (``path``, ``label``, ``distance``, ``weight`` of each voter).
     """
     import os
+    from dataclasses import replace
 
-    from ..distance import METRIC_HISTOGRAMS
-    from ..ranking import SignatureTable, entry_path_of, signature_with_params
+    from ..search import Filters
 
-    table = SignatureTable.load(reader, METRIC_HISTOGRAMS[metric])
-    voter_labels = labels[table.rows]
-    is_voter = np.array([lab is not None for lab in voter_labels], dtype=bool)
+    is_voter = np.array([lab is not None for lab in labels], dtype=bool)
     if not is_voter.any():
         raise ShapeidxError(
-            f"store {reader.path} has no labelled entries (no part lies in a folder deep enough for the labels);"
+            f"store {searcher.store} has no labelled entries (no part lies in a folder deep enough for the labels);"
             " give --labels FILE or a smaller --label-depth"
         )
+    filters = replace(filters or Filters(), exclude_self=True)
+    by_path = dict(zip(searcher.metadata_column("path"), labels))
     results = []
     for part in parts:
-        own = table.index_of(part)  # a path of the store
-        if own is None and os.path.exists(part):  # a file, perhaps inside the indexed folder
-            inside = entry_path_of(part, reader)
-            own = table.index_of(inside) if inside is not None else None
-        if own is not None:
-            signature = reader.signature(int(table.rows[own]))
-        elif os.path.exists(part):
-            signature = signature_with_params(part, reader.params, threads)
+        if searcher.view.find(part) is not None:  # a path of the store
+            query = searcher.query_of_entry(part)
+        elif os.path.exists(part):  # a file, perhaps inside the indexed folder
+            query = searcher.query_of_part(part, threads=threads)
         else:
-            raise ShapeidxError(f"{part}: no such file, and no entry of that path in {reader.path}")
-        distances = table.distances(signature, metric)
-        distances = apply_scale(distances, signature.histograms["all"].mean, table.means[:, 0], scale)
-        distances = np.where(is_voter, distances, np.inf)
-        if own is not None:
-            distances[own] = np.inf
+            raise ShapeidxError(f"{part}: no such file, and no entry of that path in {searcher.store}")
+        answer = searcher.search(query, k + 1, metric, filters, among=is_voter,
+                                 among_reason="no labelled entry is left to vote")
+        hits = answer.hits
+        distances = np.array([hit.distance for hit in hits], dtype=np.float64)
+        voter_labels = np.array([by_path[hit.relative_path] for hit in hits], dtype=object)
         result = vote(distances, voter_labels, k)
         results.append({
             "path": part,
             "label": result["label"],
             "confidence": result["confidence"],
             "neighbours": [
-                {"path": str(table.paths[i]), "label": voter_labels[i], "distance": float(distances[i]), "weight": float(w)}
+                {"path": hits[i].relative_path, "label": voter_labels[i], "distance": float(distances[i]), "weight": float(w)}
                 for i, w in zip(result["voters"], result["weights"])
             ],
         })

@@ -105,7 +105,9 @@ def _clusters_below(tree: np.ndarray, cut: float) -> np.ndarray:
 
 def _short(path: str) -> str:
     name = Path(path).name
-    for suffix in (".gz", ".wrl", ".stl", ".step", ".stp", ".iges", ".igs", ".obj", ".off", ".ply", ".wrz"):
+    from ..io.formats import PART_SUFFIXES
+
+    for suffix in (".gz",) + PART_SUFFIXES:
         if name.lower().endswith(suffix):
             name = name[: -len(suffix)]
     return name if len(name) <= LABEL_CHARS else "..." + name[-(LABEL_CHARS - 3):]

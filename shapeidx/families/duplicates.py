@@ -37,8 +37,6 @@ neighbours' neighbours. The work grows as N k^2, not N^2. Nothing is ever delete
 
 from __future__ import annotations
 
-import json
-from importlib import resources
 
 import numpy as np
 
@@ -66,16 +64,14 @@ FINGERPRINT_SAME = 0.02
 FINGERPRINT_NEAR = 0.06
 
 
-def _thresholds() -> dict:
-    return json.loads(resources.files(__package__).joinpath("thresholds.json").read_text())
-
-
 def thresholds(metric: str) -> dict:
-    """``{"same": d, "near": d}`` for ``metric`` (from thresholds.json, see the module docstring)."""
-    data = _thresholds()["thresholds"]
-    if metric not in data:
-        raise ShapeidxError(f"no duplicate thresholds measured for metric {metric!r} (have: {', '.join(data)})")
-    return data[metric]
+    """``{"same": d, "near": d}`` for ``metric`` (its registry record's, see the module docstring)."""
+    from ..distance.metrics import REGISTRY, duplicate_metrics
+
+    found = REGISTRY[metric].duplicate_thresholds if metric in REGISTRY else None
+    if found is None:
+        raise ShapeidxError(f"no duplicate thresholds measured for metric {metric!r} (have: {', '.join(duplicate_metrics())})")
+    return found
 
 
 def aspect_gap(extents_a: np.ndarray, extents_b: np.ndarray) -> np.ndarray:

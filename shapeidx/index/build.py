@@ -57,6 +57,8 @@ class BuildOptions:
     scheduler: str | None = None
     #: Where the cluster's workers see the tree, when not at the same path.
     worker_root: str | None = None
+    #: A CSV of metadata (a path column and any others) joined to the entries (shapeidx.store.metadata).
+    metadata: str | None = None
 
 
 @dataclass
@@ -75,6 +77,9 @@ class BuildSummary:
     store_failed: int = 0
     store_bytes: int = 0
     failures: list = field(default_factory=list)  # (path, reason) of this build
+    #: Rows of the metadata table this build read (None: no --metadata), and whether it changed.
+    metadata_rows: int | None = None
+    metadata_changed: bool = False
 
     def line(self) -> str:
         return f"{self.indexed} indexed, {self.unchanged} unchanged, {self.removed} removed, {self.failed} failed"
@@ -94,6 +99,8 @@ class BuildSummary:
             "seconds": round(self.seconds, 3),
             "store": {"path": str(store), "root": self.root, "ok": self.store_ok, "failed": self.store_failed, "bytes": self.store_bytes},
             "failures": [{"path": path, "reason": reason} for path, reason in self.failures],
+            "metadata": None if self.metadata_rows is None else {"rows": self.metadata_rows,
+                                                                  "changed": self.metadata_changed},
         }
 
 
@@ -102,7 +109,7 @@ def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
     existing = None
     if store.exists():
         try:
-            with open_store(store) as reader:
+            with open_store(store, skip_damaged=True) as reader:  # a damaged or missing segment is redone
                 existing = reader.params
         except StoreDamagedError:
             if not options.repair:
@@ -118,14 +125,19 @@ def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
 
 
 def _params_of_damaged(store: Path) -> StoreParams | None:
-    """The parameters a damaged store was built with, if its attributes can still be read."""
+    """The parameters a damaged store was built with, if the attributes of its main file or
+    of one of its segments can still be read."""
     import h5py
 
-    try:
-        with h5py.File(store, "r") as f:
-            return StoreParams.from_attrs(f.attrs)
-    except (OSError, KeyError, ValueError):
-        return None
+    from ..store.files import batch_files, main_file
+
+    for path in [main_file(store)] + [p for _, p in reversed(batch_files(store))]:
+        try:
+            with h5py.File(path, "r") as f:
+                return StoreParams.from_attrs(f.attrs)
+        except (OSError, KeyError, ValueError):
+            continue
+    return None
 
 
 def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
@@ -144,6 +156,11 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     root = Path(root).resolve()
     check_tree(given, root)
     store = Path(store)
+    if not options.dry_run:
+        from ..store.convert import convert_one_file_store
+
+        if convert_one_file_store(store, options.wait, reporter.waiting, options.wait_timeout):
+            reporter.warning(f"converted {store} from the one-file layout into a store directory (renames only)")
     params = resolve_params(store, options)
     summary = BuildSummary(root=str(root))
     if options.worker_root and not options.scheduler:
@@ -152,13 +169,16 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         return _dry_run(root, store, params, options, reporter, summary)
     walk = walk_parts(root, options.follow_outside_links)
     _refuse_empty(given, walk)
+    table = _metadata_table(options, root, walk, reporter)  # a bad table is refused before the store changes
     with _sigterm_as_interrupt(), StoreWriter(store, params, root, options.wait, reporter.waiting,
                                               options.wait_timeout, options.repair, reporter.warning) as writer:
         if options.wait:  # walk again: the tree may have changed while another build held the lock
             walk = walk_parts(root, options.follow_outside_links)
         for warning in walk.warnings:
             reporter.warning(warning)
-        with open_store(store) as reader:
+        if table is not None:
+            summary.metadata_rows, summary.metadata_changed = len(table), _store_metadata(store, table)
+        with open_store(store, skip_damaged=True) as reader:  # the writer dropped what is damaged
             plan = make_plan(walk, reader, options)
         summary.found, summary.unchanged, summary.planned = plan.found, plan.unchanged, len(plan.tasks)
         reporter.planned(plan)
@@ -180,9 +200,40 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         finally:
             pool.close()
         committer.finish()
+        writer.facts = {"indexed": summary.indexed, "failed": summary.failed, "removed": summary.removed,
+                        "unchanged": summary.unchanged}
     summary.seconds = time.monotonic() - started
     _store_counts(store, summary)
     return summary
+
+
+def _metadata_table(options: BuildOptions, root: Path, walk, reporter):
+    """The ``--metadata`` table read and checked (None without it), with a warning for rows
+    that name no part file of the tree."""
+    if not options.metadata:
+        return None
+    from ..store.metadata import read_csv_table
+
+    table, warnings = read_csv_table(options.metadata, root)
+    for warning in warnings:
+        reporter.warning(warning)
+    known = {f.path for f in walk.files}
+    strays = [p for p in table.paths if p not in known]
+    if strays:
+        reporter.warning(f"--metadata {options.metadata}: {len(strays)} of its {len(table)} rows name no part file of"
+                         f" {root} (first: {strays[0]}); they are kept and match no entry")
+    return table
+
+
+def _store_metadata(store: Path, table) -> bool:
+    """Write the table into the store (the lock is held) unless it holds the same; True if it changed."""
+    from ..store.metadata import load_table, write_table
+
+    current = load_table(store)
+    if current is not None and current.sha256 == table.sha256 and current.source == table.source:
+        return False
+    write_table(store, table)
+    return True
 
 
 def check_tree(given, root: Path) -> None:
@@ -222,7 +273,10 @@ def _dry_run(root: Path, store: Path, params: StoreParams, options, reporter, su
     walk = walk_parts(root, options.follow_outside_links)
     for warning in walk.warnings:
         reporter.warning(warning)
-    if store.exists():
+    table = _metadata_table(options, root, walk, reporter)
+    if table is not None:
+        summary.metadata_rows = len(table)
+    if store.exists() or store.with_name(store.name + ".converting").exists():
         with open_store(store) as reader:
             check_params(reader, params)
             check_root(reader, root)

@@ -54,8 +54,7 @@ class Committer:
         due = time.monotonic() - self.last >= self.interval
         if len(self.batch) >= BATCH_ENTRIES or (due and len(self.batch)):
             self.commit()
-            if self.writer.pending_batches >= self.merge_after:
-                self.writer.compact()
+            if self.writer.pending_batches >= self.merge_after and self.writer.compact():
                 self.reporter.merged()
 
     def commit(self) -> None:
@@ -67,6 +66,5 @@ class Committer:
 
     def finish(self) -> None:
         self.commit()
-        if self.writer.pending_batches:
-            self.writer.compact()
+        if self.writer.checkpoint():  # the journal folded into the main file once it is large enough
             self.reporter.merged()

@@ -20,7 +20,7 @@ import time
 
 import click
 
-from ..console.text import plain_reason, timestamp
+from ..errors import plain_reason, timestamp
 from ..errors import printable
 
 #: Seconds between progress lines when stderr is not a terminal.

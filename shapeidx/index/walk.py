@@ -87,7 +87,7 @@ def _inside(path: str, real_root: str) -> bool:
 
 
 def _printable(name: str) -> str:
-    from ..console.text import printable
+    from ..errors import printable
 
     return printable(name)
 

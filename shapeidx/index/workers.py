@@ -26,7 +26,6 @@ So no file, however hostile, stops a build, and one bad file costs only itself.
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import multiprocessing
 import os
 import signal
@@ -36,12 +35,12 @@ from multiprocessing.connection import wait
 from pathlib import Path
 
 from ..errors import LoadError, OutOfMemory, ShapeidxError
+from ..io.base import file_hash
 from ..store import Entry, StoreParams
 
 #: Default per-file time limit, seconds: ample for a part of millions of triangles at 1024
 #: points, short enough that a pathological file cannot stall a nightly run for long.
 DEFAULT_TIMEOUT = 600.0
-_HASH_CHUNK = 1 << 20
 #: Upper bound of the default per-worker memory limit.
 MAX_DEFAULT_MEMORY = 8 << 30
 _REASON_LIMIT = 300
@@ -75,18 +74,9 @@ class Outcome:
     replace_worker: bool = False
 
 
-def file_hash(path: str) -> str:
-    """SHA-256 of a file's bytes, as 64 hex digits."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(_HASH_CHUNK):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
 def one_line(text: str) -> str:
     """A reason on one line, of bounded length."""
-    from ..console.text import plain_reason
+    from ..errors import plain_reason
 
     text = plain_reason(text)  # no b'...' reprs, no control characters
     return text if len(text) <= _REASON_LIMIT else text[: _REASON_LIMIT - 3] + "..."

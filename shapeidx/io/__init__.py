@@ -22,7 +22,7 @@ _NAMES = {
     **dict.fromkeys(
         ["FORMATS", "check_polygon_mesh", "format_of", "load", "load_bytes", "register", "suffixes"], ".registry"
     ),
-    **dict.fromkeys(["Format", "LoadLimits", "PolygonMesh", "read_bytes"], ".base"),
+    **dict.fromkeys(["Format", "LoadLimits", "PolygonMesh", "file_hash", "read_bytes"], ".base"),
 }
 __all__ = sorted(_NAMES)
 __getattr__, __dir__ = attach(__name__, _NAMES)

@@ -81,6 +81,17 @@ class LoadLimits:
             )
 
 
+def file_hash(path: str | os.PathLike) -> str:
+    """SHA-256 of a file's bytes, as 64 hex digits (what a store entry records)."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
 def _binary_size(n: int) -> str:
     return f"{n / (1 << 30):.1f} GiB" if n >= 1 << 30 else f"{n / (1 << 20):.1f} MiB"
 
@@ -145,6 +156,8 @@ class PolygonMesh:
         Short name of what was read: ``stl``, ``obj``, ``off``, ``ply``, ``vrml1``, ``vrml2``.
     warnings : list of str
         Things the loader repaired or skipped, one sentence each.
+    metadata : dict
+        What the file says about itself (:mod:`shapeidx.io.metadata`: ``title``, ``product_id``).
     """
 
     vertices: np.ndarray
@@ -152,6 +165,7 @@ class PolygonMesh:
     face_indices: np.ndarray
     format: str
     warnings: list[str] = field(default_factory=list)
+    metadata: dict = field(default_factory=dict)
 
     @classmethod
     def from_triangles(cls, vertices, triangles, format: str, warnings=None) -> "PolygonMesh":

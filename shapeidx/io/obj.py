@@ -6,6 +6,7 @@ import numpy as np
 
 from ..errors import LoadError
 from .base import Format, LoadLimits, PolygonMesh
+from .formats import SUFFIXES
 from .text import decode_text
 
 
@@ -56,4 +57,4 @@ def _all_numbers(fields: list[str]) -> bool:
     return True
 
 
-FORMATS = [Format("obj", "OBJ", (".obj",), read_obj)]
+FORMATS = [Format("obj", "OBJ", SUFFIXES["obj"], read_obj)]

@@ -6,6 +6,7 @@ import numpy as np
 
 from ..errors import LoadError
 from .base import Format, LoadLimits, PolygonMesh, head_of
+from .formats import SUFFIXES
 from .text import decode_text
 
 
@@ -56,4 +57,4 @@ def read_off(path, data: bytes, limits: LoadLimits | None = None) -> PolygonMesh
     return PolygonMesh(points.reshape(-1, 3), np.array(sizes, dtype=np.int64), np.array(corners, dtype=np.int64), "off", warnings)
 
 
-FORMATS = [Format("off", "OFF", (".off",), read_off, sniff=lambda data: head_of(data)[:3] == b"OFF" or head_of(data)[:4] in (b"COFF", b"NOFF"))]
+FORMATS = [Format("off", "OFF", SUFFIXES["off"], read_off, sniff=lambda data: head_of(data)[:3] == b"OFF" or head_of(data)[:4] in (b"COFF", b"NOFF"))]

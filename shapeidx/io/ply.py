@@ -8,6 +8,7 @@ import numpy as np
 
 from ..errors import LoadError
 from .base import Format, LoadLimits, PolygonMesh, head_of
+from .formats import SUFFIXES
 
 _TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -260,4 +261,4 @@ def _need(path, data: bytes, offset: int, size: int, element: _Element) -> int:
     return offset + size
 
 
-FORMATS = [Format("ply", "PLY", (".ply",), read_ply, sniff=lambda data: head_of(data)[:3].lower() == b"ply")]
+FORMATS = [Format("ply", "PLY", SUFFIXES["ply"], read_ply, sniff=lambda data: head_of(data)[:3].lower() == b"ply")]

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import LoadError, OutOfMemory
 from . import obj, off, ply, step, stl, vrml
+from .formats import FORMAT_NAMES
 from .base import GZIP_MAGIC, Format, LoadLimits, PolygonMesh, gunzip_bounded, read_bytes, without_float_warnings
 
 __all__ = [
@@ -39,6 +40,7 @@ def register(fmt: Format) -> None:
 for _module in (stl, obj, off, ply, vrml, step):
     for _format in _module.FORMATS:
         register(_format)
+assert tuple(FORMATS) == FORMAT_NAMES, "every format of shapeidx.io.formats has its reader, in the same order"
 
 
 def suffixes() -> list[str]:
@@ -113,6 +115,10 @@ def _read(data: bytes, path: Path, file_type: str | None, limits: LoadLimits) ->
     except Exception as exc:  # a reader bug must still end as one line, never a traceback
         raise LoadError(path, f"cannot read ({type(exc).__name__}: {exc})") from None
     check_polygon_mesh(path, mesh, limits)
+    if not mesh.metadata:
+        from .metadata import file_metadata
+
+        mesh.metadata = file_metadata(data, mesh.format if mesh.format.startswith("vrml") else fmt.name)
     return mesh
 
 

@@ -42,6 +42,7 @@ import numpy as np
 
 from ..errors import LoadError
 from .base import Format, LoadLimits, PolygonMesh, read_bytes
+from .formats import SUFFIXES
 from .faceting import Faceting
 
 __all__ = ["Faceting", "read_step", "sniff_solid_model", "faceting_report"]
@@ -431,6 +432,6 @@ def chordal_error(shape, rng) -> tuple[float, int]:
 
 
 FORMATS = [
-    Format("step", "STEP", (".step", ".stp"), read_step, sniff=lambda data: sniff_solid_model(data) == "step"),
-    Format("iges", "IGES", (".iges", ".igs"), read_step, sniff=lambda data: sniff_solid_model(data) == "iges"),
+    Format("step", "STEP", SUFFIXES["step"], read_step, sniff=lambda data: sniff_solid_model(data) == "step"),
+    Format("iges", "IGES", SUFFIXES["iges"], read_step, sniff=lambda data: sniff_solid_model(data) == "iges"),
 ]

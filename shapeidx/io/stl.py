@@ -8,6 +8,7 @@ import numpy as np
 
 from ..errors import LoadError
 from .base import Format, LoadLimits, PolygonMesh, head_of
+from .formats import SUFFIXES
 
 _BINARY_RECORD = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
 _ASCII_VERTEX = re.compile(rb"vertex\s+(\S+)\s+(\S+)\s+(\S+)", re.IGNORECASE)  # some exporters write VERTEX
@@ -58,4 +59,4 @@ def _from_corners(path, corners: np.ndarray, fmt: str) -> PolygonMesh:
     return PolygonMesh.from_triangles(vertices, np.arange(len(vertices)).reshape(-1, 3), fmt)
 
 
-FORMATS = [Format("stl", "STL", (".stl",), read_stl, sniff=lambda data: head_of(data)[:5].lower() == b"solid" or len(data) >= 84, weak=True)]
+FORMATS = [Format("stl", "STL", SUFFIXES["stl"], read_stl, sniff=lambda data: head_of(data)[:5].lower() == b"solid" or len(data) >= 84, weak=True)]

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from ..distance import PAPER_METRICS, compare
+from ..distance.metrics import label as metric_label
 from ..signing.parameters import BIN_DIVISOR, HISTOGRAMS
 
-METRIC_TITLES = {"all": "ALL", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted": "Weighted", "combined": "combined"}
 #: Colours of the parts, in order (matplotlib's tab10, colour-blind tolerable pairs first).
 COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf")
 FORMATS = (".png", ".svg", ".pdf")
@@ -37,7 +37,7 @@ def pair_distances(named: list) -> list[tuple[str, str, dict]]:
 
 
 def distance_line(a: str, b: str, distances: dict, metrics=PAPER_METRICS) -> str:
-    return f"{a} - {b}: " + ", ".join(f"{METRIC_TITLES[m]} {distances[m]:.3g}" for m in metrics)
+    return f"{a} - {b}: " + ", ".join(f"{metric_label(m)} {distances[m]:.3g}" for m in metrics)
 
 
 def figure_of(named: list, title: str | None = None, divisor: int = BIN_DIVISOR, size=(10.0, 7.5)):

@@ -155,6 +155,6 @@ def render_solid_png(solid, size: int = DEFAULT_SIZE) -> bytes:
 
 def render_file_png(path, size: int = DEFAULT_SIZE) -> bytes:
     """The PNG thumbnail of a part file (raises :class:`~shapeidx.errors.LoadError`)."""
-    from ..api import load
+    from ..signing.part import load_part
 
-    return render_solid_png(load(path), size)
+    return render_solid_png(load_part(path), size)

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..distance.metrics import label as metric_label
 from ..signing.histogram import Signature
 from ..signing.parameters import BIN_DIVISOR, HISTOGRAMS
 
@@ -32,7 +33,6 @@ DEFAULT_THUMBNAILS = 200
 XMAX = 3.0
 QUERY_COLOUR, HIT_COLOUR = "#1f77b4", "#d62728"
 CLASS_COLOURS = {"in": "#4c9f70", "out": "#e0a030", "mixed": "#8a8fb8"}
-METRIC_TITLES = {"all": "ALL", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted": "Weighted", "combined": "combined"}
 
 
 @dataclass
@@ -158,6 +158,12 @@ def _picture(part: SheetPart, size: int, lazy: bool) -> str:
     return f'<img class="thumb" src="{data_uri(part.png)}" width="{size}" height="{size}" alt="{_esc(part.label)}"{loading}>'
 
 
+def _metadata_html(metadata: dict | None) -> str:
+    if not metadata:
+        return ""
+    return '<div class="metadata">' + " · ".join(f"<b>{_esc(k)}</b> {_esc(v)}" for k, v in metadata.items()) + "</div>"
+
+
 def _link(part: SheetPart) -> str:
     if part.path is None:
         return f'<span class="path">{_esc(part.label)}</span>'
@@ -184,6 +190,7 @@ details{font-size:12px;color:#555;margin-top:4px}
 .nopic{display:flex;align-items:center;justify-content:center;margin:0 auto;color:#888;font-size:12px;text-align:center;border:1px dashed #ccc}
 .path{word-break:break-all;font-size:12.5px}
 .fractions{font-size:12px;color:#444}
+.metadata{font-size:12px;color:#333;word-break:break-word}
 .bar{display:flex;height:6px;margin-top:2px;border-radius:3px;overflow:hidden}
 .bar span{display:block;height:6px}
 .legend{font-size:12px;color:#555}
@@ -215,6 +222,7 @@ def sheet_html(title: str, query: SheetPart, hits: list[SheetHit], meta: list[st
                if hit.words else "")
             + _picture(hit.part, 160, lazy=k >= 12)
             + _link(hit.part)
+            + _metadata_html(hit.extra.get("metadata"))
             + fractions_html(hit.part.signature)
             + overlay_svg(query.signature, hit.part.signature)
             + "</article>"
@@ -271,74 +279,59 @@ def _picture_of(render, label: str) -> tuple[bytes | None, str]:
         return None, f"no picture: {exc.strerror or exc}"
 
 
-def query_sheet(
-    store: str | os.PathLike,
-    output: str | os.PathLike,
-    file: str | os.PathLike | None = None,
-    entry: str | None = None,
-    top: int = 10,
-    metric: str = "weighted",
-    thumbnails: int = DEFAULT_THUMBNAILS,
-    threads: int = 1,
-) -> list[dict]:
-    """Rank the store against a part (file or ``entry``) and write the result sheet.
+def answer_sheet(searcher, answer, query, output: str | os.PathLike, thumbnails: int = DEFAULT_THUMBNAILS) -> Path:
+    """Write the sheet of a search's answer (:class:`~shapeidx.search.Answer` of ``query`` by
+    ``searcher``): the very hits, distances and metadata the command line printed, drawn.
 
-    Returns the hits as :func:`shapeidx.ranking.top_hits` gives them (each with ``"words"``
-    added). Raises StoreError / LoadError as :func:`shapeidx.ranking.query_store` does.
+    Raises StoreError when ``output``'s folder does not exist.
     """
     from ..errors import StoreError
-    from ..api import load
-    from ..io import LoadLimits
-    from ..signing.pipeline import signature_of_solid
-    from ..ranking import SignatureTable, check_usable, entry_path_of, ok_entry_row, resolve_entry, top_hits
-    from ..store import open_store
-    from .similarity import SimilarityScale, signatures_of
-    from .thumbcache import StoreThumbnails, ThumbnailCache, cache_dir_of_store
+    from .similarity import SimilarityScale, closer_than
+    from .thumbcache import StoreThumbnails, ThumbnailCache
 
-    store = Path(store)
     if not Path(output).absolute().parent.is_dir():
         raise StoreError(f"{output}: no folder {Path(output).absolute().parent} to write the sheet in")
-    with open_store(store) as reader:
-        check_usable(reader)
-        table = SignatureTable.load(reader)
-        thumbs = StoreThumbnails(reader)
-        if entry is not None:
-            entry = resolve_entry(reader, entry)
-            first = int(np.searchsorted(table.rows, ok_entry_row(reader, entry)))
-            signature = signatures_of(reader, table.rows[[first]])[0]
-            png, note = _picture_of(lambda: thumbs.png(entry), entry)
-            query = SheetPart(entry, thumbs.file_of(entry), signature, png, note)
+    thumbs = StoreThumbnails(searcher)
+    if query.entry is not None:
+        png, note = _picture_of(lambda: thumbs.png(query.entry), query.entry)
+        part = SheetPart(query.entry, thumbs.file_of(query.entry), answer.signature, png, note)
+    else:
+        from .render import render_solid_png
+
+        cache = ThumbnailCache(thumbs.cache.folder)
+        source = query.path
+        if query.solid is not None and source is not None:
+            png, note = _picture_of(lambda: cache.png(source, solid=query.solid), query.label)
+        elif query.solid is not None:  # standard input, arrays: no file to cache the picture by
+            png, note = _picture_of(lambda: render_solid_png(query.solid), query.label)
         else:
-            params = reader.params
-            solid = load(file, limits=LoadLimits(faceting=params.faceting))  # a STEP part faceted as the store's
-            signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor, threads)
-            own = entry_path_of(file, reader)
-            first = table.index_of(own) if own is not None else None
-            cache = ThumbnailCache(cache_dir_of_store(store))
-            png, note = _picture_of(lambda: cache.png(file, solid=solid), str(file))
-            query = SheetPart(str(file), Path(file).absolute(), signature, png, note)
-        distances = table.distances(signature, metric)
-        hits = top_hits(distances, table.paths, top, first)
-        scale = SimilarityScale.cached(reader, table, metric, cache_dir_of_store(store))
-        rows = np.array([table.rows[table.index_of(h["path"])] for h in hits], dtype=np.int64)
-        sheet_hits = []
-        for k, (hit, sig) in enumerate(zip(hits, signatures_of(reader, rows))):
-            if k < thumbnails:
-                png, note = _picture_of(lambda: thumbs.png(hit["path"]), hit["path"])
-            else:
-                png, note = None, f"no picture beyond the first {thumbnails} hits (--thumbnails)"
-            hit["words"] = scale.words(hit["distance"])
-            part = SheetPart(hit["path"], thumbs.file_of(hit["path"]), sig, png, note)
-            share = scale.share(hit["distance"])
-            extra = {"share": f"closer than {100 * (1 - share):.1f}% of the store's pairs"} if share is not None and hit["distance"] > 0 else {}
-            sheet_hits.append(SheetHit(part, hit["rank"], hit["distance"], hit["words"], extra))
-        meta = [
-            f"Store <code>{_esc(store.absolute())}</code>: {len(table):,} parts (root <code>{_esc(thumbs.root)}</code>).",
-            f"Metric {_esc(METRIC_TITLES.get(metric, metric))}, top {len(hits)}. Made {datetime.datetime.now():%Y-%m-%d %H:%M}.",
-        ]
-        calibration = scale.describe()
-    write_sheet(output, f"Parts nearest to {Path(query.label).name}", query, sheet_hits, meta, calibration)
-    return hits
+            png, note = None, "no picture (the query was a signature)"
+        part = SheetPart(query.label, Path(source) if source else None, answer.signature, png, note)
+    scale = SimilarityScale.cached(searcher, answer.metric, thumbs.cache.folder)
+    sheet_hits = []
+    for k, hit in enumerate(answer.hits):
+        position = searcher.view.position_of(searcher.view.find(hit.relative_path))
+        if k < thumbnails:
+            png, note = _picture_of(lambda: thumbs.png(hit.relative_path), hit.relative_path)
+        else:
+            png, note = None, f"no picture beyond the first {thumbnails} hits (--thumbnails)"
+        words = scale.words(hit.distance)
+        share = scale.share(hit.distance)
+        extra = {"share": closer_than(share)} if share is not None and hit.distance > 0 else {}
+        extra["metadata"] = hit.metadata
+        hit_part = SheetPart(hit.relative_path, thumbs.file_of(hit.relative_path), searcher.signature_at(position),
+                             png, note)
+        sheet_hits.append(SheetHit(hit_part, hit.rank, hit.distance, words, extra))
+    filters = "; ".join(answer.filters)
+    meta = [
+        f"Store <code>{_esc(answer.store)}</code>: {answer.entries:,} parts (root <code>{_esc(answer.root)}</code>).",
+        f"Metric {_esc(metric_label(answer.metric))}, top {len(answer.hits)}"
+        + (f", filters {_esc(filters)} ({answer.considered:,} parts left)" if filters else "")
+        + f". Made {datetime.datetime.now():%Y-%m-%d %H:%M}.",
+    ]
+    if answer.reason:
+        meta.append(f"No hit: {_esc(answer.reason)}.")
+    return write_sheet(output, f"Parts nearest to {Path(part.label).name}", part, sheet_hits, meta, scale.describe())
 
 
 def compare_sheet(output, a, b, sig_a: Signature, sig_b: Signature, distances: dict, metric: str = "weighted") -> Path:
@@ -350,7 +343,7 @@ def compare_sheet(output, a, b, sig_a: Signature, sig_b: Signature, distances: d
     png_b, note_b = _picture_of(lambda: cache.png(b), str(b))
     query = SheetPart(str(a), Path(a).absolute(), sig_a, png_a, note_a)
     hit = SheetHit(SheetPart(str(b), Path(b).absolute(), sig_b, png_b, note_b), 1, distances[metric])
-    meta = ["Distances: " + ", ".join(f"{METRIC_TITLES[m]} {distances[m]:.4g}" for m in distances if m in METRIC_TITLES),
+    meta = ["Distances: " + ", ".join(f"{metric_label(m)} {distances[m]:.4g}" for m in distances),
             f"Made {datetime.datetime.now():%Y-%m-%d %H:%M}. No store: no similarity words (they are calibrated on a store;"
             " see <code>shapeidx query --sheet</code>)."]
     return write_sheet(output, f"{Path(a).name} against {Path(b).name}", query, [hit], meta)

@@ -7,8 +7,8 @@ distribution of the distances between entries of that store:
 
 * up to 32 entries, drawn with a fixed seed, are each ranked against every entry (itself
   left out); at 100,000 entries, 20 draws (two million pairs) are enough for the quantiles;
-  the sample is kept in the store's thumbnail folder (``STORE.thumbs/``), keyed by the
-  store file's size and time, so it is drawn once per build, not once per sheet;
+  the sample is kept in the store's thumbnail folder (``STORE/thumbs/``), keyed by the
+  store files' sizes and times, so it is drawn once per build, not once per sheet;
 * a hit's **share** is the fraction of those pairs that are at most as far apart as the hit;
 * the words follow the share (:data:`WORDS`): "very similar" means closer than 99% of the
   pairs in the store, and so on. An exact 0 is "identical signature".
@@ -20,8 +20,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..signing.histogram import Histogram, Signature
-from ..signing.parameters import HISTOGRAMS
 
 #: (largest share of the store's pairs, words), checked in order.
 WORDS = (
@@ -37,26 +35,6 @@ TARGET_PAIRS = 2_000_000
 MIN_DRAWS, MAX_DRAWS = 8, 32
 #: Distances kept for the quantiles (a sorted subsample when there are more).
 KEPT = 200_000
-
-
-def signatures_of(reader, rows) -> list[Signature]:
-    """Stored signatures of store rows ``rows``, reading each column once (not once per entry)."""
-    rows = np.asarray(rows, dtype=np.int64)
-    per_histogram = {}
-    for name in HISTOGRAMS:
-        flat, lengths = reader.counts(name, rows)
-        offsets = np.concatenate([[0], np.cumsum(lengths)])
-        means = reader.column(f"histograms/{name}/mean")[rows]
-        widths = reader.column(f"histograms/{name}/bin_width")[rows]
-        per_histogram[name] = (flat, offsets, means, widths)
-    out = []
-    for k in range(len(rows)):
-        histograms = {}
-        for name, (flat, offsets, means, widths) in per_histogram.items():
-            counts = flat[offsets[k] : offsets[k + 1]].astype(np.int64)
-            histograms[name] = Histogram(counts, float(means[k]), float(widths[k]))
-        out.append(Signature(points=reader.params.points, seed=reader.params.seed, histograms=histograms))
-    return out
 
 
 @dataclass
@@ -80,17 +58,19 @@ class SimilarityScale:
     draws: int
 
     @classmethod
-    def of_table(cls, reader, table, metric: str, seed: int = 0) -> "SimilarityScale":
-        """Calibrate on a loaded :class:`~shapeidx.ranking.SignatureTable` of ``reader``."""
-        n = len(table)
+    def of_store(cls, searcher, metric: str, seed: int = 0) -> "SimilarityScale":
+        """Calibrate on the entries of an open :class:`~shapeidx.search.Searcher`."""
+        from ..search.distances import distances as distances_to
+
+        n = len(searcher)
         if n < 2:
             return cls(metric, np.zeros(0), 0, 0)
         draws = int(np.clip(TARGET_PAIRS // n, MIN_DRAWS, MAX_DRAWS))
         draws = min(draws, n)
         picked = np.sort(np.random.default_rng(seed).choice(n, size=draws, replace=False))
         found = []
-        for i, signature in zip(picked, signatures_of(reader, table.rows[picked])):
-            d = table.distances(signature, metric)
+        for i in picked.tolist():
+            d = distances_to(searcher.view, searcher.signature_at(i), metric)
             found.append(np.delete(d, i))
         distances = np.sort(np.concatenate(found))
         pairs = len(distances)
@@ -99,25 +79,25 @@ class SimilarityScale:
         return cls(metric, distances, pairs, draws)
 
     @classmethod
-    def cached(cls, reader, table, metric: str, folder) -> "SimilarityScale":
-        """:meth:`of_table`, kept in ``folder`` for the same store file and metric."""
+    def cached(cls, searcher, metric: str, folder) -> "SimilarityScale":
+        """:meth:`of_store`, kept in ``folder`` for the same store files and metric."""
         import os
         import tempfile
         from pathlib import Path
 
         folder = Path(folder)
         try:
-            stat = os.stat(reader.path)
-            key = f"{stat.st_size}-{stat.st_mtime_ns}-{reader.journal}-{len(table)}"
+            stats = [os.stat(source.path) for source in searcher.reader._sources]
+            key = f"{stats[0].st_size}-{stats[0].st_mtime_ns}-{sum(s.st_mtime_ns for s in stats) % 10**12}-{len(searcher)}"
         except OSError:
-            return cls.of_table(reader, table, metric)
+            return cls.of_store(searcher, metric)
         target = folder / f"calibration-{metric}-d{MAX_DRAWS}-{key}.npz"
         try:
             with np.load(target) as data:
                 return cls(metric, data["distances"], int(data["pairs"]), int(data["draws"]))
         except (OSError, KeyError, ValueError):
             pass
-        scale = cls.of_table(reader, table, metric)
+        scale = cls.of_store(searcher, metric)
         try:
             folder.mkdir(parents=True, exist_ok=True)
             for old in folder.glob(f"calibration-{metric}-*.npz"):  # of an older build
@@ -152,7 +132,7 @@ class SimilarityScale:
             return ""
         if distance <= 0:
             return "identical signature"
-        return f"{self.words(distance)}: closer than {100 * (1 - share):.1f}% of the store's pairs"
+        return f"{self.words(distance)}: {closer_than(share)}"
 
     def describe(self) -> str:
         """One sentence on how the words were calibrated."""
@@ -167,3 +147,11 @@ class SimilarityScale:
                 for limit, w in WORDS
             ) + "."
         )
+
+
+def closer_than(share: float) -> str:
+    """``"closer than 97.2% of the store's pairs"``; a share above 0 never reads "100.0%"."""
+    text = f"{100 * (1 - share):.1f}"
+    if text == "100.0" and share > 0:
+        text = "99.9+"
+    return f"closer than {text}% of the store's pairs"

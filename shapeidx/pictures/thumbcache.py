@@ -3,8 +3,9 @@
 The cache is a plain folder of PNG files named by the SHA-256 of the part file, the picture
 size and :data:`~shapeidx.pictures.render.RENDER_VERSION`:
 
-* beside a store ``S``: ``S.thumbs/`` (:func:`cache_dir_of_store`), never inside the HDF5
-  file, so nothing the cache does can make a store unreadable;
+* in a store ``S``: ``S/thumbs/`` (:func:`cache_dir_of_store`), a folder of its own beside
+  the HDF5 files, so nothing the cache does can make a store unreadable, and copying the
+  store copies its pictures;
 * otherwise ``$XDG_CACHE_HOME/shapeidx/thumbs`` (``~/.cache/shapeidx/thumbs``).
 
 A changed file has another hash, so it gets a new picture; a thumbnail is written under a
@@ -22,16 +23,15 @@ import os
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
-from ..index.workers import file_hash
+from ..io.base import file_hash
 from .render import DEFAULT_SIZE, RENDER_VERSION, render_file_png, render_solid_png
 
 
 def cache_dir_of_store(store: str | os.PathLike) -> Path:
-    """The thumbnail folder that belongs to a store: ``STORE.thumbs`` beside it."""
-    store = Path(store)
-    return store.with_name(store.name + ".thumbs")
+    """The thumbnail folder that belongs to a store: ``STORE/thumbs`` inside it."""
+    from ..store.files import thumbs_dir
+
+    return thumbs_dir(Path(store))
 
 
 def default_cache_dir() -> Path:
@@ -100,23 +100,20 @@ class ThumbnailCache:
 
 
 class StoreThumbnails:
-    """Thumbnails of a store's entries, in the store's own cache folder ``STORE.thumbs/``.
+    """Thumbnails of a store's entries, in the store's own cache folder ``STORE/thumbs/``.
 
     Parameters
     ----------
-    reader : an open :class:`~shapeidx.store.StoreReader`
+    searcher : an open :class:`~shapeidx.search.Searcher` (its entries are found by path,
+        one at a time: a sheet of ten hits of a store of a million reads ten rows)
     size : picture side in pixels
-    folder : the cache folder (default :func:`cache_dir_of_store` of the reader's store)
+    folder : the cache folder (default ``STORE/thumbs``)
     """
 
-    def __init__(self, reader, size: int = DEFAULT_SIZE, folder: str | os.PathLike | None = None):
-        self.root = Path(reader.attrs.get("root") or ".")
-        self.cache = ThumbnailCache(folder or cache_dir_of_store(reader.path), size)
-        self._paths = reader.paths
-        # the columns once, not per picture: a sheet may show thousands of entries
-        self._size = reader.column("entries/size")
-        self._mtime = reader.column("entries/mtime_ns")
-        self._hash = reader.column("entries/hash")
+    def __init__(self, searcher, size: int = DEFAULT_SIZE, folder: str | os.PathLike | None = None):
+        self.searcher = searcher
+        self.root = Path(searcher.root or ".")
+        self.cache = ThumbnailCache(folder or cache_dir_of_store(searcher.store), size)
 
     def file_of(self, entry: str) -> Path:
         """The absolute path of an entry's part file."""
@@ -128,15 +125,18 @@ class StoreThumbnails:
         return self.cache.png(absolute, self._digest(entry, absolute))
 
     def _digest(self, entry: str, absolute: Path) -> str | None:
-        i = int(np.searchsorted(self._paths, entry))
-        if i >= len(self._paths) or self._paths[i] != entry:
+        """The entry's stored SHA-256 when its file is unchanged since the build (else None: hash it)."""
+        found = self.searcher.view.find(entry)
+        if found is None:
             return None
         try:
             stat = os.stat(absolute)
         except OSError:
             return None
-        digest = self._hash[i]
+        source, row = self.searcher.view.sources[found[0]], found[1]
+        digest = source.value_at("entries/hash", row)
         digest = digest.decode() if isinstance(digest, bytes) else str(digest)
-        if stat.st_size == int(self._size[i]) and stat.st_mtime_ns == int(self._mtime[i]) and len(digest) == 64:
+        size, mtime = int(source.value_at("entries/size", row)), int(source.value_at("entries/mtime_ns", row))
+        if stat.st_size == size and stat.st_mtime_ns == mtime and len(digest) == 64:
             return digest
-        return None  # changed since the build: hash it again
+        return None  # changed since the build (or touched by a later segment): hash it again

@@ -1,5 +1,6 @@
 """Signing a part: the paper's section 3.2, one module per step, in the order they run.
 
+    part.py        a part in any form (path, file object, arrays, trimesh) -> Solid: load_part
     mesh.py        triangulate polygons, merge duplicate points, drop bad faces, orient shells
     solid.py       -> Solid: outward normals, cavities, overlapping shells united
     sampling.py    -> points: m random points on the surface, uniform by area (3.2.1)
@@ -26,6 +27,7 @@ _NAMES = {
     "Signature": ".histogram",
     "Solid": ".solid",
     "make_solid": ".solid",
+    "load_part": ".part",
     "shape_facts": ".moments",
     "sample_surface": ".sampling",
     "classify_pairs": ".classify",

@@ -307,6 +307,7 @@ class Solid:
             "bounds": r["bounds_read"],
             "watertight": self.watertight,
             "shells": r["shells_read"],
+            "metadata": dict(r.get("metadata", {})),
             "warnings": list(self.warnings),
             "solid": {
                 "triangles": int(len(self.faces)),
@@ -348,6 +349,7 @@ def make_solid(mesh: PolygonMesh, path=None) -> Solid:
         "triangles_read": int(len(triangles)),
         "area_read": read_area,
         "bounds_read": [used.min(axis=0).tolist(), used.max(axis=0).tolist()],
+        "metadata": dict(getattr(mesh, "metadata", {}) or {}),
     }
     if not np.isfinite(read_area) or read_area <= 0:
         raise LoadError(path, "has zero surface area (every face is degenerate)")

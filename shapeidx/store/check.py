@@ -16,13 +16,12 @@ entries it holds:
 A repair keeps every entry that passes and drops the others, so that the build that runs
 the repair indexes their files again: a damaged journal batch is deleted (losing at most
 its work), a main file damaged in some rows is rewritten without them, and a main file
-that cannot be read at all is set aside (renamed ``STORE.damaged-TIME``) and the store is
+that cannot be read at all is set aside (renamed ``STORE/main.h5.damaged-TIME``) and the store is
 built again from its files.
 """
 
 from __future__ import annotations
 
-import hashlib
 import os
 import time
 from dataclasses import dataclass, field
@@ -32,13 +31,14 @@ import h5py
 import numpy as np
 
 from ..errors import StoreError
+from ..io.base import file_hash
 from ..signing.parameters import HISTOGRAMS
-from .files import batch_files, write_atomically
+from .files import batch_files, main_file, write_atomically
 from .layout import (
     CONTENT_HASH,
     COUNT_DTYPE,
     ENTRY_COLUMNS,
-    OPTIONAL_COLUMNS,
+    MAY_BE_ABSENT,
     FRACTION_CLASSES,
     STATUS_FAILED,
     STATUS_OK,
@@ -132,14 +132,10 @@ class CheckReport:
 
 
 def usable_store_path(store) -> Path:
-    """The store path of the command line (``--store``, ``$SHAPEIDX_STORE``, the default), which
-    must not be a directory."""
+    """The store path of the command line (``--store``, ``$SHAPEIDX_STORE``, the default)."""
     from .reader import resolve_store_path
 
-    path = resolve_store_path(store)
-    if path.is_dir():
-        raise StoreError(f"{path} is a directory, not a store (give the store's file with --store)")
-    return path
+    return resolve_store_path(store)
 
 
 def scan_file(path: Path, seq: int, points: int | None, derived: bool = True) -> FileScan:
@@ -158,7 +154,7 @@ def scan_file(path: Path, seq: int, points: int | None, derived: bool = True) ->
             scan.problem("entries/size", f"missing or unreadable ({_first_line(exc)})", fatal=True)
             return scan
         scan.entries = n
-        expected = [name for name in ENTRY_COLUMNS if name not in OPTIONAL_COLUMNS or _present(f, name)]  # older files lack some
+        expected = [name for name in ENTRY_COLUMNS if name not in MAY_BE_ABSENT or _present(f, name)]  # older files lack some
         for name, (dtype, _) in ENTRY_COLUMNS.items():
             if name not in expected:
                 continue
@@ -327,20 +323,25 @@ def _store_files(store: Path) -> tuple[list, int | None, dict]:
     """(seq, path) of the main file and the batches it does not hold, its points, its attributes."""
     attrs = {}
     try:
-        with h5py.File(store, "r") as f:
+        with h5py.File(main_file(store), "r") as f:
             attrs = {k: (as_text(v) if isinstance(v, (bytes, str)) else v) for k, v in f.attrs.items()}
     except OSError:
         pass
     merged = int(attrs.get("journal_seq", 0))
     points = int(attrs["points"]) if "points" in attrs else None
-    return [(0, store)] + [(seq, p) for seq, p in batch_files(store) if seq > merged], points, attrs
+    return [(0, main_file(store))] + [(seq, p) for seq, p in batch_files(store) if seq > merged], points, attrs
 
 
 def check_store(store, files: bool = False) -> CheckReport:
     """Check a store (see the module docstring); ``files``: also hash every entry's file."""
+    from .reader import check_store_directory
+
     store = Path(store)
-    if not store.exists():
-        raise StoreError(f"no store at {store} (run 'shapeidx build DIR' first, or give --store)")
+    check_store_directory(store)
+    if not main_file(store).exists():
+        from .reader import open_store
+
+        open_store(store).close()  # the reader's one line: not a store, being created, or damaged (5)
     report = CheckReport(store)
     sources, points, attrs = _store_files(store)
     if attrs and ("schema_version" not in attrs or "points" not in attrs):
@@ -359,6 +360,16 @@ def check_store(store, files: bool = False) -> CheckReport:
     if not report.checksummed:
         report.notes.append("some datasets have no checksums (written by an older shapeidx): a build's next"
                             " merge that rewrites the main file adds them (build --full does)")
+    if not report.problems:  # every file sound: is one missing? (a gap in the journal)
+        from ..errors import StoreDamagedError
+        from .reader import open_store
+
+        try:
+            open_store(store).close()
+        except StoreDamagedError as exc:
+            text = str(exc)
+            what = text[text.index("damaged (") + 9 : text.rindex("): ")] if "damaged (" in text and "): " in text else text
+            report.problems.append(Problem(store.name, "journal", what))
     if files and not report.problems:
         _check_files(store, attrs.get("root"), report)
     return report
@@ -376,7 +387,7 @@ def _check_files(store: Path, root: str | None, report: CheckReport) -> None:
                 continue  # could not be read when indexed: nothing to compare
             absolute = os.path.join(root or "", str(path))
             try:
-                actual = _file_hash(absolute)
+                actual = file_hash(absolute)
             except OSError as exc:
                 report.problems.append(Problem(store.name, str(path), f"the file cannot be read ({exc.strerror or exc})"))
                 continue
@@ -386,31 +397,23 @@ def _check_files(store: Path, root: str | None, report: CheckReport) -> None:
                                                " (a build signs it again)"))
 
 
-def _file_hash(path: str) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(1 << 20):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
 def refuse_damaged(store: Path) -> None:
     """Raise the one-line :class:`StoreDamagedError` if the store's main file fails a check.
 
     ``build`` calls this before it changes anything (journal batches are verified whenever a
     store is opened). It reads the whole main file (about a second per 100 MB) unless that
-    very file passed before or was written by the store's own merge (``STORE.verified``,
+    very file passed before or was written by the store's own merge (``STORE/verified``,
     :mod:`shapeidx.store.verified`); the caller holds the lock.
     """
     from .reader import damaged
     from .verified import identity, is_verified, mark_verified
 
     store = Path(store)
-    if not store.exists() or is_verified(store):
+    if not main_file(store).exists() or is_verified(store):
         return
     before = identity(store)
     _, points, attrs = _store_files(store)
-    scan = scan_file(store, 0, points, derived=False)  # every checksum; the full comparison is check's
+    scan = scan_file(main_file(store), 0, points, derived=False)  # every checksum; the full comparison is check's
     if scan.problems:
         first = scan.problems[0]
         more = f" and {len(scan.problems) - 1} more" if len(scan.problems) > 1 else ""
@@ -425,7 +428,7 @@ def repair_store(store: Path) -> list[str]:
     dropped entries' files are indexed again by the same build).
     """
     store = Path(store)
-    if not store.exists():
+    if not main_file(store).exists():
         return []
     sources, points, attrs = _store_files(store)
     done = []
@@ -437,14 +440,14 @@ def repair_store(store: Path) -> list[str]:
             path.unlink(missing_ok=True)
             done.append(f"repair: dropped the damaged journal batch {path.name} ({scan.problems[0].problem});"
                         " its files are indexed again")
-    main = scan_file(store, 0, points)
+    main = scan_file(main_file(store), 0, points)
     if main.only_ranking:
         return done + rebuild_ranking(store, [main])
     if not main.problems:
         return done
     if main.unusable or not attrs:
-        aside = store.with_name(f"{store.name}.damaged-{time.strftime('%Y%m%dT%H%M%S')}")
-        os.replace(store, aside)
+        aside = store / f"{main_file(store).name}.damaged-{time.strftime('%Y%m%dT%H%M%S')}"
+        os.replace(main_file(store), aside)
         for _, path in sources[1:]:
             path.unlink(missing_ok=True)  # batches apply to the main file they followed
         done.append(f"repair: the main file could not be used ({main.problems[0].line()}); it was moved to"
@@ -515,7 +518,7 @@ def _rewrite_main(store: Path, scan: FileScan, keep: np.ndarray, attrs: dict) ->
             write_counts(f, name, values, lengths)
         write_rank(f, columns, counts, HISTOGRAMS)
 
-    write_atomically(store, fill, 2 * store.stat().st_size)
+    write_atomically(main_file(store), fill, 2 * main_file(store).stat().st_size)
 
 
 def _first_line(exc: BaseException) -> str:

@@ -1,10 +1,17 @@
 """The files of a store and how they are written so that a kill at any moment loses nothing.
 
-    STORE                    the main file: a complete snapshot, only ever replaced by rename
-    STORE.journal/           batches committed since the main file was last written
-        batch-0000000007.h5    same entry layout, plus /touched and /removed
-    STORE.lock               held (flock) by the one build that may write
-    STORE.verified           which main file a build last verified (shapeidx.store.verified)
+A store is one directory, the unit a user copies, moves, archives or deletes (``cp -a``,
+``mv``, ``rsync -a``, ``tar``): everything shapeidx keeps about the indexed tree is inside.
+
+    STORE/                   the store (any name; the examples use ``NAME.shapeidx``)
+        main.h5              the main file: a snapshot, only ever replaced by rename
+        journal/             segments committed since the main file was last written
+            batch-0000000007.h5  same entry layout, plus /touched and /removed
+        lock                 held (flock) by the one build that may write
+        committed            the newest sequence number committed: a missing segment is noticed
+        build.json           the last build: running, finished or stopped (shapeidx stats)
+        verified             which main file a build last verified (shapeidx.store.verified)
+        thumbs/              rendered thumbnails and the similarity calibration (a cache)
 
 No file a reader may open is ever written in place: every file is written under a temporary
 name, flushed to disk, and renamed into place (atomic on POSIX).
@@ -130,12 +137,61 @@ def _fsync_path(path: Path) -> None:
         os.close(fd)
 
 
+MAIN_FILE = "main.h5"
+
+
+def main_file(store: Path) -> Path:
+    """The main file of the store (directory) ``store``."""
+    return Path(store) / MAIN_FILE
+
+
 def journal_dir(store: Path) -> Path:
-    return store.with_name(store.name + ".journal")
+    return Path(store) / "journal"
 
 
 def lock_path(store: Path) -> Path:
-    return store.with_name(store.name + ".lock")
+    return Path(store) / "lock"
+
+
+def committed_path(store: Path) -> Path:
+    return Path(store) / "committed"
+
+
+def read_committed(store: Path) -> int:
+    """The newest journal sequence number a build committed (``STORE/committed``; 0 when none)."""
+    try:
+        return int(committed_path(store).read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
+def write_committed(store: Path, seq: int) -> None:
+    """Record ``seq`` as committed (atomically), after its segment or main file is in place:
+    a reader that then finds no file holding ``seq`` knows that a file of the store is missing."""
+    path = committed_path(store)
+    tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
+    try:
+        tmp.write_text(f"{int(seq)}\n")
+        os.replace(tmp, path)
+    except OSError:  # a check only: without it a missing newest segment goes unnoticed, nothing breaks
+        _unlink_quietly(tmp)
+
+
+def build_state_path(store: Path) -> Path:
+    return Path(store) / "build.json"
+
+
+def thumbs_dir(store: Path) -> Path:
+    return Path(store) / "thumbs"
+
+
+def is_one_file_store(path: Path) -> bool:
+    """Whether ``path`` is a store of the older layout: one HDF5 file (``STORE.journal/`` beside it)."""
+    try:
+        with open(path, "rb") as f:
+            return Path(path).is_file() and f.read(8) == b"\x89HDF\r\n\x1a\n"
+    except OSError:
+        return False
 
 
 def batch_files(store: Path) -> list[tuple[int, Path]]:

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import StoreError
 from ..io.faceting import DEFAULT_ANGULAR_DEFLECTION, DEFAULT_LINEAR_DEFLECTION, Faceting
+from ..io.metadata import FILE_KEYS
 from ..ragged import offsets_of
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS
 from ..signing.histogram import Histogram, Signature
@@ -22,13 +23,15 @@ from ..signing.parameters import HISTOGRAMS
 #: handedness columns (:data:`SHAPE_COLUMNS`); files of layout 1 still open, those columns NaN.
 #: 3 added the memory-mapped ranking section ``rank/`` (shapeidx.store.rank) and journal
 #: segments that stay until a size-tiered merge (shapeidx.store.writer); files of layout 1
-#: and 2 still open and rank as before, and get the section when they are next rewritten.
-SCHEMA_VERSION = 3
+#: and 2 still open and get the section when they are next rewritten (or by ``check --repair``).
+#: 4: the store is a directory (shapeidx.store.files) and each file has the text columns of
+#: what a part file says about itself (:data:`TEXT_COLUMNS`; read as "" from older files).
+SCHEMA_VERSION = 4
 STATUS_OK, STATUS_FAILED = 0, 1
 #: Class fractions are stored as (N, 3) in this order.
 FRACTION_CLASSES = HISTOGRAMS[1:]
 #: Where the default store lives, relative to the working directory.
-DEFAULT_STORE = "shapeidx.h5"
+DEFAULT_STORE = "index.shapeidx"
 STORE_ENV = "SHAPEIDX_STORE"
 
 _STR = h5py.string_dtype("utf-8")
@@ -56,9 +59,15 @@ SHAPE_COLUMNS = {"entries/bounds": 6, "entries/extents": 3, "entries/handedness"
 #: (shapeidx.signing.angles; rows all, in, out, mixed, laid end to end). Absent from older
 #: files, read as NaN like the columns above: the metrics that use them then refuse the store.
 ANGLE_COLUMNS = {"entries/angles": len(ANGLE_HISTOGRAMS) * ANGLE_BINS}
-#: Columns a file may lack (read as NaN).
+#: Numeric columns a file may lack (read as NaN): name -> width.
 OPTIONAL_COLUMNS = {**SHAPE_COLUMNS, **ANGLE_COLUMNS}
 ENTRY_COLUMNS.update({name: (np.float64, np.float64) for name in OPTIONAL_COLUMNS})
+#: Layout 4: what the file says about itself (shapeidx.io.metadata: the STEP product's name and
+#: id, a VRML WorldInfo title), one string column per key; absent from older files (read as "").
+TEXT_COLUMNS = tuple(f"entries/{key}" for key in FILE_KEYS)
+ENTRY_COLUMNS.update({name: (object, _STR) for name in TEXT_COLUMNS})
+#: Every column a file may lack.
+MAY_BE_ABSENT = frozenset(OPTIONAL_COLUMNS) | frozenset(TEXT_COLUMNS)
 for _name in HISTOGRAMS:
     ENTRY_COLUMNS[f"histograms/{_name}/mean"] = (np.float64, np.float64)
     ENTRY_COLUMNS[f"histograms/{_name}/bin_width"] = (np.float64, np.float64)
@@ -174,6 +183,8 @@ class Entry:
     handedness: tuple = (float("nan"),) * 2
     moments: tuple = (float("nan"),) * 4
     angles: tuple = (float("nan"),) * (len(ANGLE_HISTOGRAMS) * ANGLE_BINS)
+    title: str = ""
+    product_id: str = ""
 
     @classmethod
     def indexed(cls, path, hash, size, mtime_ns, signature: Signature, facts: dict, shape: dict | None = None) -> "Entry":
@@ -191,6 +202,7 @@ class Entry:
             histograms=dict(signature.histograms),
             **{k: tuple(float(v) for v in shape[k]) for k in ("bounds", "extents", "handedness", "moments") if k in (shape or {})},
             **({} if signature.angles is None else {"angles": tuple(float(v) for v in np.ravel(signature.angles))}),
+            **{key: str(value) for key, value in facts.get("metadata", {}).items() if key in FILE_KEYS},
         )
 
     @classmethod
@@ -218,6 +230,8 @@ def entries_to_columns(entries: list[Entry]) -> tuple[dict, dict]:
     for name, width in OPTIONAL_COLUMNS.items():
         key = name.split("/")[1]
         columns[name] = np.array([getattr(e, key) for e in entries], dtype=np.float64).reshape(n, width)
+    for name in TEXT_COLUMNS:
+        columns[name] = object_array([getattr(e, name.split("/")[1]) for e in entries])
     counts = {}
     for name in HISTOGRAMS:
         hists = [e.histograms.get(name, empty) for e in entries]
@@ -245,7 +259,7 @@ def _as_counts(values: np.ndarray) -> np.ndarray:
 def write_columns(f: h5py.File, columns: dict) -> None:
     """Write every per-entry column (dataset name -> array) with its file dtype."""
     for name, (_, file_dtype) in ENTRY_COLUMNS.items():
-        data = columns[name] if name in columns or name not in OPTIONAL_COLUMNS else missing_column(name, _rows(columns))
+        data = columns[name] if name in columns or name not in MAY_BE_ABSENT else missing_column(name, _rows(columns))
         # HDF5 filters no variable-length data: strings are covered by their content hash
         options = {} if file_dtype is _STR else checked(np.shape(data))
         dataset = f.create_dataset(name, data=data, dtype=file_dtype, **options)
@@ -254,7 +268,9 @@ def write_columns(f: h5py.File, columns: dict) -> None:
 
 
 def missing_column(name: str, rows: int) -> np.ndarray:
-    """A layout-2 column an older file lacks, as NaN: (rows, width)."""
+    """A column an older file lacks: NaN (rows, width), or "" for a text column."""
+    if name in TEXT_COLUMNS:
+        return object_array([""] * rows)
     return np.full((rows, OPTIONAL_COLUMNS[name]), np.nan)
 
 

@@ -141,6 +141,8 @@ def write_rank_entries(f: h5py.File, columns: dict, histograms) -> np.ndarray:
 
 
 def _angles_of(columns: dict, ok: np.ndarray) -> np.ndarray:
+    if "entries/angles" not in columns:  # a file written before the angle histograms: unknown
+        return np.full((len(ok), ANGLE_WIDTH), np.nan)
     angles = np.asarray(columns["entries/angles"], dtype=np.float64)
     return angles[ok].reshape(len(ok), ANGLE_WIDTH)
 
@@ -267,19 +269,6 @@ class RankSection:
             self._arrays[name] = values
         return self._arrays[name]
 
-    def bank(self, h: str):
-        """Histogram ``h`` of the ok entries as a :class:`~shapeidx.distance.HistogramBank` (views, no copy)."""
-        from ..distance.bank import HistogramBank
-
-        counts, order, totals = self.array(f"{h}/counts"), self.array(f"{h}/order"), self.array(f"{h}/totals")
-        groups, at, row = [], 0, 0
-        for bins, n in self.groups[h].tolist():
-            block = counts[at : at + n * bins].reshape(n, bins) if bins else np.zeros((n, 0), dtype=COUNT_DTYPE)
-            groups.append((bins, order[row : row + n], block, totals[row : row + n]))
-            at += n * bins
-            row += n
-        return HistogramBank(len(self), groups)
-
     def slots(self, h: str):
         """(group start of each group, grouped slot of each rank position) of histogram ``h``."""
         key = f"{h}/slot"
@@ -292,14 +281,16 @@ class RankSection:
         return self._arrays[key]
 
     def blocks(self, h: str, name: str = "counts"):
-        """Per group of ``h``: (bins, its (n, width) block of ``name``, its totals), where width is
-        bins for the counts and ceil(bins / coarse) for the coarse counts."""
+        """Per group of ``h``: (bins, its (n, width) block of ``name`` (views of the mapping, no
+        copy), its totals, the rank positions of its rows), where width is bins for the
+        counts and ceil(bins / coarse) for the coarse counts."""
         values, totals = self.array(f"{h}/{name}", verify=False), self.array(f"{h}/totals")
+        order = self.array(f"{h}/order")
         out, at, row = [], 0, 0
         for bins, n in self.groups[h].tolist():
             width = bins if name == "counts" else -(-bins // self.coarse)
             block = values[at : at + n * width].reshape(n, width) if width else np.zeros((n, 0), dtype=COUNT_DTYPE)
-            out.append((bins, block, totals[row : row + n]))
+            out.append((bins, block, totals[row : row + n], order[row : row + n]))
             at += n * width
             row += n
         return out

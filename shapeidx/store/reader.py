@@ -20,14 +20,14 @@ from ..ragged import offsets_of, take_ragged
 from ..signing.histogram import Histogram, Signature
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS
 from ..signing.parameters import HISTOGRAMS
-from .files import batch_files, journal_dir, lock_path
+from .files import batch_files, is_one_file_store, main_file
 from .layout import (
     CONTENT_HASH,
     COUNT_DTYPE,
     DEFAULT_STORE,
     ENTRY_COLUMNS,
     SCHEMA_VERSION,
-    OPTIONAL_COLUMNS,
+    MAY_BE_ABSENT,
     SHAPE_COLUMNS,
     STORE_ENV,
     StoreParams,
@@ -70,8 +70,8 @@ class _SourceFile:
         self._offsets: dict = {}
 
     def damaged(self, what: str) -> StoreDamagedError:
-        where = "" if self.path == self.store else f" of {self.path.name}"
-        root = self.file.attrs.get("root") if self.path == self.store else None
+        where = "" if self.seq == 0 else f" of {self.path.name}"
+        root = self.file.attrs.get("root") if self.seq == 0 else None
         return damaged(self.store, what + where, as_text(root) if root is not None else None)
 
     def dataset(self, name: str) -> h5py.Dataset:
@@ -103,7 +103,7 @@ class _SourceFile:
         """Every column holds one row per entry (cheap: shapes only)."""
         n = len(self)
         for name in ENTRY_COLUMNS:
-            if name in OPTIONAL_COLUMNS and name not in self.file:
+            if name in MAY_BE_ABSENT and name not in self.file:
                 continue  # a file of layout 1: these columns read as NaN
             shape = self.dataset(name).shape
             if not shape or shape[0] != n:
@@ -128,7 +128,7 @@ class _SourceFile:
 
     def column(self, name: str) -> np.ndarray:
         if name not in self._columns:
-            if name in OPTIONAL_COLUMNS and name not in self.file:  # a file of layout 1
+            if name in MAY_BE_ABSENT and name not in self.file:  # a file of layout 1
                 self._columns[name] = missing_column(name, len(self))
             else:
                 self._columns[name] = self._read(name, ENTRY_COLUMNS[name][0])
@@ -202,7 +202,7 @@ class _SourceFile:
 
     def value_at(self, name: str, row: int):
         """One row of a numeric column, read alone."""
-        if name in OPTIONAL_COLUMNS and name not in self.file:
+        if name in MAY_BE_ABSENT and name not in self.file:
             return missing_column(name, 1)[0]
         return self._read(name, ENTRY_COLUMNS[name][0], np.s_[int(row)])
 
@@ -232,8 +232,10 @@ class StoreReader:
     journal : int
         Batches applied on top of the main file.
     skipped : list of (Path, str)
-        Damaged journal batches left out of the view, with why (the next build drops them
-        and redoes their work).
+        Damaged journal segments left out of the view, with why: only a view opened for a
+        build (``open_store(..., skip_damaged=True)``), which drops them and redoes their
+        work; every other reader refuses a damaged segment (an answer over fewer entries
+        than the store holds is never given).
     """
 
     def __init__(self, path: Path, main: _SourceFile, batches: list[_SourceFile], skipped=()):
@@ -243,6 +245,7 @@ class StoreReader:
         self.params = StoreParams.from_attrs(self.attrs)
         self.journal = len(batches)
         self._sources = [main] + batches
+        self.missing = None  # what is missing from the journal (only a build's view may have a gap)
         self._assembled = False
 
     # -- assembly: which row of which file holds each live entry; done on first use, so that a
@@ -389,7 +392,19 @@ class StoreReader:
         return Signature(points=self.params.points, seed=self.params.seed, histograms=histograms, angles=angles)
 
     def size_on_disk(self) -> int:
-        """Bytes of the main file and the journal."""
+        """Bytes of the store: every file of its directory (main file, journal, metadata,
+        thumbnails), what a copy of it takes."""
+        total = 0
+        for folder, _, names in os.walk(self.path):
+            for name in names:
+                try:
+                    total += os.lstat(os.path.join(folder, name)).st_size
+                except FileNotFoundError:  # a segment a merge removed meanwhile
+                    pass
+        return total
+
+    def files_size(self) -> int:
+        """Bytes of the HDF5 files of this view (main file and segments): what a merge rewrites."""
         total = 0
         for source in self._sources:
             try:
@@ -414,13 +429,18 @@ def resolve_store_path(path: str | os.PathLike | None) -> Path:
     return Path(path or os.environ.get(STORE_ENV) or DEFAULT_STORE)
 
 
-def open_store(path: str | os.PathLike, attempts: int = 20) -> StoreReader:
-    """Open a store for reading: the main file and the journal batches it does not hold yet.
+def open_store(path: str | os.PathLike, attempts: int = 20, skip_damaged: bool = False) -> StoreReader:
+    """Open a store for reading: the main file and the journal segments it does not hold yet.
+
+    ``skip_damaged``: leave a damaged segment out of the view (:attr:`StoreReader.skipped`)
+    instead of refusing the store; only a build asks for that (it redoes their work).
 
     Raises
     ------
     StoreError
         No store there, a file that is not a store, or one of a newer layout.
+    StoreDamagedError
+        A file of the store fails its checks (a damaged segment included, unless ``skip_damaged``).
     """
     path = Path(path)
     for _ in range(attempts):
@@ -435,13 +455,20 @@ def open_store(path: str | os.PathLike, attempts: int = 20) -> StoreReader:
                     opened, reason = _open_batch(path, batch, seq)
                     if opened is not None:
                         batches.append(opened)
-                    elif reason is not None:
+                    elif reason is not None and skip_damaged:
                         skipped.append((batch, reason))
+                    elif reason is not None:
+                        raise damaged(path, f"journal segment {batch.name}: {reason}", as_text(main.file.attrs.get("root", "")) or None)
                     else:
                         raise FileNotFoundError(batch)  # it vanished: a merge finished meanwhile
-            if _same_file(path, main):  # no merge replaced the main file while the batches were listed
+            if _same_file(main.path, main):  # no merge replaced the main file while the batches were listed
                 batches = _drop_covered(batches)
-                return StoreReader(path, main, batches, skipped)
+                missing = _missing_segments(path, merged, batches, skipped)
+                if missing and not skip_damaged:
+                    raise damaged(path, missing, as_text(main.file.attrs.get("root", "")) or None)
+                reader = StoreReader(path, main, batches, skipped)
+                reader.missing = missing
+                return reader
         except FileNotFoundError:  # a batch went: a merge finished meanwhile
             pass
         except (OSError, RuntimeError, KeyError, ValueError) as exc:  # HDF5 metadata that cannot be read
@@ -456,21 +483,40 @@ def open_store(path: str | os.PathLike, attempts: int = 20) -> StoreReader:
 
 
 def _open_main(path: Path) -> _SourceFile:
-    if path.is_dir():
-        raise StoreError(f"{path} is a directory, not a store (give the store's file with --store)")
+    check_store_directory(path)
+    main = main_file(path)
     try:
-        return _SourceFile(path, 0)
+        return _SourceFile(main, 0, path)
     except FileNotFoundError:
-        raise StoreError(f"no store at {path} (run 'shapeidx build DIR' first, or give --store)") from None
+        from .files import build_state_path, committed_path, journal_dir, lock_path
+
+        if any(p.exists() for p in (journal_dir(path), committed_path(path))) or (
+                build_state_path(path).exists() and not lock_path(path).exists()):
+            raise damaged(path, f"its main file {main.name} is missing") from None
+        if lock_path(path).exists():
+            raise StoreError(f"the store {path} is being created (a first build has just begun); try again") from None
+        raise StoreError(f"{path} is not a shapeidx store (it holds no {main.name})") from None
     except PermissionError:
         raise StoreError(f"{path}: cannot open the store: permission denied") from None
     except OSError as exc:
-        if not path.exists():
-            raise StoreError(f"no store at {path} (run 'shapeidx build DIR' first, or give --store)") from None
-        was_a_store = lock_path(path).exists() or journal_dir(path).exists()
-        if path.stat().st_size == 0 or (_signature_missing(path) and not was_a_store):
-            raise StoreError(f"{path} is not a shapeidx store (not an HDF5 file)") from None
+        if not main.exists():
+            raise StoreError(f"{path} is not a shapeidx store (it holds no {main.name})") from None
+        if main.stat().st_size == 0 or _signature_missing(main):
+            raise damaged(path, f"{main.name} is not an HDF5 file") from None
         raise damaged(path, f"the main file cannot be opened: {_first_line(exc)}") from None
+
+
+def check_store_directory(path: Path) -> None:
+    """Refuse, in one line, a path that is not a store directory: nothing there, a file of
+    the older one-file layout (a build converts it), or any other file."""
+    if path.is_dir():
+        return
+    if not path.exists():
+        raise StoreError(f"no store at {path} (run 'shapeidx build DIR --store {path}' first, or give --store)")
+    if is_one_file_store(path):
+        raise StoreError(f"{path} is a store of the older one-file layout: 'shapeidx build DIR --store {path}' converts"
+                         " it into the store directory (renames only: no part is signed again)")
+    raise StoreError(f"{path} is not a shapeidx store (a store is a directory; this is a file)")
 
 
 def _signature_missing(path: Path) -> bool:
@@ -506,6 +552,29 @@ def _open_batch(store: Path, batch: Path, seq: int):
         text = str(exc)
         return None, text[text.index("(") + 1 : text.index(" of batch-")] if " of batch-" in text else "damaged"
     return source, None
+
+
+def _missing_segments(store: Path, merged: int, batches: list, skipped: list) -> str | None:
+    """What is missing from the journal, in words (None: nothing). The segments after the
+    main file's ``journal_seq`` must follow one another without a gap (a merged segment
+    covers ``first_seq``..seq), up to the newest sequence number committed
+    (``STORE/committed``)."""
+    from .files import read_committed
+
+    if skipped:
+        return None  # a build that drops damaged segments redoes their work and folds the journal
+    expected = merged + 1
+    for batch in sorted(batches, key=lambda b: b.seq):
+        if batch.first_seq > expected:
+            gap = batch.first_seq - 1
+            return (f"journal segment {gap} is missing" if gap == expected
+                    else f"journal segments {expected}..{gap} are missing")
+        expected = max(expected, batch.seq + 1)
+    committed = read_committed(store)
+    if committed >= expected:
+        return f"journal segment {committed} (the newest committed) is missing" if committed == expected else (
+            f"journal segments {expected}..{committed} (the newest committed) are missing")
+    return None
 
 
 def _drop_covered(batches: list) -> list:

@@ -7,6 +7,7 @@ import numpy as np
 from ..signing.parameters import HISTOGRAMS
 from .layout import STATUS_FAILED, STATUS_OK
 from .reader import StoreReader
+from .writer import read_build_state
 
 
 def describe_store(reader: StoreReader) -> dict:
@@ -30,6 +31,18 @@ def describe_store(reader: StoreReader) -> dict:
         "created": reader.attrs.get("created"),
         "updated": reader.attrs.get("updated"),
         "journal_batches": reader.journal,
+        "build": read_build_state(reader.path),
+        "metadata": _metadata_facts(reader.path),
         "bytes": reader.size_on_disk(),
         "failure_reasons": [{"reason": str(r), "count": int(c)} for c, r in by_count],
     }
+
+
+def _metadata_facts(store) -> dict | None:
+    """Rows, keys and source of the store's metadata table (``build --metadata``), or None."""
+    from .metadata import load_table
+
+    table = load_table(store)
+    if table is None:
+        return None
+    return {"rows": len(table), "keys": list(table.columns), "source": table.source, "sha256": table.sha256}

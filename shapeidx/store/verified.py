@@ -1,10 +1,10 @@
-"""Which main file a build has already verified: ``STORE.verified``.
+"""Which main file a build has already verified: ``STORE/verified``.
 
 A build refuses a damaged store before it changes anything, and so used to read and check
 every chunk of the main file at its start: 40-54 s at 10^6 entries, whatever the change.
 The main file is never written in place (a merge or a repair writes a new one and renames
 it over the old), so once its checksums have passed, the same file, unchanged, need not be
-read again. ``STORE.verified`` records the main file's identity as ``os.stat`` gives it
+read again. ``STORE/verified`` records the main file's identity as ``os.stat`` gives it
 (device, inode, size, modification and change times, in ns) when it was last verified, or
 when this store's own merge wrote it (from checked reads: HDF5 computes every chunk's
 Fletcher-32 as it writes). A build whose main file still has that identity skips the full
@@ -29,17 +29,19 @@ import json
 import os
 from pathlib import Path
 
-VERIFIED_SUFFIX = ".verified"
+from .files import main_file
+
 _FIELDS = ("st_dev", "st_ino", "st_size", "st_mtime_ns", "st_ctime_ns")
 
 
 def verified_path(store: Path) -> Path:
-    return Path(store).with_name(Path(store).name + VERIFIED_SUFFIX)
+    return Path(store) / "verified"
 
 
 def identity(store: Path) -> dict | None:
+    """The main file's identity as ``os.stat`` gives it (None: it cannot be stat'ed)."""
     try:
-        stat = os.stat(store)
+        stat = os.stat(main_file(store))
     except OSError:
         return None
     return {name: int(getattr(stat, name)) for name in _FIELDS}

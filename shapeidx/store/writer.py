@@ -36,7 +36,8 @@ from .. import __version__
 from ..errors import StoreError, StoreLockedError
 from ..ragged import offsets_of
 from ..signing.parameters import HISTOGRAMS
-from .files import batch_files, glob_escape, journal_dir, lock_path, remove_if_empty, write_atomically
+from .files import (batch_files, build_state_path, journal_dir, lock_path, main_file, remove_if_empty, write_atomically,
+                    write_committed)
 from .layout import (
     COUNT_DTYPE,
     ENTRY_COLUMNS,
@@ -60,17 +61,99 @@ from .verified import mark_verified
 GROWTH = 2
 #: Segments the journal holds at most: beyond, everything is merged into the main file.
 MAX_SEGMENTS = 32
+#: A finishing build folds the journal into the main file when the journal holds at least
+#: this share of the main file's rows (:meth:`StoreWriter.checkpoint`).
+FOLD_SHARE = 0.25
+
+
+def _make_store_directory(store: Path) -> None:
+    """Create the store's directory, or accept an existing one that is a store (or empty).
+
+    A directory that holds other files is refused: ``--store`` naming a folder of parts by
+    mistake must not put a store inside it.
+    """
+    if store.is_dir():
+        ours = {"main.h5", "journal", "lock", "build.json", "verified", "thumbs", "committed", "metadata.h5"}
+        others = [p.name for p in store.iterdir() if p.name not in ours and ".tmp-" not in p.name
+                  and not p.name.startswith("main.h5.")]
+        if others and not main_file(store).exists():
+            raise StoreError(f"{store} is a directory that is not a shapeidx store (it holds {others[0]!r});"
+                             " give --store a new name (the build creates the store's directory)")
+        return
+    if store.exists():
+        raise StoreError(f"{store} is not a shapeidx store (a store is a directory; this is a file)")
+    if not store.parent.is_dir():
+        raise StoreError(f"cannot create the store {store}: no directory {store.parent}")
+    try:
+        store.mkdir(exist_ok=True)
+    except OSError as exc:
+        raise StoreError(f"cannot create the store {store}: {exc.strerror or exc}") from None
+
+
+def record_build(store: Path, state: str, facts: dict | None = None) -> None:
+    """Write ``STORE/build.json`` (atomically): the state of the last build (``running``,
+    ``finished``, ``interrupted``, ``stopped``), who ran it, when, and ``facts`` (its summary).
+    A build killed with -9 leaves ``running`` with no lock held: ``stats`` says it stopped."""
+    import json
+
+    path = build_state_path(store)
+    record = {"state": state, "pid": os.getpid(), "host": socket.gethostname(), "at": utc_now()}
+    try:
+        previous = json.loads(path.read_text())
+    except (OSError, ValueError):
+        previous = {}
+    record["started"] = utc_now() if state == "running" else previous.get("started")
+    if facts:
+        record.update(facts)
+    tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
+    try:
+        tmp.write_text(json.dumps(record) + "\n")
+        os.replace(tmp, path)
+    except OSError:  # a report only: a store without it works
+        tmp.unlink(missing_ok=True)
+
+
+def read_build_state(store: Path) -> dict | None:
+    """The last build's record with ``state`` corrected by the lock: ``running`` only while a
+    build holds it, ``stopped`` when its holder died (kill -9, a crash, a power cut)."""
+    import json
+
+    try:
+        record = json.loads(build_state_path(store).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(record, dict):
+        return None
+    if record.get("state") == "running" and not _lock_held(store):
+        record["state"] = "stopped"
+    return record
+
+
+def _lock_held(store: Path) -> bool:
+    try:
+        fd = os.open(lock_path(store), os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return False
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
 
 
 class StoreLock:
-    """The single-writer lock: an exclusive ``flock`` on ``STORE.lock``.
+    """The single-writer lock: an exclusive ``flock`` on ``STORE/lock``.
 
     The kernel drops it when its holder dies, even by kill -9, so a crash never leaves a
     stale lock. Readers take no lock.
     """
 
-    def __init__(self, store: Path):
-        self.path = lock_path(store)
+    def __init__(self, store: Path, path: Path | None = None):
+        self.store = Path(store)
+        self.path = path or lock_path(store)
         self.fd: int | None = None
 
     def acquire(self, wait: bool = False, on_wait=None, timeout: float | None = None) -> None:
@@ -86,7 +169,7 @@ class StoreLock:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             holder = _holder(fd)
-            name = self.path.name[: -len(".lock")]
+            name = self.store.name
             if not wait:
                 os.close(fd)
                 raise StoreLockedError(
@@ -170,8 +253,11 @@ class StoreWriter:
         self.params = params
         self.root = str(root)
         self.on_warning = on_warning or (lambda text: None)
-        if not self.path.parent.is_dir():
-            raise StoreError(f"cannot create the store {self.path}: no directory {self.path.parent}")
+        from .convert import convert_one_file_store
+
+        if convert_one_file_store(self.path, wait, on_wait, wait_timeout):
+            self.on_warning(f"converted {self.path} from the one-file layout into a store directory (renames only)")
+        _make_store_directory(self.path)
         self.lock = StoreLock(self.path)
         self.lock.acquire(wait, on_wait, wait_timeout)
         try:
@@ -181,38 +267,47 @@ class StoreWriter:
                 for line in repair_store(self.path):
                     self.on_warning(line)
             refuse_damaged(self.path)  # with the lock held: no merge can change it meanwhile
-            self._prepare()
+            self._prepare(repair)
+            record_build(self.path, "running")
         except BaseException:
             self.lock.release()
             raise
 
-    def _prepare(self) -> None:
+    def _prepare(self, repair: bool = False) -> None:
+        from .files import committed_path
+
         self._remove_leftovers()
-        if not self.path.exists():
+        if not main_file(self.path).exists():
+            if not repair and (journal_dir(self.path).exists() or committed_path(self.path).exists()):
+                from .reader import damaged
+
+                raise damaged(self.path, f"its main file {main_file(self.path).name} is missing")
             self._create_empty()
-        with open_store(self.path) as reader:
+        with open_store(self.path, skip_damaged=True) as reader:
             check_params(reader, self.params)
             check_root(reader, self.root)
             self.merged_seq = int(reader.attrs["journal_seq"])
             skipped = reader.skipped
+            missing = reader.missing
         for batch, reason in skipped:  # its work is redone: its files differ from their entries
             self.on_warning(f"dropped the damaged journal batch {batch.name} ({reason}); its files are indexed again")
             batch.unlink(missing_ok=True)
+        if missing:
+            self.on_warning(f"{missing}: the files it held are indexed again")
+        # a gap in the journal (a segment dropped or lost) is closed by folding it into the main file
+        self.must_fold = bool(skipped or missing)
         self.next_seq = max([self.merged_seq] + [seq for seq, _ in batch_files(self.path)]) + 1
         self.uncompacted = len(batch_files(self.path))  # a killed build's batches are merged at the next finish
 
     def _remove_leftovers(self) -> None:
         """Temporary files of killed writers, and batches already in the main file."""
-        for pattern in (".tmp-*", ".verified.tmp-*"):  # the second: a record being written (store/verified.py)
-            for tmp in self.path.parent.glob(f"{glob_escape(self.path.name)}{pattern}"):
-                tmp.unlink(missing_ok=True)
-        folder = journal_dir(self.path)
-        if folder.is_dir():
-            for tmp in folder.glob("*.tmp-*"):
-                tmp.unlink(missing_ok=True)
-        if self.path.exists():
+        for folder in (self.path, journal_dir(self.path)):  # main.h5, verified, build.json, segments
+            if folder.is_dir():
+                for tmp in folder.glob("*.tmp-*"):
+                    tmp.unlink(missing_ok=True)
+        if main_file(self.path).exists():
             try:
-                with h5py.File(self.path, "r") as f:
+                with h5py.File(main_file(self.path), "r") as f:
                     merged = int(f.attrs["journal_seq"]) if "journal_seq" in f.attrs else 0
             except OSError:
                 return  # a damaged main file: open_store says so next, in one line
@@ -245,7 +340,7 @@ class StoreWriter:
                 write_counts(f, name, flat, lengths)
             write_rank(f, columns, counts, HISTOGRAMS)
 
-        write_atomically(self.path, fill)
+        write_atomically(main_file(self.path), fill)
 
     @property
     def pending_batches(self) -> int:
@@ -276,6 +371,7 @@ class StoreWriter:
             write_paths(f, "removed/path", sorted(batch.removed))
 
         write_atomically(folder / f"batch-{seq:010d}.h5", fill, 2 * _bytes_of(columns, counts, batch))
+        write_committed(self.path, seq)
         self.next_seq += 1
         self.uncompacted += 1
         return seq
@@ -288,38 +384,63 @@ class StoreWriter:
         """
         self.compact(full=True)
 
-    def compact(self, full: bool = False) -> None:
+    def compact(self, full: bool = False, fold: bool = False) -> str | None:
         """Merge the newest journal segments, size-tiered (see the module docstring); ``full``:
-        everything into the main file, as :meth:`merge`.
+        everything into the main file, as :meth:`merge`; ``fold``: everything into the main
+        file when the journal holds at least :data:`FOLD_SHARE` of its rows (what a build
+        does when it finishes: see :meth:`checkpoint`).
 
         Nothing is written when no run of segments is due: a build that changed nothing
         costs no rewrite, and one that changed 100 files rewrites about 100 entries.
+
+        Returns what was merged: ``"main"`` (everything into the main file), ``"segments"``
+        (the newest segments into one), or None (nothing was due).
         """
-        with open_store(self.path) as reader:
+        with open_store(self.path, skip_damaged=True) as reader:  # a gap is folded away, not refused
             segments = reader._sources[1:]
             if not segments and not (full and reader._sources[0].rank is None):
                 self.uncompacted = 0
-                return  # a main file of layout 2 or older is rewritten by a full merge: it gains rank/
+                return None  # a main file of layout 2 or older is rewritten by a full merge: it gains rank/
             sizes = [_rows_of(source) for source in reader._sources]
+            journal_rows = sum(sizes[1:])
             # a file of layout 2 or older has no ranking arrays: the first merge rewrites everything, once
-            first = 0 if full or any(source.rank is None for source in reader._sources) else _merge_from(sizes)
+            if full or any(source.rank is None for source in reader._sources):
+                first = 0
+            elif fold and journal_rows >= FOLD_SHARE * len(reader._sources[0]):
+                first = 0
+            else:
+                first = _merge_from(sizes)
             if first is None:
                 self.uncompacted = 0
-                return
+                return None
             if first == 0:
                 self._merge_all(reader)
             else:
                 self._merge_segments(reader, first)
         self.uncompacted = 0
+        return "main" if first == 0 else "segments"
+
+    def checkpoint(self) -> str | None:
+        """What a build does when it finishes: the journal's newest segments merged, and the
+        whole journal folded into the main file once it holds :data:`FOLD_SHARE` of the main
+        file's rows, so that the main file alone holds a store built once (the README's h5py
+        example reads it), while a build that changes 100 files of 10^6 rewrites about 100
+        entries. Folding at that share costs each entry O(1) rewrites over its life (the
+        main file is rewritten only after it has grown by a fixed fraction)."""
+        if getattr(self, "must_fold", False):
+            self.must_fold = False
+            return self.compact(full=True)
+        return self.compact(fold=True)
 
     def _merge_all(self, reader: StoreReader) -> None:
         """A fresh main file holding every entry, renamed into place; then the journal goes."""
         through = max(source.seq for source in reader._sources)
         attrs = self._main_attrs(through, {"created": reader.attrs.get("created", utc_now())})
         # the merged file holds no more than the files it merges, their checksums and ranking arrays
-        estimate = int(reader.size_on_disk() * 2.2)
-        write_atomically(self.path, lambda f: _write_snapshot(f, reader, attrs), estimate)
+        estimate = int(reader.files_size() * 2.2)
+        write_atomically(main_file(self.path), lambda f: _write_snapshot(f, reader, attrs), estimate)
         mark_verified(self.path)  # written from checked reads: the next build need not read it again
+        write_committed(self.path, through)
         self.merged_seq = through
         for seq, batch in batch_files(self.path):
             if seq <= through:
@@ -348,14 +469,21 @@ class StoreWriter:
             if first_seq <= old_seq < seq:
                 batch.unlink(missing_ok=True)
 
-    def close(self) -> None:
+    def close(self, state: str = "stopped", facts: dict | None = None) -> None:
+        """Release the lock, recording how the build ended (``finished``, ``interrupted``, ``stopped``)."""
+        if self.lock.fd is not None:
+            record_build(self.path, state, facts)
         self.lock.release()
 
     def __enter__(self) -> "StoreWriter":
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            state = "finished"
+        else:
+            state = "interrupted" if issubclass(exc_type, KeyboardInterrupt) else "stopped"
+        self.close(state, getattr(self, "facts", None))
 
 
 def _bytes_of(columns: dict, counts: dict, batch: Batch) -> int:

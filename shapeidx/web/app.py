@@ -4,10 +4,10 @@ Starlette (with uvicorn as the server): a small, well-kept ASGI toolkit that giv
 multipart uploads (python-multipart), static files and a test client, and nothing we do not
 use (no ORM, no templates, no validation layer). The API is documented in docs/web.md.
 
-The store is read once at start (:class:`StoreService`): the ok entries' histograms
-(:class:`~shapeidx.ranking.SignatureTable`), paths, fractions and the failed entries with their
-reasons stay in memory, so a query costs one vectorised ranking. The store is a snapshot:
-restart the server to see a newer build.
+The store is opened once at start (:class:`StoreService`) and every query goes through the
+one search road (:class:`~shapeidx.search.Searcher`): the same hits, distances and fields as
+``shapeidx query`` and the Python API, with every metric of the registry and the ``where``
+metadata filters. The store is a snapshot: restart the server to see a newer build.
 
 Every request is treated as hostile:
 
@@ -18,7 +18,7 @@ Every request is treated as hostile:
   private temporary file with the original name's suffix (so the loader picks the format),
   read, and deleted; a file that is not a usable part is a 422 with the loader's one-line
   reason;
-* ``top`` and ``metric`` are checked (400); unknown ids are 404; nothing raises past a handler.
+* ``top``, ``metric`` and ``where`` are checked (400); unknown ids are 404; nothing raises past a handler.
 """
 
 from __future__ import annotations
@@ -34,9 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..distance import METRICS, compare
-from ..errors import LoadError, ShapeidxError, StoreError
-from ..pictures.similarity import SimilarityScale, signatures_of
+from ..distance import compare
+from ..distance.metrics import METRICS
+from ..errors import LoadError, ShapeidxError, UsageError
+from ..pictures.similarity import SimilarityScale, closer_than
 from ..pictures.thumbcache import StoreThumbnails
 from ..signing.histogram import Signature
 from ..signing.parameters import HISTOGRAMS
@@ -48,8 +49,6 @@ MAX_TOP = 5000
 #: Uploaded queries kept (signature and picture) so that their metric, k and compare view
 #: can change without uploading again.
 UPLOADS_KEPT = 64
-#: Suffixes an upload may keep; any other name is sniffed from its content.
-PART_SUFFIXES = (".stl", ".obj", ".off", ".ply", ".wrl", ".wrz", ".vrml")
 UPLOAD_PREFIX = "upload:"
 
 
@@ -64,10 +63,10 @@ class RequestError(Exception):
 
 @dataclass
 class Upload:
-    """An uploaded part: its name, signature and thumbnail."""
+    """An uploaded part: its name, its query (signed with the store's parameters) and thumbnail."""
 
     name: str
-    signature: Signature
+    query: object
     png: bytes | None
     note: str
 
@@ -83,6 +82,8 @@ def _fractions_json(values) -> dict:
 
 def upload_suffix(filename: str) -> str:
     """The suffix a temporary copy of an upload gets: its own when it names a part format."""
+    from ..io.formats import PART_SUFFIXES
+
     name = os.path.basename(filename.replace("\\", "/")).lower()
     gz = name.endswith(".gz")
     stem = name[:-3] if gz else name
@@ -93,7 +94,8 @@ def upload_suffix(filename: str) -> str:
 
 
 class StoreService:
-    """A store held in memory for the web page: ranking, entries, thumbnails, uploads.
+    """A store held open for the web page: queries through the one search road
+    (:class:`~shapeidx.search.Searcher`), entries, thumbnails, uploads.
 
     Parameters
     ----------
@@ -101,106 +103,117 @@ class StoreService:
     """
 
     def __init__(self, store: str | os.PathLike):
-        from ..signing.parameters import SIGNATURE_VERSION
-        from ..ranking import SignatureTable
-        from ..store import STATUS_OK, open_store
+        from ..search import Searcher
 
-        self.store = Path(store).absolute()
-        self.reader = open_store(self.store)
-        if self.reader.params.signature_version != SIGNATURE_VERSION:
-            raise StoreError(f"store {self.store} holds signatures of version {self.reader.params.signature_version},"
-                             f" this shapeidx makes version {SIGNATURE_VERSION}: rebuild it")
-        self.table = SignatureTable.load(self.reader)
-        self.thumbs = StoreThumbnails(self.reader)
-        self.root = Path(self.reader.attrs.get("root") or ".")
+        self.searcher = Searcher(store)
+        self.store = self.searcher.store.absolute()
+        self.reader = self.searcher.reader
+        self.thumbs = StoreThumbnails(self.searcher)
+        self.root = Path(self.searcher.root or ".")
         self.real_root = Path(os.path.realpath(self.root))
-        status = self.reader.column("entries/status")
-        self.all_paths = self.reader.paths
-        self.ok = status == STATUS_OK
-        self.reasons = self.reader.column("entries/reason")
-        self.triangles = self.reader.column("entries/triangles")
-        self.all_fractions = self.reader.column("entries/fractions")
         self._lock = threading.Lock()  # one h5py reader shared by the request threads
         self._scales: dict = {}
         self._uploads: OrderedDict = OrderedDict()
+        self._listing = None
         self.max_upload = MAX_UPLOAD
         self.scale("weighted")  # the default metric's calibration before the first query
 
     def close(self) -> None:
-        self.reader.close()
+        self.searcher.close()
 
     # -- facts
     def info(self) -> dict:
+        from ..distance.metrics import REGISTRY
+        from ..io.formats import PART_SUFFIXES, SUFFIXES
+
+        listing = self.listing()
         return {
             "store": str(self.store),
             "root": str(self.root),
-            "entries": int(len(self.all_paths)),
-            "ok": int(self.ok.sum()),
-            "failed": int((~self.ok).sum()),
-            "metrics": list(METRICS),
-            "points": self.reader.params.points,
+            "entries": int(len(listing["paths"])),
+            "ok": int(listing["ok"].sum()),
+            "failed": int((~listing["ok"]).sum()),
+            "metrics": [{"name": m.name, "label": m.label, "summary": m.summary} for m in REGISTRY.values()],
+            "formats": {name: list(suffixes) for name, suffixes in SUFFIXES.items()},
+            "suffixes": list(PART_SUFFIXES),
+            "metadata_keys": list(self.searcher.metadata_keys()),
+            "points": self.searcher.params.points,
             "max_upload": self.max_upload,
         }
+
+    def listing(self) -> dict:
+        """Every entry's path, status, reason, triangles and fractions (read once, on first use)."""
+        from ..store import STATUS_OK
+
+        with self._lock:
+            if self._listing is None:
+                status = self.reader.column("entries/status")
+                self._listing = {"paths": self.reader.paths, "ok": status == STATUS_OK,
+                                 "reasons": self.reader.column("entries/reason"),
+                                 "triangles": self.reader.column("entries/triangles"),
+                                 "fractions": self.reader.column("entries/fractions")}
+            return self._listing
 
     def scale(self, metric: str) -> SimilarityScale:
         with self._lock:
             if metric not in self._scales:
-                self._scales[metric] = SimilarityScale.cached(self.reader, self.table, metric, self.thumbs.cache.folder)
+                self._scales[metric] = SimilarityScale.cached(self.searcher, metric, self.thumbs.cache.folder)
             return self._scales[metric]
 
     def entries(self, offset: int, limit: int, status: str, contains: str) -> dict:
-        picked = np.ones(len(self.all_paths), dtype=bool)
+        listing = self.listing()
+        paths, ok = listing["paths"], listing["ok"]
+        picked = np.ones(len(paths), dtype=bool)
         if status == "ok":
-            picked &= self.ok
+            picked &= ok
         elif status == "failed":
-            picked &= ~self.ok
+            picked &= ~ok
         if contains:
             needle = contains.lower()
-            picked &= np.array([needle in p.lower() for p in self.all_paths], dtype=bool)
+            picked &= np.array([needle in p.lower() for p in paths], dtype=bool)
         rows = np.flatnonzero(picked)
         page = rows[offset : offset + limit]
-        fractions = self.all_fractions
         return {
             "total": int(len(rows)),
             "offset": offset,
             "entries": [
                 {
-                    "id": str(self.all_paths[i]),
-                    "status": "ok" if self.ok[i] else "failed",
-                    "reason": str(self.reasons[i]),
-                    "triangles": int(self.triangles[i]),
-                    "fractions": _fractions_json(fractions[i]) if self.ok[i] else None,
+                    "id": str(paths[i]),
+                    "status": "ok" if ok[i] else "failed",
+                    "reason": str(listing["reasons"][i]),
+                    "triangles": int(listing["triangles"][i]),
+                    "fractions": _fractions_json(listing["fractions"][i]) if ok[i] else None,
                 }
                 for i in page
             ],
         }
 
-    # -- ids
-    def table_index(self, entry: str) -> int:
-        """Position of an ok entry in the table (404 for an unknown id, 409 for a failed one)."""
-        i = self.table.index_of(entry)
-        if i is not None:
-            return i
-        j = self.reader.index_of(entry, self.all_paths)
-        if j is None:
+    # -- ids: an entry's exact path (never a file path), or an upload's
+    def position_of(self, entry: str) -> int:
+        """The ranked position of an ok entry (404 for an unknown id, 409 for a failed one)."""
+        found = self.searcher.view.find(entry)
+        if found is None:
             raise RequestError(404, f"no entry {entry!r} in the store")
-        raise RequestError(409, f"entry {entry!r} failed to index: {self.reasons[j]}")
+        position = self.searcher.view.position_of(found)
+        if position is None:
+            raise RequestError(409, f"entry {entry!r} failed to index: {self.searcher.view.status_of(found)[1]}")
+        return position
 
     def file_of(self, entry: str) -> Path:
         """The entry's file, if it lies inside the store's root once links are followed (else 403)."""
-        self.table_index(entry)  # a known entry or an error: the id is never a path by itself
+        self.position_of(entry)  # a known entry or an error: the id is never a path by itself
         real = Path(os.path.realpath(self.root / entry))
         if not real.is_relative_to(self.real_root):
             raise RequestError(403, f"entry {entry!r} resolves outside the store's root; not served")
         return real
 
-    def signature_of(self, query_id: str) -> tuple[Signature, int | None]:
-        """The signature of an entry or of a kept upload, and its table index (None for uploads)."""
+    def query_of(self, query_id: str):
+        """The search query of an entry id or of a kept upload."""
         if query_id.startswith(UPLOAD_PREFIX):
-            return self.upload(query_id).signature, None
-        i = self.table_index(query_id)
+            return self.upload(query_id).query
+        self.position_of(query_id)
         with self._lock:
-            return signatures_of(self.reader, self.table.rows[[i]])[0], i
+            return self.searcher.query_of_entry(query_id)
 
     def upload(self, query_id: str) -> Upload:
         with self._lock:
@@ -212,51 +225,46 @@ class StoreService:
             return found
 
     # -- answers
-    def describe(self, query_id: str, known: tuple | None = None) -> dict:
-        """An entry or upload for the page: name, path, fractions, histograms, picture.
-
-        ``known`` is ``signature_of(query_id)`` when the caller has it already.
-        """
-        signature, i = known or self.signature_of(query_id)
+    def describe(self, query_id: str, query=None) -> dict:
+        """An entry or upload for the page: name, path, fractions, histograms, picture, metadata."""
+        query = query or self.query_of(query_id)
+        signature = query.signature
         out = {"id": query_id, "fractions": signature.fractions, "histograms": _histograms_json(signature)}
-        if i is None:
+        if query_id.startswith(UPLOAD_PREFIX):
             upload = self.upload(query_id)
-            out.update(name=upload.name, path=None, note=upload.note,
+            out.update(name=upload.name, path=None, note=upload.note, metadata={},
                        thumbnail=f"/api/thumbnail?id={_quote(query_id)}" if upload.png else None)
         else:
-            out.update(name=query_id, path=str(self.root / query_id), thumbnail=f"/api/thumbnail?id={_quote(query_id)}")
+            with self._lock:
+                metadata = self.searcher.metadata_at(self.position_of(query_id))
+            out.update(name=query_id, path=str(self.root / query_id), metadata=metadata,
+                       thumbnail=f"/api/thumbnail?id={_quote(query_id)}")
         return out
 
-    def query(self, query_id: str, top: int, metric: str) -> dict:
-        signature, first = self.signature_of(query_id)
-        return self._answer(query_id, signature, first, top, metric)
+    def query(self, query_id: str, top: int, metric: str, where=()) -> dict:
+        from ..search import Filters, parse_where
 
-    def _answer(self, query_id, signature, first, top, metric) -> dict:
-        from ..ranking import top_hits
-
-        query = self.describe(query_id, (signature, first))
-        distances = self.table.distances(signature, metric)
-        hits = top_hits(distances, self.table.paths, top, first)
+        filters = Filters(where=parse_where(where))
+        query = self.query_of(query_id)
+        with self._lock:
+            answer = self.searcher.search(query, top, metric, filters)
+            fractions = [self.searcher.view.gather("fractions", np.array([self.position_of(h.relative_path)]))[0]
+                         for h in answer.hits]
         scale = self.scale(metric)
-        for hit in hits:
-            i = self.table.index_of(hit["path"])
-            share = scale.share(hit["distance"])
-            hit.update(
-                id=hit.pop("path"),
-                words=scale.words(hit["distance"]),
-                share=share,
-                fractions=_fractions_json(self.table.fractions[i]),
-            )
-            hit["thumbnail"] = f"/api/thumbnail?id={_quote(hit['id'])}"
-        return {"query": query, "metric": metric, "top": top, "entries": len(self.table),
+        hits = []
+        for hit, hit_fractions in zip(answer.hits, fractions):
+            share = scale.share(hit.distance)
+            hits.append({**hit.to_dict(), "id": hit.relative_path, "words": scale.words(hit.distance), "share": share,
+                         "closer_than": closer_than(share) if share is not None and hit.distance > 0 else "",
+                         "fractions": _fractions_json(hit_fractions),
+                         "thumbnail": f"/api/thumbnail?id={_quote(hit.relative_path)}"})
+        return {"query": self.describe(query_id, query), "metric": metric, "top": top, "entries": answer.entries,
+                "considered": answer.considered, "filters": answer.filters, "reason": answer.reason,
                 "calibration": scale.describe(), "hits": hits}
 
-    def query_upload(self, filename: str, data: bytes, top: int, metric: str) -> dict:
-        """Sign an uploaded part file and rank the store against it (LoadError for a bad part)."""
+    def query_upload(self, filename: str, data: bytes, top: int, metric: str, where=()) -> dict:
+        """Sign an uploaded part file and rank the store against it (422 for a bad part)."""
         from ..pictures.render import render_solid_png
-        from ..api import load
-        from ..io import LoadLimits
-        from ..signing.pipeline import signature_of_solid
 
         name = os.path.basename((filename or "upload").replace("\\", "/")) or "upload"
         digest = hashlib.sha256(data).hexdigest()
@@ -268,20 +276,20 @@ class StoreService:
                 path = Path(folder) / ("part" + upload_suffix(name))
                 path.write_bytes(data)
                 try:
-                    params = self.reader.params
-                    solid = load(path, limits=LoadLimits(faceting=params.faceting))
-                    signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor)
+                    query = self.searcher.query_of_part(path, label=name)
                 except LoadError as exc:
                     raise RequestError(422, f"{name}: {exc.reason}") from None
+                query.path = query.entry = query.own = None  # a temporary file: not the store's
                 try:
-                    png, note = render_solid_png(solid), ""
+                    png, note = render_solid_png(query.solid), ""
                 except Exception as exc:  # a picture is a nicety: the query still answers
                     png, note = None, f"no picture ({type(exc).__name__})"
+                query.solid = None
             with self._lock:
-                self._uploads[query_id] = Upload(name, signature, png, note)
+                self._uploads[query_id] = Upload(name, query, png, note)
                 while len(self._uploads) > UPLOADS_KEPT:
                     self._uploads.popitem(last=False)
-        return self.query(query_id, top, metric)
+        return self.query(query_id, top, metric, where)
 
     def thumbnail(self, query_id: str) -> bytes:
         if query_id.startswith(UPLOAD_PREFIX):
@@ -296,9 +304,12 @@ class StoreService:
             raise RequestError(404, f"no picture of {query_id!r}: {exc.reason}") from None
 
     def compare(self, a: str, b: str) -> dict:
-        sig_a, _ = self.signature_of(a)
-        sig_b, _ = self.signature_of(b)
-        return {"a": self.describe(a), "b": self.describe(b), "distances": compare(sig_a, sig_b)}
+        from ..distance.metrics import REGISTRY
+
+        query_a, query_b = self.query_of(a), self.query_of(b)
+        distances = compare(query_a.signature, query_b.signature)
+        return {"a": self.describe(a, query_a), "b": self.describe(b, query_b), "distances": distances,
+                "labels": {name: REGISTRY[name].label for name in distances}}
 
 
 def _quote(text: str) -> str:
@@ -330,6 +341,17 @@ def _metric(params) -> str:
     return metric
 
 
+#: ``where`` conditions a request may carry at most.
+MAX_WHERE = 20
+
+
+def _where(params) -> list:
+    values = [str(v)[:500] for v in params.getlist("where")] if hasattr(params, "getlist") else []
+    if len(values) > MAX_WHERE:
+        raise RequestError(400, f"at most {MAX_WHERE} where conditions")
+    return values
+
+
 def _id(params, name: str = "id") -> str:
     value = params.get(name)
     if not value:
@@ -355,6 +377,8 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD):
                 return await handler(request)
             except RequestError as exc:
                 return JSONResponse({"error": exc.message}, status_code=exc.status)
+            except UsageError as exc:
+                return JSONResponse({"error": str(exc)}, status_code=400)
             except ShapeidxError as exc:
                 return JSONResponse({"error": str(exc)}, status_code=422)
             except Exception as exc:  # a bug: a one-line 500, the server keeps running
@@ -382,7 +406,7 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD):
 
     async def query_get(request):
         q = request.query_params
-        result = await run_in_threadpool(service.query, _id(q), _int(q, "top", 10, 1, MAX_TOP), _metric(q))
+        result = await run_in_threadpool(service.query, _id(q), _int(q, "top", 10, 1, MAX_TOP), _metric(q), _where(q))
         return JSONResponse(result)
 
     async def query_post(request):
@@ -411,7 +435,8 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD):
             if not data:
                 raise RequestError(422, f"{upload.filename or 'upload'}: the file is empty")
             top, metric = _int(form, "top", 10, 1, MAX_TOP), _metric(form)
-            result = await run_in_threadpool(service.query_upload, upload.filename or "upload", data, top, metric)
+            result = await run_in_threadpool(service.query_upload, upload.filename or "upload", data, top, metric,
+                                             _where(form))
         finally:
             await form.close()
         return JSONResponse(result)

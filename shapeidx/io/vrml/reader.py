@@ -30,6 +30,7 @@ import numpy as np
 
 from ...errors import LoadError
 from ..base import Format, LoadLimits, PolygonMesh, head_of, read_bytes
+from ..formats import SUFFIXES
 from . import fast
 from .geometry import Placement
 from .parser import Node, Scene, parse_vrml
@@ -218,5 +219,5 @@ def _looks_like_vrml(data: bytes) -> bool:
 
 
 FORMATS = [
-    Format("vrml", "VRML", (".wrl", ".wrz", ".vrml"), lambda path, data, limits: load_vrml(path, limits, data), sniff=_looks_like_vrml)
+    Format("vrml", "VRML", SUFFIXES["vrml"], lambda path, data, limits: load_vrml(path, limits, data), sniff=_looks_like_vrml)
 ]

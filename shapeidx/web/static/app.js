@@ -3,8 +3,12 @@
 
 const QUERY_COLOUR = "#1f77b4", HIT_COLOUR = "#d62728", XMAX = 3.0, BINS_PER_MEAN = 50;
 const HISTOGRAMS = ["all", "in", "out", "mixed"];
-const METRIC_TITLES = {all: "ALL (plain D2)", avg3: "AvgOf3", avg4: "AvgOf4", weighted: "Weighted", combined: "combined"};
 const state = {info: null, cache: new Map()};
+// the metric registry's labels, from /api/store (one record per metric on the server)
+function metricLabel(name) {
+  const found = state.info && state.info.metrics.find(m => m.name === name);
+  return found ? found.label : name;
+}
 
 function h(tag, attrs, ...children) {
   const el = document.createElement(tag);
@@ -44,7 +48,24 @@ function busy(on) { document.getElementById("busy").hidden = !on; }
 function params() { return new URLSearchParams(location.hash.split("?")[1] || ""); }
 function metricValue() { return document.getElementById("metric").value || "weighted"; }
 function topValue() { return document.getElementById("top").value || "10"; }
-function go(view, values) { location.hash = `#/${view}?` + new URLSearchParams(values).toString(); }
+// the where field: conditions separated by ";" (KEY=VALUE, KEY>=N, KEY~GLOB, ...)
+function whereValue() { return document.getElementById("where").value.split(";").map(s => s.trim()).filter(s => s); }
+function withWhere(values) {
+  const search = new URLSearchParams(values);
+  for (const w of whereValue()) search.append("where", w);
+  return search;
+}
+function metadataLine(metadata) {
+  const entries = Object.entries(metadata || {});
+  if (!entries.length) return null;
+  return h("div", {class: "metadata", dataset: {testid: "metadata"}},
+    ...entries.flatMap(([k, v], i) => [i ? " · " : "", h("b", {text: k}), ` ${v}`]));
+}
+function go(view, values) {
+  const search = new URLSearchParams(values);
+  if (view === "query" && !search.has("where")) for (const w of whereValue()) search.append("where", w);
+  location.hash = `#/${view}?` + search.toString();
+}
 
 function pct(x) { return (100 * x).toFixed(1) + "%"; }
 function fractions(fr) {
@@ -87,24 +108,27 @@ function queryCard(q, extra) {
   return h("section", {class: "query", dataset: {testid: "query-card"}},
     thumb(q.thumbnail, 180, q.name, null, false),
     h("div", {}, h("h2", {text: q.name}), q.path ? h("div", {class: "path", text: q.path}) : null,
-      fractions(q.fractions), extra || null));
+      metadataLine(q.metadata), fractions(q.fractions), extra || null));
 }
 
 function renderQuery(result) {
   const view = document.getElementById("view");
   const q = result.query;
+  const filtered = result.filters && result.filters.length ? ` (${result.filters.join(", ")}: ${result.considered.toLocaleString()} parts left)` : "";
   const info = h("div", {class: "muted"},
-    `${METRIC_TITLES[result.metric] || result.metric}, top ${result.hits.length} of ${result.entries.toLocaleString()} parts. `,
+    `${metricLabel(result.metric)}, top ${result.hits.length} of ${result.entries.toLocaleString()} parts${filtered}. `,
+    result.reason ? h("div", {class: "reason", dataset: {testid: "no-answer"}, text: `No hit: ${result.reason}.`}) : null,
     h("details", {}, h("summary", {text: "How the similarity words are calibrated"}), result.calibration));
   const hits = h("div", {class: "hits", dataset: {testid: "hits"}});
   result.hits.forEach((hit, k) => {
     const far = hit.words === "weakly similar" || hit.words === "not similar";
-    const share = hit.share === null || hit.distance === 0 ? "" : ` (closer than ${(100 * (1 - hit.share)).toFixed(1)}% of the store's pairs)`;
+    const share = hit.closer_than ? ` (${hit.closer_than})` : "";
     hits.append(h("article", {class: "hit", dataset: {testid: "hit", rank: hit.rank, id: hit.id}},
       h("div", {class: "top"}, h("span", {class: "rank", text: `#${hit.rank}`}), h("span", {class: "distance", text: `distance ${hit.distance === 0 ? "0" : hit.distance.toPrecision(4)}`})),
       h("div", {class: far ? "words far" : "words", text: hit.words + share}),
       thumb(hit.thumbnail, 160, hit.id, () => go("query", {id: hit.id, metric: result.metric, top: result.top}), k >= 12),
       h("div", {class: "path", text: hit.id}),
+      metadataLine(hit.metadata),
       fractions(hit.fractions),
       h("div", {class: "actions"},
         h("button", {class: "plain", dataset: {testid: "compare"}, onclick: () => go("compare", {a: q.id, b: hit.id}), text: "compare"}))));
@@ -117,7 +141,7 @@ function renderCompare(result) {
   const side = (part, cls, colour) => h("div", {class: `side ${cls}`},
     h("h3", {text: part.name}), thumb(part.thumbnail, 220, part.name, part.id.startsWith("upload:") ? null : () => go("query", {id: part.id, metric: metricValue(), top: topValue()}), false),
     part.path ? h("div", {class: "path", text: part.path}) : null, fractions(part.fractions));
-  const rows = Object.entries(result.distances).map(([m, d]) => h("tr", {}, h("td", {text: METRIC_TITLES[m] || m}), h("td", {text: d.toPrecision(5)})));
+  const rows = Object.entries(result.distances).map(([m, d]) => h("tr", {dataset: {metric: m}}, h("td", {text: result.labels[m] || m}), h("td", {text: d.toPrecision(5)})));
   view.replaceChildren(h("section", {class: "compare", dataset: {testid: "compare-view"}},
     h("div", {class: "pair"}, side(result.a, "a"), side(result.b, "b")),
     h("p", {class: "muted"}, "Histograms: probability against distance / mean of each set; ",
@@ -170,7 +194,10 @@ async function route() {
   busy(true);
   try {
     if (view === "query") {
-      const url = "/api/query?" + new URLSearchParams({id: p.get("id") || "", metric: metricValue(), top: topValue()});
+      if (p.getAll("where").length) document.getElementById("where").value = p.getAll("where").join("; ");
+      const search = new URLSearchParams({id: p.get("id") || "", metric: metricValue(), top: topValue()});
+      for (const w of p.getAll("where")) search.append("where", w);
+      const url = "/api/query?" + search;
       renderQuery(state.cache.get(key) || await api(url));
     } else if (view === "compare") {
       renderCompare(await api("/api/compare?" + new URLSearchParams({a: p.get("a") || "", b: p.get("b") || ""})));
@@ -198,10 +225,11 @@ async function upload(file) {
   form.append("file", file, file.name);
   form.append("top", topValue());
   form.append("metric", metricValue());
+  for (const w of whereValue()) form.append("where", w);
   busy(true);
   try {
     const result = await api("/api/query", {method: "POST", body: form});
-    const key = "#/query?" + new URLSearchParams({id: result.query.id, metric: result.metric, top: result.top});
+    const key = "#/query?" + withWhere({id: result.query.id, metric: result.metric, top: result.top});
     state.cache.clear();
     state.cache.set(key, result);
     if (location.hash === key) renderQuery(result); else location.hash = key;
@@ -215,15 +243,19 @@ async function upload(file) {
 function requery() {
   const p = params();
   const view = (location.hash.split("?")[0] || "#/").slice(2);
-  if (view === "query" && p.get("id")) go("query", {id: p.get("id"), metric: metricValue(), top: topValue()});
+  if (view === "query" && p.get("id")) location.hash = "#/query?" + withWhere({id: p.get("id"), metric: metricValue(), top: topValue()});
 }
 
 async function start() {
   const select = document.getElementById("metric");
   try {
     state.info = await api("/api/store");
-    for (const m of state.info.metrics) select.append(h("option", {value: m, text: METRIC_TITLES[m] || m}));
+    for (const m of state.info.metrics) select.append(h("option", {value: m.name, text: m.label, title: m.summary}));
     select.value = "weighted";
+    const names = Object.keys(state.info.formats).map(f => f.toUpperCase()).join(", ");
+    document.getElementById("drop").textContent = `…or drop a part file here (${names}; gzipped too)`;
+    document.getElementById("file").setAttribute("accept", state.info.suffixes.concat(state.info.suffixes.map(s => s + ".gz"), [".gz"]).join(","));
+    document.getElementById("where").title = "metadata conditions, separated by ';' (keys: " + state.info.metadata_keys.join(", ") + ")";
     document.getElementById("store-info").textContent =
       `${state.info.store}: ${state.info.ok.toLocaleString()} parts, ${state.info.failed.toLocaleString()} failed`;
   } catch (e) {
@@ -232,6 +264,7 @@ async function start() {
   document.getElementById("upload-form").addEventListener("submit", (ev) => { ev.preventDefault(); upload(document.getElementById("file").files[0]); });
   select.addEventListener("change", requery);
   document.getElementById("top").addEventListener("change", requery);
+  document.getElementById("where").addEventListener("change", requery);
   const drop = document.getElementById("drop");
   drop.addEventListener("dragover", (ev) => { ev.preventDefault(); drop.classList.add("over"); });
   drop.addEventListener("dragleave", () => drop.classList.remove("over"));

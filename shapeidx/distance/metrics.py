@@ -1,0 +1,180 @@
+"""The metric registry: one record per distance, everything else derives from it.
+
+A :class:`Metric` says what a distance is called (``--metric`` name, label, one line of what
+it is for), what it reads (the D2 histograms and per-pair features its formula combines,
+whether it needs the normal-angle histograms), how it is computed (its formula over
+per-pair features, so one function serves a pair and a whole store), whether a coarse
+lower bound can rule entries out (the candidate step of a query), how the all-pairs
+candidate step embeds it, and whether ``duplicates`` has measured thresholds for it. The
+command line's choices and help, the web page's menu, the labels of every table and sheet,
+and the metric table of docs/cli.md are made from :data:`REGISTRY`; a test checks that they
+are.
+
+This module imports nothing heavy (the command line reads it to build ``--help``): a
+formula names the module and function that computes it, imported on first use.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+
+#: The D2 histograms, in the order the store keeps them (= shapeidx.signing.parameters.HISTOGRAMS).
+_HISTOGRAMS = ("all", "in", "out", "mixed")
+_CLASSES = _HISTOGRAMS[1:]
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One distance between signatures.
+
+    Attributes
+    ----------
+    name : str
+        What ``--metric`` takes.
+    label : str
+        What tables, sheets and the web page call it.
+    summary : str
+        One line: what it is and when to use it (``--help``, the web menu, docs/cli.md).
+    histograms : tuple of str
+        The D2 histograms whose ``D`` it reads (ranking skips the others).
+    features : tuple of str
+        The per-pair features (:data:`shapeidx.distance.FEATURES`, angle features) its
+        formula combines.
+    angles : bool
+        Whether it needs the normal-angle histograms (stores built before them are refused).
+    paper : bool
+        One of the paper's four distances, exactly as Ip et al. (2002) define them.
+    formula : str
+        ``"module:function"`` (relative to this package) computing it from a dict of
+        features (numbers, or arrays with one value per pair).
+    bounded : bool
+        Its formula never decreases when a histogram's ``D`` grows, so a lower bound of
+        every ``D`` (the coarse histograms of ``rank/``) with the other features exact gives
+        a lower bound of the distance, and a query computes exact distances only for the
+        entries the bound cannot rule out.
+    learned : str or None
+        The file of learned weights it reads (shipped as package data), if any.
+    embedding : str
+        Which vectors the all-pairs candidate step (:mod:`shapeidx.store.candidates`) builds
+        for it: ``"histograms"`` (the D2 histograms) or ``"angles"`` (the angle histograms).
+    """
+
+    name: str
+    label: str
+    summary: str
+    histograms: tuple
+    features: tuple
+    formula: str
+    angles: bool = False
+    paper: bool = False
+    bounded: bool = True
+    learned: str | None = None
+    embedding: str = "histograms"
+
+    def value(self, features: dict):
+        """The distance from per-pair ``features``."""
+        module, function = self.formula.split(":")
+        return getattr(importlib.import_module(module, __package__), function)(features)
+
+    @property
+    def duplicate_thresholds(self) -> dict | None:
+        """``{"same": d, "near": d, ...}`` measured for ``duplicates`` on this metric's scale
+        (``thresholds.json`` beside this module, written by scripts/duplicates_study.py), or
+        None: not measured, and ``duplicates`` does not offer the metric."""
+        return _thresholds()["thresholds"].get(self.name)
+
+
+def _d(*histograms) -> tuple:
+    return tuple(f"d_{h}" for h in histograms)
+
+
+def _gaps() -> tuple:
+    return tuple(f"gap_{c}" for c in _CLASSES)
+
+
+def _scales() -> tuple:
+    return tuple(f"scale_{c}" for c in _CLASSES)
+
+
+def _angle(kind: str, histograms=_HISTOGRAMS) -> tuple:
+    return tuple(f"{kind}_angle_{h}" if kind else f"angle_{h}" for h in histograms)
+
+
+#: Every metric, by its ``--metric`` name, in the order menus list them.
+REGISTRY: dict[str, Metric] = {
+    m.name: m
+    for m in (
+        Metric("all", "ALL (plain D2)", "the paper's ALL: plain D2 of all pairs (Osada et al.), no IN/OUT/MIXED split",
+               histograms=("all",), features=_d("all"), formula=".paper:all_distance", paper=True),
+        Metric("avg3", "AvgOf3", "the paper's AvgOf3: mean D of the IN, OUT and MIXED histograms",
+               histograms=_CLASSES, features=_d(*_CLASSES), formula=".paper:avg3", paper=True),
+        Metric("avg4", "AvgOf4", "the paper's AvgOf4: mean D of the ALL, IN, OUT and MIXED histograms",
+               histograms=_HISTOGRAMS, features=_d(*_HISTOGRAMS), formula=".paper:avg4", paper=True),
+        Metric("weighted", "Weighted", "the paper's Weighted: each class's D weighted by 1 / (1 - the gap of its class fractions); query's default",
+               histograms=_CLASSES, features=_d(*_CLASSES) + _gaps(), formula=".paper:weighted", paper=True),
+        Metric("combined", "combined", "learned: the four D, class-fraction gaps and class-mean ratios (NCA on kicad6)",
+               histograms=_HISTOGRAMS, features=_d(*_HISTOGRAMS) + _gaps() + _scales(),
+               formula=".combined:combined", learned="combined_metric.json"),
+        Metric("combined-angle", "combined-angle",
+               "learned: normal-angle histograms (Hellinger) and class features; best for parts of the same kind",
+               histograms=(), features=_gaps() + _scales() + _angle("hellinger"), formula=".combined:combined_angle",
+               angles=True, learned="combined_angle_metric.json", embedding="angles"),
+        Metric("all-angle", "all-angle",
+               "plain D2 plus the ALL normal-angle histogram: for the same part from another exporter",
+               histograms=("all",), features=_d("all") + _angle("", ("all",)), formula=".combined:all_angle", angles=True),
+    )
+}
+
+#: The ``--metric`` names, in menu order.
+METRICS = tuple(REGISTRY)
+#: The paper's four distances.
+PAPER_METRICS = tuple(name for name, m in REGISTRY.items() if m.paper)
+#: Metrics with a lower bound from coarse histograms (see :attr:`Metric.bounded`).
+BOUNDED_METRICS = tuple(name for name, m in REGISTRY.items() if m.bounded)
+#: Metrics that need the normal-angle histograms.
+ANGLE_METRICS = tuple(name for name, m in REGISTRY.items() if m.angles)
+
+
+def _thresholds() -> dict:
+    import json
+    from importlib import resources
+
+    return json.loads(resources.files(__package__).joinpath("thresholds.json").read_text())
+
+
+def metric(name: str) -> Metric:
+    """The record of ``name``; ValueError naming the known ones otherwise."""
+    try:
+        return REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown metric {name!r}; expected one of {', '.join(METRICS)}") from None
+
+
+def label(name: str) -> str:
+    """What tables call ``name`` (the name itself for an unknown one)."""
+    return REGISTRY[name].label if name in REGISTRY else name
+
+
+def metric_help() -> str:
+    """The ``--metric`` help text: every metric with its one line."""
+    return "The distance: " + "; ".join(f"{m.name}: {m.summary}" for m in REGISTRY.values()) + "."
+
+
+def duplicate_metrics() -> tuple:
+    """The metrics ``duplicates`` offers: those with measured thresholds."""
+    return tuple(name for name, m in REGISTRY.items() if m.duplicate_thresholds is not None)
+
+
+def markdown_table() -> str:
+    """The metric table of the README and docs/cli.md (``python scripts/docs_tables.py`` writes
+    it there; tests/test_docs.py checks that they hold this very table)."""
+    rows = ["| `--metric` | label | what it is | reads | `duplicates` |", "|---|---|---|---|---|"]
+    for m in REGISTRY.values():
+        reads = ", ".join([f"D of {'/'.join(h.upper() for h in m.histograms)}"] if m.histograms else [])
+        extra = [what for what, used in (("class fractions", any(f.startswith("gap_") for f in m.features)),
+                                         ("class means", any(f.startswith("scale_") for f in m.features)),
+                                         ("normal-angle histograms", m.angles)) if used]
+        reads = "; ".join([reads] + extra if reads else extra)
+        rows.append(f"| `{m.name}` | {m.label} | {m.summary} | {reads} | {'yes' if m.duplicate_thresholds else 'no'} |")
+    return "\n".join(rows) + "\n"

@@ -1,0 +1,22 @@
+"""Searching a store: the one road every query takes (CLI, Python API, web page, sheets, classify).
+
+    searcher.py   Searcher: resolve the query (file, stdin, entry, signature), sign it with the
+                  store's parameters, build one keep-mask, rank, return hits (Filters, Query)
+    where.py      --where: metadata conditions (KEY=VALUE, KEY>=N, KEY~GLOB) and their keep-mask
+    distances.py  the distances from a query to the store's entries: the one place they are
+                  computed (lower bounds, exact distances, the candidate step)
+    hits.py       Hit and Answer: the same fields on every surface
+
+Names load on first use.
+"""
+
+from .._lazy import attach
+
+_NAMES = {
+    **dict.fromkeys(["Searcher", "Filters", "Query", "check_usable"], ".searcher"),
+    **dict.fromkeys(["Condition", "parse_where", "parse_condition"], ".where"),
+    **dict.fromkeys(["Hit", "Answer"], ".hits"),
+    **dict.fromkeys(["distances", "nearest", "entry_features"], ".distances"),
+}
+__all__ = sorted(_NAMES)
+__getattr__, __dir__ = attach(__name__, _NAMES)

@@ -1,0 +1,95 @@
+"""What a search answers: hits with the same fields on every surface, and the answer around them.
+
+A :class:`Hit` is what the command line prints (table, CSV, JSON), what ``shapeidx.query``
+returns (as a dict), what ``/api/query`` sends and what a sheet draws: its rank, its distance,
+its path (absolute, opens from anywhere) and relative path (the store's entry, what
+``--id`` takes) and its metadata (the sidecar table's and the file's own). Surfaces add
+presentation (the web page a thumbnail address, a sheet the similarity in words), never
+other hits or other distances.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+
+@dataclass
+class Hit:
+    """One entry of an answer, nearest first.
+
+    Attributes
+    ----------
+    rank : int
+        1 for the nearest.
+    distance : float
+        By the answer's metric.
+    path : str
+        The part file, absolute.
+    relative_path : str
+        The entry: the path relative to the store's indexed folder.
+    metadata : dict
+        Key -> value of every metadata key with a value for this entry.
+    """
+
+    rank: int
+    distance: float
+    path: str
+    relative_path: str
+    metadata: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"rank": self.rank, "distance": self.distance, "path": self.path,
+                "relative_path": self.relative_path, "metadata": dict(self.metadata)}
+
+
+@dataclass
+class Answer:
+    """A query's answer.
+
+    Attributes
+    ----------
+    query : str
+        The query as given (a file name, ``-``, an entry).
+    query_path : str or None
+        The query file, absolute (None for standard input and entries).
+    entry : str or None
+        The query's own entry in the store, when it has one (``--id``, or a file of the tree).
+    metric : str
+    store, root : str
+        The store and its indexed folder.
+    hits : list of Hit
+    considered : int
+        Entries the filters left to rank (all of the store's ok entries without filters).
+    entries : int
+        The store's ok entries.
+    reason : str or None
+        Why there is no hit, in words (None when there are hits).
+    filters : list of str
+        The filters that applied, as given.
+    signature : Signature
+        The query's signature (what sheets and the web page draw).
+    """
+
+    query: str
+    query_path: str | None
+    entry: str | None
+    metric: str
+    store: str
+    root: str
+    hits: list
+    considered: int
+    entries: int
+    reason: str | None = None
+    filters: list = field(default_factory=list)
+    signature: object = None
+
+    def to_dict(self) -> dict:
+        """The JSON object of one query (docs/cli.md documents every field)."""
+        return {"query": self.query, "query_path": self.query_path, "entry": self.entry, "metric": self.metric,
+                "store": self.store, "root": self.root, "filters": list(self.filters), "entries": self.entries,
+                "considered": self.considered, "hits": [hit.to_dict() for hit in self.hits]}
+
+
+def absolute(root: str | None, relative: str) -> str:
+    return os.path.join(root, relative) if root else relative

@@ -1,0 +1,406 @@
+"""The one road of a query: resolve it, sign it with the store's parameters, build one
+keep-mask, rank, return hits.
+
+    with Searcher("parts.shapeidx") as searcher:
+        query = searcher.query_of_part("bracket.stl")           # or query_of_entry("a/b.wrl")
+        answer = searcher.search(query, top=5, metric="weighted",
+                                 filters=Filters(where=parse_where(["material=steel"])))
+        for hit in answer.hits:
+            print(hit.rank, hit.distance, hit.path, hit.metadata)
+
+The command line (``query``, ``classify``), the Python API (``shapeidx.query``), the web
+page (``serve``) and result sheets all go through :class:`Searcher`, so that the same
+question gets the same hits, distances and fields on every surface. A one-off command opens
+a searcher for one question; a long-lived process (``serve``, a Python session) keeps it
+open, and the arrays it gathers stay in memory between questions.
+
+The keep-mask is every filter at once: ``--where`` metadata conditions, ``--scale
+sensitive`` (the size band), ``--exclude-self``; ``--max-distance`` bounds the distances.
+Filtered hits are exact: the same as ranking only the entries the filters keep.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import StoreError
+from ..io.metadata import FILE_KEYS
+from .distances import RANK_THREADS, nearest
+from .hits import Answer, Hit, absolute
+from .where import Condition, keep_mask, parse_where
+
+
+@dataclass(frozen=True)
+class Filters:
+    """What narrows an answer besides ``top``.
+
+    Attributes
+    ----------
+    exclude_self : bool
+        Leave out the query's own entry (a part of the store's tree, or ``--id``).
+    max_distance : float or None
+        Leave out hits farther than this.
+    scale : str
+        ``"invariant"`` (the paper's) or ``"sensitive"``: leave out entries whose size differs
+        from the query's by more than :data:`shapeidx.distance.scale.SIZE_BAND`.
+    where : tuple of Condition (or their texts)
+        Metadata conditions (:mod:`shapeidx.search.where`), all of which must hold.
+    """
+
+    exclude_self: bool = False
+    max_distance: float | None = None
+    scale: str = "invariant"
+    where: tuple = field(default_factory=tuple)
+
+    def conditions(self) -> tuple:
+        return tuple(c if isinstance(c, Condition) else parse_where([c])[0] for c in self.where)
+
+    def described(self) -> list[str]:
+        """The filters as a user gave them (``--where material=steel``, ...)."""
+        out = [f"--where {c}" for c in self.conditions()]
+        if self.scale != "invariant":
+            out.append(f"--scale {self.scale}")
+        if self.exclude_self:
+            out.append("--exclude-self")
+        if self.max_distance is not None:
+            out.append(f"--max-distance {self.max_distance:g}")
+        return out
+
+
+@dataclass
+class Query:
+    """A query resolved and signed with the store's parameters.
+
+    Attributes
+    ----------
+    label : str
+        As the user gave it.
+    signature : Signature
+    own : int or None
+        Position of the query's own entry among the store's ranked entries (it wins its ties).
+    entry : str or None
+        That entry's path relative to the store's root.
+    path : str or None
+        The query's file, absolute (None for standard input, arrays, entries).
+    solid : Solid or None
+        The part as loaded (when it was signed here), for its picture.
+    """
+
+    label: str
+    signature: object
+    own: int | None = None
+    entry: str | None = None
+    path: str | None = None
+    solid: object = None
+
+
+class Searcher:
+    """A store opened to answer queries (see the module docstring).
+
+    Raises
+    ------
+    StoreError
+        No store, not a store, another signature version, no ranking arrays.
+    StoreDamagedError
+        A file of the store (a journal segment included) fails its checks.
+    """
+
+    def __init__(self, store: str | os.PathLike):
+        from ..store import open_store
+        from ..store.metadata import load_table
+        from ..store.ranked import ranked_view
+
+        self.store = Path(store)
+        self.reader = open_store(self.store)
+        try:
+            check_usable(self.reader)
+            self.view = ranked_view(self.reader)
+            self.table = load_table(self.store)
+        except BaseException:
+            self.reader.close()
+            raise
+        self.params = self.reader.params
+        self.root = self.reader.attrs.get("root") or ""
+        self._columns: dict = {}
+
+    def __len__(self) -> int:
+        return len(self.view)
+
+    # -- the store's entries, as StoreReader reads them (what shapeidx.open_store documents)
+    @property
+    def paths(self) -> np.ndarray:
+        return self.reader.paths
+
+    @property
+    def attrs(self) -> dict:
+        return self.reader.attrs
+
+    def column(self, name: str) -> np.ndarray:
+        return self.reader.column(name)
+
+    def counts(self, name: str, rows=None):
+        return self.reader.counts(name, rows)
+
+    def signature(self, index: int):
+        return self.reader.signature(index)
+
+    def close(self) -> None:
+        self.reader.close()
+
+    def __enter__(self) -> "Searcher":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- metadata, joined to the ranked entries by path key
+    def metadata_keys(self) -> tuple:
+        """Every key ``--where`` may name: ``path``, what files say themselves, the sidecar table's."""
+        table_keys = tuple(self.table.columns) if self.table is not None else ()
+        return ("path",) + tuple(k for k in FILE_KEYS if k not in table_keys) + table_keys
+
+    def present_metadata_keys(self) -> tuple:
+        """The metadata keys some entry has a value for (``path`` left out): the columns of a
+        CSV answer."""
+        if "__present__" not in self._columns:
+            table_keys = tuple(self.table.columns) if self.table is not None else ()
+            files = tuple(k for k in FILE_KEYS if k not in table_keys and (self.metadata_column(k) != "").any())
+            self._columns["__present__"] = files + table_keys
+        return self._columns["__present__"]
+
+    def metadata_column(self, key: str, positions: np.ndarray | None = None) -> np.ndarray:
+        """``key``'s value for the ranked entries at ``positions`` (default all), "" where none.
+        A sidecar column of a key a file also gives wins where it has a value."""
+        if positions is None and key in self._columns:
+            return self._columns[key]
+        if key == "path":
+            values = self._file_column("entries/path", positions)
+        else:
+            values = self._file_column(f"entries/{key}", positions) if key in FILE_KEYS else None
+            if self.table is not None and key in self.table.columns:
+                table_values = self.table.column(key, self._table_rows(positions))
+                values = table_values if values is None else np.where(table_values != "", table_values, values)
+        if values is None:
+            raise StoreError(f"no metadata {key!r} in {self.store}")
+        if positions is None:
+            self._columns[key] = values
+        return values
+
+    def metadata_at(self, position: int) -> dict:
+        """Every key with a value for the entry at ``position`` (not ``path``)."""
+        positions = np.array([position])
+        found = {}
+        for key in self.metadata_keys()[1:]:
+            value = self.metadata_column(key, positions)[0] if key not in self._columns else self._columns[key][position]
+            if value != "":
+                found[key] = str(value)
+        return found
+
+    def _file_column(self, name: str, positions) -> np.ndarray:
+        from ..store.layout import object_array
+
+        positions = np.arange(len(self.view)) if positions is None else np.asarray(positions, dtype=np.int64)
+        out = object_array([""] * len(positions))
+        for i, mine, rows in self.view.rows_of(positions):
+            out[mine] = self.view.sources[i].column(name)[rows]
+        return out
+
+    def _table_rows(self, positions) -> np.ndarray:
+        key = "__table_rows__"
+        if key not in self._columns:
+            keys = np.zeros((len(self.view), 2), dtype=np.uint64)
+            for i, mine, rows in self.view.rows_of(np.arange(len(self.view))):
+                keys[mine] = self.view.sections[i].array("path_key")[rows]
+            self._columns[key] = self.table.rows_of(keys)
+        rows = self._columns[key]
+        return rows if positions is None else rows[np.asarray(positions, dtype=np.int64)]
+
+    # -- what is asked
+    def query_of_part(self, part, file_type: str | None = None, label: str | None = None,
+                      threads: int | None = None) -> Query:
+        """A part (path, file object, arrays, trimesh, Solid, or a Signature with the store's
+        parameters) signed with the store's parameters; its own entry found when it is a
+        file of the store's tree."""
+        from ..signing.histogram import Signature
+
+        solid = None
+        if isinstance(part, Signature):
+            if (part.points, part.seed) != (self.params.points, self.params.seed):
+                raise StoreError(f"the signature was made with {part.points} points and seed {part.seed};"
+                                 f" the store's are {self.params.points} and {self.params.seed}")
+            signature = part
+        else:
+            from ..io import LoadLimits
+            from ..signing.part import load_part
+            from ..signing.pipeline import signature_of_solid
+
+            solid = load_part(part, file_type, LoadLimits(faceting=self.params.faceting))  # faceted as the store's
+            signature = signature_of_solid(solid, self.params.points, self.params.seed, self.params.bin_divisor,
+                                           threads or 1)
+        path = os.path.abspath(part) if isinstance(part, (str, os.PathLike)) else None
+        entry = self.entry_path_of(part) if path is not None else None
+        found = self.view.find(entry) if entry is not None else None
+        own = self.view.position_of(found) if found is not None else None
+        if label is None:
+            label = os.fspath(part) if path is not None else getattr(part, "name", None) or type(part).__name__
+        return Query(str(label), signature, own, entry if own is not None else None, path, solid)
+
+    def query_of_entry(self, entry: str | os.PathLike) -> Query:
+        """An entry of the store (its path relative to the root, or a path of a file inside
+        the root), with its stored signature.
+
+        Raises
+        ------
+        StoreError
+            No such entry, or its file failed to index (with the reason).
+        """
+        name = self.resolve_entry(entry)
+        found = self.view.find(name)
+        if found is None:
+            raise StoreError(f"no entry {name!r} in {self.store} (give a path inside {self.root},"
+                             " absolute or relative to it)")
+        status, reason = self.view.status_of(found)
+        if self.view.position_of(found) is None:
+            raise StoreError(f"entry {name!r} failed to index: {reason}")
+        return Query(os.fspath(entry), self.view.signature(found, self.params), self.view.position_of(found), name)
+
+    def entry_path_of(self, file) -> str | None:
+        """The relative path ``file`` has in the store when it lies inside the indexed root."""
+        if not self.root:
+            return None
+        try:
+            return Path(file).resolve().relative_to(self.root).as_posix()
+        except (ValueError, OSError):
+            return None
+
+    def resolve_entry(self, entry) -> str:
+        """``entry`` if the store has it; else its path relative to the root when it names a
+        file inside the root (absolute, or relative to the working directory)."""
+        text = os.fspath(entry)
+        if self.view.find(text) is not None:
+            return text
+        inside = self.entry_path_of(text)
+        return inside if inside is not None and self.view.find(inside) is not None else text
+
+    def signature_at(self, position: int):
+        """The stored signature of the ranked entry at ``position``."""
+        return self.view.signature(self.view.locate(position), self.params)
+
+    def path_at(self, position: int) -> str:
+        return self.view.path_at(position)
+
+    # -- the answer
+    def keep(self, query: Query, filters: Filters) -> tuple[np.ndarray | None, str | None]:
+        """The keep-mask of ``filters`` for ``query`` (None: every entry), and, when it keeps
+        nothing, why, in words."""
+        from ..distance.scale import within_band
+
+        n = len(self.view)
+        mask = keep_mask(filters.conditions(), self.metadata_column, self.metadata_keys())
+        if mask is not None and not mask.any():
+            return mask, f"no entry of the store matches {' and '.join(f'--where {c}' for c in filters.conditions())}"
+        if filters.scale != "invariant":
+            from ..distance.scale import check_scale
+
+            check_scale(filters.scale)
+            sizes = self.view.gather("means")[:, 0]
+            band = within_band(query.signature.histograms["all"].mean, sizes)
+            mask = band if mask is None else mask & band
+            if not mask.any():
+                return mask, "no entry of the store (that matches the filters) is within the size band of --scale sensitive"
+        if filters.exclude_self and query.own is not None:
+            mask = np.ones(n, dtype=bool) if mask is None else mask.copy()
+            mask[query.own] = False
+            if not mask.any():
+                return mask, "no entry but the query's own is left (--exclude-self)"
+        return mask, None
+
+    def search(self, query: Query, top: int = 10, metric: str = "weighted", filters: Filters | None = None,
+               threads: int = RANK_THREADS, among: np.ndarray | None = None, among_reason: str = "") -> Answer:
+        """The ``top`` entries nearest to ``query`` by ``metric`` among those ``filters`` keep.
+
+        Ties are broken by path, and the query's own entry wins its ties (so a part of the
+        store comes before its identical twins). An answer with no hit says why
+        (:attr:`Answer.reason`). ``among``: a boolean mask over the ranked entries that
+        narrows them further (``classify``: the labelled voters), ``among_reason`` what to
+        say when it leaves none.
+        """
+        from ..distance.metrics import metric as metric_record
+
+        metric_record(metric)  # an unknown name: ValueError naming the known ones
+        filters = filters or Filters()
+        if top < 1:
+            raise ValueError(f"top must be at least 1, not {top}")
+        answer = Answer(query.label, query.path, query.entry, metric, str(self.store.resolve()), self.root, [],
+                        considered=0, entries=len(self.view), filters=filters.described(), signature=query.signature)
+        if len(self.view) == 0:
+            answer.reason = self.empty_reason()
+            return answer
+        keep, answer.reason = self.keep(query, filters)
+        if among is not None and answer.reason is None:
+            keep = among if keep is None else keep & among
+            if not keep.any():
+                answer.reason = among_reason or "no entry is left to rank"
+        answer.considered = len(self.view) if keep is None else int(keep.sum())
+        if answer.reason is not None:
+            return answer
+        own = query.own if keep is None or query.own is None or keep[query.own] else None
+        chosen, exact = nearest(self.view, query.signature, metric, top, keep, own, filters.max_distance, threads)
+        valid = np.isfinite(exact)
+        if filters.max_distance is not None:
+            valid &= exact <= filters.max_distance
+        if not valid.any():
+            nearest_at = float(np.min(exact)) if len(exact) else float("nan")
+            answer.reason = (f"no hit within --max-distance {filters.max_distance:g}"
+                             + (f" (the nearest is at {nearest_at:.6g})" if np.isfinite(nearest_at) else ""))
+            return answer
+        chosen, exact = chosen[valid], exact[valid]
+        answer.hits = self._hits(chosen, exact, top, own)
+        return answer
+
+    def _hits(self, positions: np.ndarray, distances: np.ndarray, top: int, first: int | None) -> list:
+        from ..store.layout import object_array
+
+        top = min(top, len(distances))
+        threshold = np.partition(distances, top - 1)[top - 1]
+        near = np.flatnonzero(distances <= threshold)  # every entry within the top-th distance, ties included
+        paths = object_array([self.view.path_at(int(p)) for p in positions[near]])
+        not_first = positions[near] != first if first is not None else np.ones(len(near), dtype=bool)
+        order = np.lexsort((paths, not_first, distances[near]))[:top]
+        hits = []
+        for rank, k in enumerate(order, start=1):
+            position, relative = int(positions[near[k]]), str(paths[k])
+            hits.append(Hit(rank, float(distances[near[k]]), absolute(self.root, relative), relative,
+                            self.metadata_at(position)))
+        return hits
+
+    def empty_reason(self) -> str:
+        """Why a store has nothing to rank: no entry yet (a build runs, stopped, or none ran), or none ok."""
+        from ..store.writer import read_build_state
+
+        total = len(self.reader)
+        if total:
+            return (f"none of the store's {total} entries could be indexed ('shapeidx stats --failed --store"
+                    f" {self.store}' lists why)")
+        state = read_build_state(self.store) or {}
+        if state.get("state") == "running":
+            return (f"the store has no entry yet: a build is running (pid {state.get('pid')} on {state.get('host')},"
+                    f" since {state.get('started')}); its first commit comes within --commit-interval")
+        if state.get("state") in ("stopped", "interrupted"):
+            return f"the store has no entry: its last build {state['state']} before its first commit; run it again"
+        return "the store has no entry yet (run 'shapeidx build DIR' first)"
+
+
+def check_usable(reader) -> None:
+    """Refuse, in one line, a store whose signatures another version of shapeidx made."""
+    from ..signing.parameters import SIGNATURE_VERSION
+
+    if reader.params.signature_version != SIGNATURE_VERSION:
+        raise StoreError(
+            f"store {reader.path} holds signatures of version {reader.params.signature_version}, this shapeidx"
+            f" makes version {SIGNATURE_VERSION}: rebuild it (delete it and run shapeidx build)"
+        )
