@@ -167,10 +167,17 @@ class FamilyTable:
     bounds: np.ndarray | None = None
     moments: np.ndarray | None = None
     angles: np.ndarray | None = None  # (N, 4, ANGLE_BINS) normal-angle probabilities, NaN where unknown
+    #: Histogram -> (N, 48) float32 rows of the candidate embedding the store keeps
+    #: (:func:`shapeidx.store.candidates.stored_d2_basis`), for the histograms it was asked for.
+    d2_basis: dict | None = None
 
     @classmethod
-    def load(cls, reader: StoreReader, histograms=HISTOGRAMS) -> "FamilyTable":
-        """The ok entries of ``reader``; refuses a store of another signature version."""
+    def load(cls, reader: StoreReader, histograms=HISTOGRAMS, embedding=None) -> "FamilyTable":
+        """The ok entries of ``reader``; refuses a store of another signature version.
+
+        ``histograms``: the D2 histograms to load (a metric's, ``METRIC_HISTOGRAMS``; combined-angle
+        needs none); ``embedding``: the histograms whose stored embedding rows to load
+        (default: the same)."""
         if reader.params.signature_version != SIGNATURE_VERSION:
             raise StoreError(
                 f"store {reader.path} holds signatures of version {reader.params.signature_version}, this shapeidx"
@@ -179,7 +186,11 @@ class FamilyTable:
         rows = np.flatnonzero(reader.column("entries/status") == STATUS_OK)
         hists = {name: RaggedHistograms.from_counts(*reader.counts(name, rows)) for name in histograms}
         means = np.stack([reader.column(f"histograms/{name}/mean")[rows] for name in HISTOGRAMS], axis=1)
+        from ..store.candidates import stored_d2_basis
+
+        basis = stored_d2_basis(reader, rows, histograms if embedding is None else embedding)
         return cls(
+            d2_basis=basis or None,
             paths=reader.paths[rows],
             rows=rows,
             histograms=hists,
@@ -214,6 +225,7 @@ class FamilyTable:
             fractions=self.fractions[rows], means=self.means[rows], hashes=self.hashes[rows],
             extents=self.extents[rows], handedness=self.handedness[rows], missing_columns=self.missing_columns,
             bounds=take(self.bounds), moments=take(self.moments), angles=take(self.angles),
+            d2_basis=None if self.d2_basis is None else {h: v[rows] for h, v in self.d2_basis.items()},
         )
 
     def index_of(self, path: str) -> int | None:

@@ -93,6 +93,30 @@ def d2_basis(flat: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     return np.sqrt(dense).astype(np.float32)
 
 
+def stored_d2_basis(reader, rows: np.ndarray, histograms) -> dict:
+    """The :func:`d2_basis` rows of the store's entries ``rows`` (rows of ``reader``'s merged
+    view), per histogram, read from each file's ranking section (``rank/H/embedding``: memory
+    mapped; a file written before it computes them from its counts), or {} for a store whose
+    files lack ranking sections."""
+    histograms = tuple(histograms)
+    if not histograms or not len(rows):
+        return {}
+    sources = reader._sources
+    if any(source.rank is None for source in sources):
+        return {}
+    which, file_rows = reader.source[rows], reader.row[rows]
+    out = {h: np.zeros((len(rows), COARSE_BINS), dtype=np.float32) for h in histograms}
+    for i, source in enumerate(sources):
+        here = np.flatnonzero(which == i)
+        if not len(here):
+            continue
+        section = source.rank
+        positions = np.searchsorted(section.rows, file_rows[here])
+        for h in histograms:
+            out[h][here] = section.array(f"{h}/embedding")[positions]
+    return out
+
+
 def embedding_weights(metric: str) -> dict:
     """Per block of the basis (:func:`embedding_basis`), the factor ``metric`` puts on it: a
     number, or one per column.
