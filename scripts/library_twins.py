@@ -123,19 +123,26 @@ def origin(path: str) -> tuple[str, str]:
 
 def measure(args) -> int:
     from shapeidx.families.chirality import is_chiral
-    from shapeidx.families.duplicates import find_duplicates
+    from shapeidx.families.duplicates import find_duplicates, pair_tiers
 
     started = time.perf_counter()
     table, n_lib, n_tw = combined_table(args.store, args.twins)
     load = time.perf_counter() - started
     started = time.perf_counter()
-    groups = find_duplicates(table, args.metric, tiers=tuple(args.tiers), threads=args.threads)
+    limits = None
+    if args.same_limit:
+        from shapeidx.families.duplicates import thresholds
+
+        limits = {**thresholds(args.metric), "same": args.same_limit}
+    groups = find_duplicates(table, args.metric, tiers=tuple(args.tiers), threads=args.threads, limits=limits)
     seconds = time.perf_counter() - started
     group_of, entry_of = {}, {}
     for g, group in enumerate(groups):
         for m in group["members"]:
-            group_of[m["path"]] = g
-            entry_of[m["path"]] = m
+            group_of[m] = g
+        entry_of[group["representative"]] = {"tier": "identical", "unit": None, "mirrored": False}
+        for pair in group["pairs"]:
+            entry_of[pair["b"]] = pair
     chiral = dict(zip(map(str, table.paths), is_chiral(table.handedness)))
     lines = [f"# Twins injected into the library ({args.metric})", "",
              f"`{shlex.join([sys.executable, *sys.argv])}`; {machine()}", "",
@@ -150,9 +157,14 @@ def measure(args) -> int:
             continue
         found = [p for p in twins if origin(p)[0] in group_of and group_of.get(p) == group_of[origin(p)[0]]]
         misses += [(p, v) for p in twins if p not in found]
-        tiers = Counter(entry_of[p]["tier"] for p in found if p in entry_of)
-        units = Counter(str(entry_of[p].get("unit")) for p in found)
-        mirrored = sum(bool(entry_of[p].get("mirrored")) for p in found if chiral.get(origin(p)[0]))
+        # the tier, unit and mirror flag of the pair (original, twin), asked directly: the group's
+        # representative may be another twin
+        index = {str(p): i for i, p in enumerate(table.paths)}
+        said = pair_tiers(table, np.array([index[origin(p)[0]] for p in found], dtype=np.int64),
+                          np.array([index[p] for p in found], dtype=np.int64), args.metric, limits=limits)
+        tiers = Counter(said["tier"])
+        units = Counter("none" if not np.isfinite(u) else f"{u:.4g}" for u in said["unit"])
+        mirrored = int(sum(bool(m) for p, m in zip(found, said["mirrored"]) if chiral.get(origin(p)[0])))
         chiral_n = sum(bool(chiral.get(origin(p)[0])) for p in twins)
         lines.append(f"| {v} | {len(twins)} | {len(found)} ({len(found) / len(twins):.3f}) |"
                      f" {tiers.get('identical', 0)}, {tiers.get('same', 0)}, {tiers.get('near', 0)} |"
@@ -162,25 +174,25 @@ def measure(args) -> int:
     if misses:
         lines += ["Twins not in their original's group: " + "; ".join(f"`{p}`" for p, _ in misses[:60]), ""]
     sizes = np.array([len(g["members"]) for g in groups])
-    folders = np.array([len({origin(m["path"])[0].split("/")[0] for m in g["members"]}) for g in groups])
+    folders = np.array([len({origin(m)[0].split("/")[0] for m in g["members"]}) for g in groups])
     lines += [f"Group sizes: largest {sizes.max() if len(sizes) else 0}, groups larger than 25: {int((sizes > 25).sum())};"
               f" library folders spanned: largest {folders.max() if len(folders) else 0},"
               f" groups spanning more than 3: {int((folders > 3).sum())}", ""]
     # the library's own groups (no twin in them): what a user of the plain library would see
-    own = [g for g in groups if not any(m["path"].startswith("twins/") for m in g["members"])]
+    own = [g for g in groups if not any(m.startswith("twins/") for m in g["members"])]
     lines += [f"Groups of library parts only (what `duplicates` reports on the library itself): {len(own)},"
               f" {sum(len(g['members']) for g in own)} entries; by tier of the weakest member:"
               f" {dict(Counter(g['tier'] for g in own))}", ""]
     rng = np.random.default_rng(args.seed)
-    pool = [g for g in groups if any(not m["path"].startswith("twins/") for m in g["members"][1:]) or
-            len({origin(m["path"])[0] for m in g["members"]}) > 1]
+    pool = [g for g in groups if len({origin(m)[0] for m in g["members"]}) > 1]
     sample = [pool[i] for i in sorted(rng.choice(len(pool), min(args.sample, len(pool)), replace=False))] if pool else []
     lines += [f"## A random sample of {len(sample)} of the {len(pool)} groups holding more than one library part", ""]
     for g in sample:
-        lines.append(f"- group {groups.index(g) + 1} (confidence {g['confidence']:.3f}, {g['tier']}): " + "; ".join(
-            f"`{m['path']}` ({m['tier']}, d {m['distance']:.3g}, size x{m['size_ratio']:.3g}"
-            + (f", unit {m['unit']}" if m.get("unit") else "") + (", mirrored" if m.get("mirrored") else "") + ")"
-            for m in g["members"]))
+        lines.append(f"- group {groups.index(g) + 1} (confidence {g['confidence']:.3f}, {g['tier']}):"
+                     f" `{g['representative']}`; " + "; ".join(
+            f"`{m['b']}` ({m['tier']}, d {m['distance']:.3g}, size x{m['size_ratio']:.4g}"
+            + (f", unit {m['unit']:.4g}" if m.get("unit") else "") + (", mirrored" if m.get("mirrored") else "") + ")"
+            for m in g["pairs"]))
     text = "\n".join(lines) + "\n"
     if args.output:
         Path(args.output).write_text(text)
@@ -207,7 +219,8 @@ def sheets(sample, groups, args) -> None:
     out.mkdir(parents=True, exist_ok=True)
     roots = {"": Path(args.library), "twins/": Path(args.twins_root)}
     for g in sample:
-        members = g["members"][:8]
+        members = [{"path": g["representative"], "tier": "rep", "size_ratio": 1.0}] + [
+            {"path": p["b"], "tier": p["tier"], "size_ratio": p["size_ratio"] or float("nan")} for p in g["pairs"]][:7]
         fig, axes = plt.subplots(1, len(members), figsize=(2.4 * len(members), 2.8))
         for ax, m in zip(np.atleast_1d(axes), members):
             path = m["path"]
@@ -238,6 +251,7 @@ def main() -> int:
     q.add_argument("--metric", default="combined-angle")
     q.add_argument("--tiers", nargs="+", default=["identical", "same"])
     q.add_argument("--sample", type=int, default=40)
+    q.add_argument("--same-limit", type=float, help="the same tier's distance threshold instead of the metric's")
     q.add_argument("--seed", type=int, default=22)
     q.add_argument("--threads", type=int, default=2)
     q.add_argument("--output")

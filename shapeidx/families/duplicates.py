@@ -19,7 +19,8 @@ Groups do not chain. Each group has a *representative*, and every other member i
 tier's thresholds of the representative itself (so, the metric being a sum of distances, two
 members are at most twice the threshold apart), not merely linked to it through a chain of
 neighbours. Files with one content (``identical``) always stay together. Representatives are
-chosen greedily, the entry with the most ``same`` partners first. Groups come in order of
+chosen greedily, the entry with the most ``same`` partners first; a member is an entry paired
+with the representative itself by the candidate step. Groups come in order of
 *confidence* (:func:`group_confidence`: the tier of their weakest member, then how deep inside
 its thresholds that member lies), not of size.
 
@@ -31,8 +32,9 @@ their own mirror image). With ``scale="sensitive"`` no unit factor is allowed.
 
 Candidates come from :func:`shapeidx.store.candidates.candidate_pairs`, twice: each
 entry's nearest neighbours in the metric's embedding, and in the space of its exact moments
-(:func:`fingerprint_vectors`); a representative is also compared exactly with its
-neighbours' neighbours. The work grows as N k^2, not N^2. Nothing is ever deleted or moved.
+(:func:`fingerprint_vectors`), every pair confirmed with the exact distance; entries with one
+exact fingerprint (copies of one surface) are all paired with each other. The work grows as N k,
+not N^2. Nothing is ever deleted or moved.
 """
 
 from __future__ import annotations
@@ -53,14 +55,14 @@ DEFAULT_TIERS = ("identical", "same")
 #: Largest ``|ln|`` gap between a size ratio and 1 or a unit factor (radii of gyration are
 #: exact integrals: an STL copy keeps its ratio to 1e-6; a STEP file faceted again by
 #: OpenCASCADE within about 1%, docs/duplicates.md).
-SIZE_TOLERANCE = 0.03
+SIZE_TOLERANCE = 0.01
 #: Size ratios that mean "the same part in other units": 0.1 inch (KiCad's VRML) to mm, cm to
 #: mm, inch to mm, foot to inch, m to cm, foot to mm, m to mm; and their inverses.
 UNIT_FACTORS = (2.54, 10.0, 25.4, 12.0, 100.0, 304.8, 1000.0)
 #: Candidate neighbours per entry.
 DEFAULT_NEIGHBOURS = 20
 #: Largest :func:`fingerprint_gap` for ``same`` and for ``near`` (docs/duplicates.md).
-FINGERPRINT_SAME = 0.02
+FINGERPRINT_SAME = 0.01
 FINGERPRINT_NEAR = 0.06
 
 
@@ -274,48 +276,48 @@ def find_duplicates(table, metric: str = DEFAULT_METRIC, scale: str = "invariant
     atoms = int(atom.max()) + 1
     first_of = np.full(atoms, n, dtype=np.int64)
     np.minimum.at(first_of, atom, np.arange(n))  # each atom's first entry (paths are sorted)
-    edges = {}  # (atom, atom) -> (tier, margin, distance) of the best pair found between them
+    pair_a = np.zeros(0, np.int64)
+    pair_b = np.zeros(0, np.int64)
+    facts = {"tier": np.zeros(0, np.int64), "margin": np.zeros(0)}
     if n > 1 and loosest > 0:
         a, b, d = _candidates(table, metric, min(k, n - 1), method, threads)
         keep_pairs = (d <= limits["near"]) & (atom[a] != atom[b])
         a, b, d = a[keep_pairs], b[keep_pairs], d[keep_pairs]
         facts = _pair_facts(table, a, b, d, limits, scale)
         good = facts["tier"] <= loosest
-        for x, y, t in zip(atom[a[good]].tolist(), atom[b[good]].tolist(), facts["tier"][good].tolist()):
-            key = (min(x, y), max(x, y))
-            if key not in edges or t < edges[key]:
-                edges[key] = t
-    neighbours = [[] for _ in range(atoms)]
-    for (x, y), t in edges.items():
-        neighbours[x].append((y, t))
-        neighbours[y].append((x, t))
+        pair_a, pair_b = a[good], b[good]
+        facts = {key: value[good] for key, value in facts.items()}
+        # one pair per two atoms: the best (tier, then margin)
+        x, y = np.minimum(atom[pair_a], atom[pair_b]), np.maximum(atom[pair_a], atom[pair_b])
+        order = np.lexsort((facts["margin"], facts["tier"], x * atoms + y))
+        first = order[np.concatenate([[True], np.diff((x * atoms + y)[order]) != 0])] if len(order) else order
+        pair_a, pair_b = pair_a[first], pair_b[first]
+        facts = {key: value[first] for key, value in facts.items()}
+    # both directions of every atom pair, by atom: (neighbour atom, pair, whether reversed)
+    xa, xb = atom[pair_a], atom[pair_b]
+    src = np.concatenate([xa, xb])
+    dst = np.concatenate([xb, xa])
+    which = np.concatenate([np.arange(len(pair_a)), np.arange(len(pair_a))])
+    flipped = np.concatenate([np.zeros(len(pair_a), bool), np.ones(len(pair_a), bool)])
+    by_src = np.argsort(src, kind="stable")
+    starts = np.searchsorted(src[by_src], np.arange(atoms + 1))
     size = np.bincount(atom, minlength=atoms)
-    strict = np.array([sum(1 for _, t in nb if t <= 1) for nb in neighbours])
-    loose = np.array([len(nb) for nb in neighbours])
+    strict = np.bincount(src, weights=(facts["tier"][which] <= 1), minlength=atoms)
+    loose = np.bincount(src, minlength=atoms)
     # representatives: most same-tier partners first, then most partners, then most copies
     order = np.lexsort((first_of, -size, -loose, -strict))
     assigned = np.zeros(atoms, dtype=bool)
     members_of_atom = _members(atom, atoms)
     groups = []
     for rep in order.tolist():
-        if assigned[rep] or (not neighbours[rep] and size[rep] < 2):
+        if assigned[rep] or (starts[rep] == starts[rep + 1] and size[rep] < 2):
             continue
         assigned[rep] = True
-        # the representative against its neighbours and its neighbours' neighbours, exactly
-        reach = {y for y, _ in neighbours[rep] if not assigned[y]}
-        reach |= {z for y in list(reach) for z, _ in neighbours[y] if not assigned[z] and z != rep}
-        candidates = np.array(sorted(reach), dtype=np.int64)
-        chosen = np.zeros(0, dtype=np.int64)
-        facts = None
-        if len(candidates):
-            ra = np.full(len(candidates), first_of[rep])
-            rb = first_of[candidates]
-            facts = _pair_facts(table, ra, rb, table.pair_distances(ra, rb, metric), limits, scale)
-            ok = facts["tier"] <= loosest
-            chosen = candidates[ok]
-            facts = {key: value[ok] for key, value in facts.items()}
-            assigned[chosen] = True
-        group = _group(table, rep, chosen, facts, members_of_atom, first_of)
+        # members: the atoms paired with the representative itself, not yet in a group
+        edges = by_src[starts[rep]:starts[rep + 1]]
+        edges = edges[~assigned[dst[edges]]]
+        assigned[dst[edges]] = True
+        group = _group(table, rep, dst[edges], which[edges], flipped[edges], facts, members_of_atom, first_of)
         if len(group["members"]) > 1:
             groups.append(group)
     groups.sort(key=lambda g: (-g["confidence"], -len(g["members"]), g["members"][0]))
@@ -328,8 +330,9 @@ def _members(labels: np.ndarray, count: int) -> list:
     return [order[lo:hi] for lo, hi in zip(bounds[:-1], bounds[1:])]
 
 
-def _group(table, rep: int, chosen: np.ndarray, facts, members_of_atom, first_of) -> dict:
-    """One group: the representative's atom, then each chosen atom's files with their pair."""
+def _group(table, rep: int, chosen: np.ndarray, pairs_of: np.ndarray, flipped: np.ndarray, facts: dict,
+           members_of_atom, first_of) -> dict:
+    """One group: the representative's atom, then each chosen atom's files with its pair."""
     paths = table.paths
     head = first_of[rep]
     pairs = []
@@ -338,16 +341,17 @@ def _group(table, rep: int, chosen: np.ndarray, facts, members_of_atom, first_of
         if other != head:
             pairs.append({"a": str(paths[head]), "b": str(paths[other]), "tier": "identical", "distance": 0.0,
                           "size_ratio": 1.0, "unit": None, "mirrored": False})
-    if facts is not None:
-        for k, atom_b in enumerate(chosen.tolist()):
-            tier, margin = int(facts["tier"][k]), float(facts["margin"][k])
-            weakest = max(weakest, (tier, margin))
-            ratio, unit = float(facts["size_ratio"][k]), float(facts["unit"][k])
-            for other in members_of_atom[atom_b]:
-                pairs.append({"a": str(paths[head]), "b": str(paths[other]), "tier": TIERS[tier],
-                              "distance": float(facts["distance"][k]),
-                              "size_ratio": None if not np.isfinite(ratio) else ratio,
-                              "unit": None if not np.isfinite(unit) else unit, "mirrored": bool(facts["mirrored"][k])})
+    for atom_b, k, back in zip(chosen.tolist(), pairs_of.tolist(), flipped.tolist()):
+        tier, margin = int(facts["tier"][k]), float(facts["margin"][k])
+        weakest = max(weakest, (tier, margin))
+        ratio, unit = float(facts["size_ratio"][k]), float(facts["unit"][k])
+        if back:  # the pair was found as (member, representative): sizes the other way round
+            ratio, unit = 1.0 / ratio, 1.0 / unit
+        for other in members_of_atom[atom_b]:
+            pairs.append({"a": str(paths[head]), "b": str(paths[other]), "tier": TIERS[tier],
+                          "distance": float(facts["distance"][k]),
+                          "size_ratio": None if not np.isfinite(ratio) else ratio,
+                          "unit": None if not np.isfinite(unit) else unit, "mirrored": bool(facts["mirrored"][k])})
     pairs.sort(key=lambda p: (TIERS.index(p["tier"]), p["distance"], p["b"]))
     members = [str(paths[head])] + [p["b"] for p in pairs]
     folders = sorted({m.split("/", 1)[0] if "/" in m else "" for m in members})
