@@ -62,7 +62,7 @@ LEIDEN_ITERATIONS = 2
 LEIDEN_SEED = 22
 #: Default K = N / this (kicad6: 520 parts in 52 folders).
 DEFAULT_CLUSTERS_PER_ENTRY = 10
-DEFAULT_METRIC = "combined"
+DEFAULT_METRIC = "combined-angle"
 #: Finite stand-in for "apart" (pairs outside the size band under --scale sensitive).
 APART = 1e6
 #: ``--scale sensitive`` in the matrix road: a pair's distance grows by this share of the

@@ -48,7 +48,7 @@ from .chirality import mirror_relation
 from ..distance.scale import check_scale, ratio_within_band
 
 TIERS = ("identical", "same", "near")
-DEFAULT_METRIC = "combined"
+DEFAULT_METRIC = "combined-angle"
 #: Tiers reported unless asked otherwise: those whose precision docs/duplicates.md measured
 #: high enough on the whole library.
 DEFAULT_TIERS = ("identical", "same")
