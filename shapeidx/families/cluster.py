@@ -211,7 +211,7 @@ def neighbour_graph(table, metric: str, scale: str = "invariant", k: int = GRAPH
 
 
 def leiden_communities(n: int, a: np.ndarray, b: np.ndarray, weights: np.ndarray, target: int,
-                       seed: int = LEIDEN_SEED) -> np.ndarray:
+                       seed: int | None = None) -> np.ndarray:
     """About ``target`` communities of the weighted graph (never more, unless its separate
     parts are more): Leiden (Traag et al. 2019, igraph's) with the constant Potts model, its
     resolution found by bisection. Returns each node's community, 0..C-1.
@@ -228,7 +228,7 @@ def leiden_communities(n: int, a: np.ndarray, b: np.ndarray, weights: np.ndarray
     target = max(1, min(target, n))
     lo, hi = LEIDEN_RESOLUTION
     best = None  # (count, membership): the most communities not above target, else the fewest
-    rng = random.Random(seed)
+    rng = random.Random(LEIDEN_SEED if seed is None else seed)
     try:
         for _ in range(LEIDEN_STEPS):
             resolution = float(np.sqrt(lo * hi))
