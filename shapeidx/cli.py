@@ -806,13 +806,16 @@ scale_option = click.option(
          " a factor 2 are kept apart.")
 
 
-def _family_table(store):
-    """The store's ok entries for pair work, with one line on stderr for an old store's missing columns."""
+def _family_table(store, metric=None):
+    """The store's ok entries for pair work (the histograms ``metric`` reads; all without one),
+    with one line on stderr for an old store's missing columns."""
+    from .distance import METRIC_HISTOGRAMS
     from .families.table import FamilyTable
+    from .signing.parameters import HISTOGRAMS
     from .store import open_store
 
     with open_store(_store_path(store)) as reader:
-        table = FamilyTable.load(reader)
+        table = FamilyTable.load(reader, METRIC_HISTOGRAMS[metric] if metric else HISTOGRAMS)
     if table.missing_columns:
         click.echo(f"shapeidx: warning: {_store_path(store)} predates the size and handedness columns"
                    f" ({', '.join(table.missing_columns)}): sizes and mirroring unknown for its older entries;"
@@ -930,7 +933,7 @@ def cluster(store, clusters, threshold, metric, where, scale, as_csv, plot_outpu
         from .pictures.plot import check_format
 
         check_format(plot_output)  # before the work, not after it
-    table = _family_table(store)
+    table = _family_table(store, metric)
     keep = _table_keep(store, table, where)
     if len(table) == 0 or (keep is not None and not keep.any()):
         raise _empty_store_error(store) if len(table) == 0 else _no_entry_kept(where)
@@ -986,7 +989,7 @@ def duplicates(store, metric, with_near, where, scale, as_csv, output_format, as
     from .families.duplicates import DEFAULT_TIERS, find_duplicates
     from .system import available_cores
 
-    table = _family_table(store)
+    table = _family_table(store, metric)
     keep = _table_keep(store, table, where)
     if len(table) == 0 or (keep is not None and not keep.any()):
         raise _empty_store_error(store) if len(table) == 0 else _no_entry_kept(where)
