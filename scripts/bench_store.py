@@ -158,20 +158,16 @@ class _Chunk:
 
 def store_embedding(reader, metric: str, chunk: int = 50_000) -> np.ndarray:
     """The candidate embedding of every entry of a merged store of ok entries, chunk by chunk
-    (the vectors :func:`shapeidx.store.candidates.embed` makes of the whole store at once)."""
+    (the vectors :func:`shapeidx.store.candidates.embed` makes of the whole store at once: each
+    entry's vector is its own, so chunks give the same ones)."""
     from shapeidx.distance import METRIC_HISTOGRAMS
     from shapeidx.signing.parameters import HISTOGRAMS
     from shapeidx.store.candidates import embed
 
     histograms = METRIC_HISTOGRAMS[metric] if metric not in ("combined", "combined-angle") else HISTOGRAMS
-    source = reader._sources[0]
-    median = {}
-    for h in histograms:
-        lengths = np.diff(source.offsets(h))
-        median[h] = np.median(lengths[lengths > 0]) if (lengths > 0).any() else 1
     fractions = reader.column("entries/fractions")
     means = np.stack([reader.column(f"histograms/{h}/mean") for h in HISTOGRAMS], axis=1)
-    parts = [embed(_Chunk(reader, np.arange(lo, min(lo + chunk, len(reader))), histograms, fractions, means), metric, median)
+    parts = [embed(_Chunk(reader, np.arange(lo, min(lo + chunk, len(reader))), histograms, fractions, means), metric)
              for lo in range(0, len(reader), chunk)]
     return np.concatenate(parts)
 

@@ -58,7 +58,7 @@ KICAD6 = DATA / "kicad6"
 KICAD6_STEP = DATA / "kicad6-step"
 NOISE_SEED = 7
 #: ``same`` = the 99th percentile of the re-sampling distances times this margin.
-SAME_MARGIN = 1.5
+SAME_MARGIN = 3.0
 #: ``near`` = this many times ``same``.
 NEAR_FACTOR = 2.0
 VARIANTS = ("copy", "rotated", "rescaled", "mirrored", "refaceted", "step")
@@ -213,6 +213,8 @@ def _cross_distances(ta, tb, ia, ib, metric):
         extents=np.concatenate([ta.extents[ia], tb.extents[ib]]),
         handedness=np.concatenate([ta.handedness[ia], tb.handedness[ib]]),
         missing_columns=[],
+        moments=np.concatenate([ta.moments[ia], tb.moments[ib]]),
+        angles=np.concatenate([ta.angles[ia], tb.angles[ib]]),
     )
     n = len(ia)
     return both.pair_distances(np.arange(n), np.arange(n) + n, metric)
@@ -385,6 +387,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--work", type=Path, required=True)
     parser.add_argument("--noise", action="store_true", help="measure the re-sampling noise, write thresholds.json")
+    parser.add_argument("--noise-only", action="store_true", help="only that: measure the noise, write thresholds.json")
     parser.add_argument("--output", type=Path, default=REPO / "docs" / "duplicates.md")
     parser.add_argument("--metric", default="combined")
     parser.add_argument("--workers", type=int, default=1, help="build workers (default 1)")
@@ -393,10 +396,12 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     args.work.mkdir(parents=True, exist_ok=True)
     command = "python scripts/duplicates_study.py " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
-    if args.noise:
+    if args.noise or args.noise_only:
         noise = measure_noise(args.work)
         data = write_thresholds(noise, command)
         print(json.dumps(data["thresholds"], indent=1))
+    if args.noise_only:
+        return 0
     noise_data = json.loads(THRESHOLDS.read_text())
     study = run_study(make_parts(args.work), args.work / "parts.h5", args.metric, args.workers)
     held_out = {}

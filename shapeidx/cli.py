@@ -804,18 +804,36 @@ scale_option = click.option(
          " a factor 2 are kept apart.")
 
 
-def _family_table(store):
-    """The store's ok entries for pair work, with one line on stderr for an old store's missing columns."""
+def _family_table(store, metric=None):
+    """The store's ok entries for pair work (the histograms ``metric`` reads; all without one),
+    with one line on stderr for an old store's missing columns."""
+    from .distance import METRIC_HISTOGRAMS
     from .families.table import FamilyTable
+    from .signing.parameters import HISTOGRAMS
     from .store import open_store
 
     with open_store(_store_path(store)) as reader:
-        table = FamilyTable.load(reader)
+        table = FamilyTable.load(reader, METRIC_HISTOGRAMS[metric] if metric else HISTOGRAMS)
     if table.missing_columns:
         click.echo(f"shapeidx: warning: {_store_path(store)} predates the size and handedness columns"
                    f" ({', '.join(table.missing_columns)}): sizes and mirroring unknown for its older entries;"
                    " rebuild with 'shapeidx build DIR --full' to fill them", err=True)
     return table
+
+
+def _table_keep(store, table, where):
+    """``--where`` as a keep-mask over the table's entries (None: no condition)."""
+    if not where:
+        return None
+    import numpy as np
+
+    from .search import Searcher, parse_where
+    from .search.where import keep_mask
+
+    with Searcher(_store_path(store)) as searcher:
+        mask = keep_mask(parse_where(where), searcher.metadata_column, searcher.metadata_keys())
+        kept = set(map(str, searcher.metadata_column("path")[mask])) if mask is not None else None
+    return None if kept is None else np.array([str(p) in kept for p in table.paths], dtype=bool)
 
 
 def _empty_store_error(store):
@@ -831,7 +849,7 @@ def _empty_store_error(store):
 @click.argument("parts", nargs=-1, required=True)
 @store_option
 @click.option("--k", "-k", "k", default=None, type=click.IntRange(1), help="Voters [default: 3, measured on kicad6].")
-@metric_option("combined")
+@metric_option("combined-angle")
 @click.option("--label-depth", default=1, show_default=True, type=click.IntRange(1),
               help="An entry's label is its first N folders.")
 @click.option("--labels", "labels_file", metavar="FILE.csv",
@@ -883,22 +901,28 @@ def classify(parts, store, k, metric, label_depth, labels_file, where, scale, ou
 @main.command(context_settings=CONTEXT)
 @store_option
 @click.option("--clusters", type=click.IntRange(1), help="How many clusters [default: one per ten entries].")
-@click.option("--threshold", type=click.FloatRange(0), help="Cut the tree at this height instead.")
-@metric_option("combined")
+@click.option("--threshold", type=click.FloatRange(0),
+              help="Cut Ward's tree at this height instead (in units of the distance; beyond 4,000 entries"
+                   " inside each family of the neighbour graph).")
+@metric_option("combined-angle")
+@where_option
 @scale_option
 @click.option("--csv", "as_csv", is_flag=True, help="Rows of path,cluster,distance.")
 @click.option("--plot", "plot_output", metavar="OUT", type=click.Path(dir_okay=False, path_type=str),
               help="Also draw the clusters to OUT (.png, .svg or .pdf): the dendrogram, or beyond the exact"
                    " matrix's size a 2-D embedding.")
 @format_options
-def cluster(store, clusters, threshold, metric, scale, as_csv, plot_output, output_format, as_json):
+def cluster(store, clusters, threshold, metric, where, scale, as_csv, plot_output, output_format, as_json):
     """Group the whole store into families of similar parts.
+
+    Up to 4,000 entries Ward's clustering of the exact distances; above, Leiden's communities of
+    each entry's nearest neighbours, split further by exact Ward (docs/families.md).
 
     \b
     Example:
       shapeidx cluster --store parts.shapeidx --clusters 50
-      shapeidx cluster --store parts.shapeidx --threshold 0.05 --format csv
-      shapeidx cluster --store parts.shapeidx --plot families.png
+      shapeidx cluster --store parts.shapeidx --threshold 40 --format csv
+      shapeidx cluster --store parts.shapeidx --where 'path~Connector*' --plot families.png
     """
     from .families.cluster import cluster_store
     from .system import available_cores
@@ -907,9 +931,12 @@ def cluster(store, clusters, threshold, metric, scale, as_csv, plot_output, outp
         from .pictures.plot import check_format
 
         check_format(plot_output)  # before the work, not after it
-    table = _family_table(store)
-    if len(table) == 0:
-        raise _empty_store_error(store)
+    table = _family_table(store, metric)
+    keep = _table_keep(store, table, where)
+    if len(table) == 0 or (keep is not None and not keep.any()):
+        raise _empty_store_error(store) if len(table) == 0 else _no_entry_kept(where)
+    if keep is not None:
+        table = table.subset(keep)
     result = cluster_store(table, metric, clusters, threshold, scale, threads=available_cores())
     if plot_output:
         from .families.cluster_plot import plot_clusters
@@ -926,48 +953,66 @@ def cluster(store, clusters, threshold, metric, scale, as_csv, plot_output, outp
     else:
         click.echo(f"{len(rows)} entries in {result['count']} clusters ({metric}, {result['road']})")
         for r in rows:
-            click.echo(f"{r['cluster']:>6}  {r['distance']:<11.6g} {r['path']}")
+            click.echo(f"{r['cluster']:>6}  {r['distance']:<11.6g} {printable(r['path'])}")
+
+
+def _no_entry_kept(where):
+    from .errors import NoAnswer
+
+    return NoAnswer(f"no entry of the store satisfies --where {' '.join(where)}")
 
 
 @main.command(context_settings=CONTEXT)
 @store_option
-@metric_option("combined", choices=duplicate_metrics())  # only metrics whose duplicate thresholds were measured
+@metric_option("combined-angle", choices=duplicate_metrics())  # only metrics whose duplicate thresholds were measured
+@click.option("--near", "with_near", is_flag=True,
+              help="Also report near duplicates (tier near: measured less precise, docs/duplicates.md).")
+@where_option
 @scale_option
-@click.option("--csv", "as_csv", is_flag=True, help="One row per pair (same as --format csv).")
+@click.option("--csv", "as_csv", is_flag=True, help="One row per member (same as --format csv).")
 @format_options
-def duplicates(store, metric, scale, as_csv, output_format, as_json):
-    """Groups of entries that are the same part: identical file, same geometry, near duplicate.
+def duplicates(store, metric, with_near, where, scale, as_csv, output_format, as_json):
+    """Groups of entries that are one part: identical files, or the same geometry at one size (or
+    in other units, which each member's row names), most confident groups first.
 
-    Only reports: nothing is deleted or moved.
+    Every member is within the tier's thresholds of its group's first member, the
+    representative. Only reports: nothing is deleted or moved.
 
     \b
     Example:
       shapeidx duplicates --store parts.shapeidx
-      shapeidx duplicates --store parts.shapeidx --csv > duplicates.csv
+      shapeidx duplicates --store parts.shapeidx --near --csv > duplicates.csv
+      shapeidx duplicates --store parts.shapeidx --scale sensitive --where 'path~Resistor*'
     """
-    from .families.duplicates import find_duplicates
+    from .families.duplicates import DEFAULT_TIERS, find_duplicates
     from .system import available_cores
 
-    table = _family_table(store)
-    if len(table) == 0:
-        raise _empty_store_error(store)
-    groups = find_duplicates(table, metric, scale, threads=available_cores())
+    table = _family_table(store, metric)
+    keep = _table_keep(store, table, where)
+    if len(table) == 0 or (keep is not None and not keep.any()):
+        raise _empty_store_error(store) if len(table) == 0 else _no_entry_kept(where)
+    tiers = DEFAULT_TIERS + (("near",) if with_near else ())
+    groups = find_duplicates(table, metric, scale, threads=available_cores(), tiers=tiers, keep=keep)
     fmt = "csv" if as_csv and output_format is None else chosen_format(output_format, as_json)
     if fmt == "json":
         emit_json(groups)
         return
     if fmt != "table":
-        emit_rows(fmt, ["group", "a", "b", "tier", "distance", "size_ratio", "mirrored"],
-                  [{"group": g, **p} for g, group in enumerate(groups, start=1) for p in group["pairs"]])
+        emit_rows(fmt, ["group", "confidence", "a", "b", "tier", "distance", "size_ratio", "unit", "mirrored"],
+                  [{"group": g, "confidence": group["confidence"], **p}
+                   for g, group in enumerate(groups, start=1) for p in group["pairs"]])
         return
-    pairs = sum(len(g["pairs"]) for g in groups)
-    click.echo(f"{len(groups)} group(s) of duplicates, {pairs} pair(s), among {len(table)} entries")
+    members = sum(len(g["members"]) for g in groups)
+    click.echo(f"{len(groups)} group(s) of duplicates, {members} entries, among {len(table)} entries"
+               f" ({metric}; tiers {', '.join(tiers)}; most confident first)")
     for g, group in enumerate(groups, start=1):
-        click.echo(f"group {g}: {len(group['members'])} parts")
+        click.echo(f"group {g}: {len(group['members'])} parts, {group['tier']}, confidence {group['confidence']:.2f}:"
+                   f" {printable(group['representative'])}")
         for p in group["pairs"]:
             ratio = "size ?" if p["size_ratio"] is None else f"size x{p['size_ratio']:.4g}"
+            unit = f" (unit factor {p['unit']:.4g})" if p.get("unit") else ""
             mirror = ", mirrored" if p["mirrored"] else ""
-            click.echo(f"  {p['tier']:9s} {p['distance']:<10.4g} {ratio}{mirror}  {p['a']}  {p['b']}")
+            click.echo(f"  {p['tier']:9s} {p['distance']:<10.4g} {ratio}{unit}{mirror}  {printable(p['b'])}")
 
 
 if __name__ == "__main__":  # pragma: no cover

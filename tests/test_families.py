@@ -230,7 +230,7 @@ def test_duplicates_scale_sensitive_keeps_the_rescaled_copy_apart_and_csv_has_a_
     assert "copies/rgb-inches.stl" not in group["members"]
     result = cli("duplicates", "--store", store, "--csv")
     lines = result.stdout.strip().splitlines()
-    assert lines[0] == "group,a,b,tier,distance,size_ratio,mirrored"
+    assert lines[0] == "group,confidence,a,b,tier,distance,size_ratio,unit,mirrored"
     assert len(lines) - 1 == sum(len(g["pairs"]) for g in cli_json("duplicates", "--store", store))
 
 
@@ -428,3 +428,74 @@ def test_one_voter_leave_one_out_is_the_retrieval_nearest_neighbour_score(dup_st
     assert family_scores(matrix, labels, k=1)["knn"] == pytest.approx(retrieval_scores(matrix, labels)["nn"])
     scores = family_scores(matrix, labels)
     assert 0 <= scores["nmi"] <= 1 and -1 <= scores["ari"] <= 1
+
+
+# ---------------------------------------------------------------------------- issue 22: no chaining, sizes, stored embedding
+
+def test_every_duplicate_member_is_within_the_tier_of_its_representative_and_the_inches_copy_says_its_unit(dup_store):
+    from shapeidx.families.duplicates import find_duplicates, pair_tiers, thresholds
+
+    _, store = dup_store
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader)
+    groups = find_duplicates(table, "combined-angle", tiers=("identical", "same", "near"))
+    assert groups == sorted(groups, key=lambda g: -g["confidence"])  # most confident first
+    limits = thresholds("combined-angle")
+    for g in groups:
+        assert g["members"][0] == g["representative"]
+        a = np.array([table.index_of(g["representative"])] * len(g["pairs"]))
+        b = np.array([table.index_of(p["b"]) for p in g["pairs"]])
+        said = pair_tiers(table, a, b, "combined-angle")  # asked directly, not through a chain
+        assert all(t in ("identical", "same", "near") for t in said["tier"])
+        assert np.all(said["distance"] <= limits["near"])
+    group = next(g for g in groups if CHIRAL in g["members"])
+    inches = next(p for p in group["pairs"] if p["b"] == "copies/rgb-inches.stl" or p["a"] == "copies/rgb-inches.stl")
+    assert inches["unit"] == pytest.approx(1 / 25.4 if inches["b"] == "copies/rgb-inches.stl" else 25.4)
+    # and a size ratio that is no unit factor is not one part
+    from shapeidx.families.duplicates import unit_factor
+
+    ok, factor = unit_factor(np.array([1.0, 1.004, 25.4 * 1.003, 1 / 2.54, 1.5, 0.0121]))
+    assert list(ok) == [True, True, True, True, False, False]
+    assert factor[2] == pytest.approx(25.4) and factor[3] == pytest.approx(1 / 2.54) and np.isnan(factor[4])
+
+
+def test_duplicates_keep_mask_leaves_out_the_other_entries(dup_store):
+    from shapeidx.families.duplicates import find_duplicates
+
+    _, store = dup_store
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader)
+    keep = np.array([not str(p).startswith("copies/rgb-") or str(p).endswith("rotated.stl") for p in table.paths])
+    groups = find_duplicates(table, "combined-angle", keep=keep)
+    members = {m for g in groups for m in g["members"]}
+    assert "copies/rgb-rotated.stl" in members and not members & {"copies/rgb-copy.wrl", "copies/rgb-inches.stl"}
+
+
+def test_the_graph_road_makes_as_many_clusters_as_asked_and_no_giant_one(dup_store):
+    _, store = dup_store
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader, ())
+    for k in (3, 6, 12):
+        result = cluster_store(table, "combined-angle", clusters=k, road="graph")
+        assert result["count"] == k and len(set(result["clusters"])) == k
+        assert np.bincount(result["clusters"]).max() <= 0.75 * len(table)
+        assert (result["distances"] >= 0).all()
+    again = cluster_store(table, "combined-angle", clusters=6, road="graph")
+    assert np.array_equal(again["clusters"], cluster_store(table, "combined-angle", clusters=6, road="graph")["clusters"])
+
+
+def test_the_stored_embedding_rows_are_those_the_counts_make_and_check_verifies_them(dup_store):
+    from shapeidx.store.candidates import d2_basis, embed
+
+    _, store = dup_store
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader)
+    assert table.d2_basis is not None and set(table.d2_basis) == {"all", "in", "out", "mixed"}
+    for h, rows in table.d2_basis.items():  # independent: re-binned from the loaded probabilities
+        assert np.allclose(rows, d2_basis(table.histograms[h].p, table.histograms[h].lengths), atol=1e-6)
+    # an entry's vector is its own: embedding a subset gives the same rows
+    keep = np.arange(len(table)) % 2 == 0
+    for metric in ("combined", "combined-angle", "weighted"):
+        assert np.array_equal(embed(table.subset(keep), metric), embed(table, metric)[keep])
+    result = cli("check", "--store", store)
+    assert result.exit_code == 0, result.output

@@ -18,7 +18,7 @@ from ..errors import ShapeidxError
 
 #: Voters (measured by leave-one-out on kicad6, docs/results.md).
 DEFAULT_K = 3
-DEFAULT_METRIC = "combined"
+DEFAULT_METRIC = "combined-angle"
 #: Smallest weight a voter gets (share of the nearest voter's).
 WEIGHT_FLOOR = 0.05
 

@@ -1,30 +1,40 @@
-"""``shapeidx duplicates``: groups of store entries that are the same part.
+"""``shapeidx duplicates``: groups of store entries that are one part, a person could keep one of.
 
 Every pair found is put in one tier:
 
 * ``identical``: the same file content (SHA-256);
 * ``same``: the same geometry: the shape distance is within the noise of signing one part
   with other random points (``thresholds.json``, measured per metric by
-  ``scripts/duplicates_study.py --noise``, see docs/duplicates.md) and the exact surface
-  moments agree (:func:`fingerprint_gap` within :data:`FINGERPRINT_SAME`). The second test
-  is needed: on kicad6 the sampling noise of D2 at 1024 points is larger than the distance
-  between many pairs of different parts of one family;
-* ``near``: a near duplicate: distance within the looser ``near`` threshold and moments
-  within :data:`FINGERPRINT_NEAR`.
+  ``scripts/duplicates_study.py --noise``, see docs/duplicates.md), the exact surface
+  moments agree (:func:`fingerprint_gap` within :data:`FINGERPRINT_SAME`) and the sizes agree
+  (:func:`unit_factor`: equal within :data:`SIZE_TOLERANCE`, or apart by a unit factor such
+  as 25.4, which the pair reports). The moments are needed because the sampling noise of D2 at
+  1024 points is larger than the distance between many pairs of different parts of one
+  family; the sizes because a shape distance is blind to size (an 0402 and an 0805 resistor);
+* ``near``: a near duplicate: distance within the looser ``near`` threshold, moments within
+  :data:`FINGERPRINT_NEAR`, sizes as for ``same``. Reported only when asked for
+  (``tiers``): docs/duplicates.md measures its precision on the whole KiCad 6 library.
 
-Each pair also says ``size_ratio`` (size of ``b`` over size of ``a``; sizes are mean pair
-distances in file units, so a copy saved in inches shows 1/25.4) and ``mirrored`` (one is the
-mirror image of the other, by :func:`shapeidx.families.chirality.mirror_relation`; always
-false for parts that are their own mirror image). With ``scale="sensitive"`` a pair whose
-sizes differ by more than :data:`~shapeidx.distance.scale.SIZE_BAND` is no duplicate.
+Groups do not chain. Each group has a *representative*, and every other member is within the
+tier's thresholds of the representative itself (so, the metric being a sum of distances, two
+members are at most twice the threshold apart), not merely linked to it through a chain of
+neighbours. Files with one content (``identical``) always stay together. Representatives are
+chosen greedily, the entry with the most ``same`` partners first; a member is an entry paired
+with the representative itself by the candidate step. Groups come in order of
+*confidence* (:func:`group_confidence`: the tier of their weakest member, then how deep inside
+its thresholds that member lies), not of size.
+
+Each member's pair with the representative also says ``size_ratio`` (member over
+representative, radii of gyration in file units, so a copy saved in inches shows 1/25.4),
+``unit`` (that ratio's unit factor, or None) and ``mirrored`` (one is the mirror image of the
+other, :func:`shapeidx.families.chirality.mirror_relation`; always false for parts that are
+their own mirror image). With ``scale="sensitive"`` no unit factor is allowed.
 
 Candidates come from :func:`shapeidx.store.candidates.candidate_pairs`, twice: each
-entry's nearest neighbours in the D2 embedding, and in the space of its exact moments
-(:func:`fingerprint_vectors`); all are confirmed with the exact distance, so the work grows
-as N k, not N^2. Groups are the connected components of the pairs found; a group of up to
-:data:`ALL_PAIRS_GROUP` members lists every pair found among them, a larger one the pairs of
-a minimum spanning tree (best tier first, then least distance), which link it. Nothing is ever
-deleted or moved.
+entry's nearest neighbours in the metric's embedding, and in the space of its exact moments
+(:func:`fingerprint_vectors`), every pair confirmed with the exact distance; entries with one
+exact fingerprint (copies of one surface) are all paired with each other. The work grows as N k,
+not N^2. Nothing is ever deleted or moved.
 """
 
 from __future__ import annotations
@@ -38,11 +48,21 @@ from .chirality import mirror_relation
 from ..distance.scale import check_scale, ratio_within_band
 
 TIERS = ("identical", "same", "near")
-DEFAULT_METRIC = "combined"
+DEFAULT_METRIC = "combined-angle"
+#: Tiers reported unless asked otherwise: those whose precision docs/duplicates.md measured
+#: high enough on the whole library.
+DEFAULT_TIERS = ("identical", "same")
+#: Largest ``|ln|`` gap between a size ratio and 1 or a unit factor (radii of gyration are
+#: exact integrals: an STL copy keeps its ratio to 1e-6; a STEP file faceted again by
+#: OpenCASCADE within about 1%, docs/duplicates.md).
+SIZE_TOLERANCE = 0.01
+#: Size ratios that mean "the same part in other units": 0.1 inch (KiCad's VRML) to mm, cm to
+#: mm, inch to mm, foot to inch, m to cm, foot to mm, m to mm; and their inverses.
+UNIT_FACTORS = (2.54, 10.0, 25.4, 12.0, 100.0, 304.8, 1000.0)
 #: Candidate neighbours per entry.
 DEFAULT_NEIGHBOURS = 20
 #: Largest :func:`fingerprint_gap` for ``same`` and for ``near`` (docs/duplicates.md).
-FINGERPRINT_SAME = 0.02
+FINGERPRINT_SAME = 0.01
 FINGERPRINT_NEAR = 0.06
 
 
@@ -148,66 +168,44 @@ def _candidates(table, metric, k, method, threads):
     return a, b, table.pair_distances(a, b, metric)
 
 
-#: Groups up to this size list every pair found among their members; larger ones list the
-#: pairs of a minimum spanning tree (tier first, then distance): enough to link them.
-ALL_PAIRS_GROUP = 12
+def unit_factor(ratios: np.ndarray, scale: str = "invariant") -> tuple[np.ndarray, np.ndarray]:
+    """Whether each size ratio means one size: (ok, factor), factor 1 for equal sizes, one of
+    :data:`UNIT_FACTORS` (or its inverse) for a unit change, NaN where it is neither. An unknown
+    ratio (NaN: a store without sizes) is ok with factor NaN."""
+    ratios = np.asarray(ratios, dtype=np.float64)
+    factors = np.array((1.0,) + tuple(f for u in UNIT_FACTORS for f in (u, 1.0 / u)))
+    if check_scale(scale) == "sensitive":
+        factors = factors[:1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gap = np.abs(np.log(ratios)[:, None] - np.log(factors)[None, :])
+    best = np.argmin(np.where(np.isnan(gap), np.inf, gap), axis=1) if len(ratios) else np.zeros(0, np.int64)
+    close = gap[np.arange(len(ratios)), best] <= SIZE_TOLERANCE if len(ratios) else np.zeros(0, bool)
+    unknown = np.isnan(ratios)
+    factor = np.where(close, factors[best], np.nan)
+    return close | unknown, factor
 
 
-def _linking_pairs(n, pa, pb, tier, dist):
-    """The pairs a group lists: all of a small group's, a spanning tree's in a large one."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
-
-    a, b = np.minimum(pa, pb), np.maximum(pa, pb)
-    order = np.lexsort((dist, tier))  # per pair of entries, its best tier, then distance
-    key = a[order] * n + b[order]
-    _, first = np.unique(key, return_index=True)
-    keep = order[first]
-    a, b, tier, dist = a[keep], b[keep], tier[keep], dist[keep]
-    _, component = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)
-    size = np.bincount(component, minlength=n)
-    small = size[component[a]] <= ALL_PAIRS_GROUP
-    # spanning tree of the large groups: weight orders by tier, then by distance
-    span = np.flatnonzero(~small)
-    chosen = np.flatnonzero(small)
-    if len(span):
-        scale = float(dist[span].max()) + 1.0
-        weight = tier[span] * scale + dist[span] + 1e-9
-        tree = minimum_spanning_tree(coo_matrix((weight, (a[span], b[span])), shape=(n, n)).tocsr()).tocoo()
-        span_keys = a[span] * n + b[span]  # increasing: the pairs came out of np.unique sorted by key
-        tree_keys = np.minimum(tree.row, tree.col).astype(np.int64) * n + np.maximum(tree.row, tree.col)
-        chosen = np.concatenate([chosen, span[np.searchsorted(span_keys, tree_keys)]]).astype(np.int64)
-    return a[chosen], b[chosen], tier[chosen], dist[chosen]
-
-
-class _UnionFind:
-    def __init__(self, n: int):
-        self.parent = np.arange(n)
-
-    def find(self, i: int) -> int:
-        root = i
-        while self.parent[root] != root:
-            root = self.parent[root]
-        while self.parent[i] != root:
-            self.parent[i], i = root, self.parent[i]
-        return root
-
-    def union(self, a: int, b: int) -> None:
-        ra, rb = self.find(a), self.find(b)
-        if ra != rb:
-            self.parent[max(ra, rb)] = min(ra, rb)
-
-
-def _geometry_tiers(table, a, b, d, limits: dict, scale: str):
-    """(same, near) masks of pairs ``a``-``b`` at distances ``d`` (different files)."""
+def _pair_facts(table, a, b, d, limits: dict, scale: str) -> dict:
+    """Tier codes (0 identical, 1 same, 2 near, 3 none) and what each pair says."""
+    hashes = table.hashes
+    identical = (hashes[a] == hashes[b]) & np.array([len(h) > 0 for h in hashes[a]], dtype=bool)
     gap = fingerprint_gap(table, a, b)
     unknown = np.isnan(gap)
-    same = (d <= limits["same"]) & (unknown | (gap <= FINGERPRINT_SAME))
-    near = ~same & (d <= limits["near"]) & (unknown | (gap <= FINGERPRINT_NEAR))
-    if scale == "sensitive":
-        band = ratio_within_band(table.size_ratios(a, b))
-        same, near = same & band, near & band
-    return same, near
+    ratios = table.size_ratios(a, b)
+    sized, factor = unit_factor(ratios, scale)
+    same = sized & (d <= limits["same"]) & (unknown | (gap <= FINGERPRINT_SAME))
+    near = sized & (d <= limits["near"]) & (unknown | (gap <= FINGERPRINT_NEAR))
+    tier = np.where(identical, 0, np.where(same, 1, np.where(near, 2, 3)))
+    # how deep inside its tier's thresholds the pair lies: 0 at the centre, 1 at the edge
+    with np.errstate(divide="ignore", invalid="ignore"):
+        limit = np.where(tier == 1, limits["same"], limits["near"])
+        fp_limit = np.where(tier == 1, FINGERPRINT_SAME, FINGERPRINT_NEAR)
+        size_gap = np.abs(np.log(ratios / np.where(np.isnan(factor), 1.0, factor)))
+        margin = np.nanmax(np.stack([d / limit, np.nan_to_num(gap) / fp_limit, np.nan_to_num(size_gap) / SIZE_TOLERANCE]), axis=0)
+    margin = np.where(tier == 0, 0.0, np.clip(margin, 0.0, 1.0))
+    return {"tier": tier, "distance": np.where(identical, 0.0, d), "size_ratio": ratios,
+            "unit": np.where(np.isnan(factor) | (factor == 1.0), np.nan, factor),
+            "mirrored": mirror_relation(table.handedness[a], table.handedness[b]), "margin": margin}
 
 
 def pair_tiers(table, a: np.ndarray, b: np.ndarray, metric: str = DEFAULT_METRIC, scale: str = "invariant",
@@ -218,88 +216,144 @@ def pair_tiers(table, a: np.ndarray, b: np.ndarray, metric: str = DEFAULT_METRIC
     -------
     dict
         Arrays aligned with the pairs: ``tier`` ("identical", "same", "near" or "" for
-        none), ``distance``, ``size_ratio`` (b over a), ``mirrored``.
+        none), ``distance``, ``size_ratio`` (b over a), ``unit`` (the ratio's unit factor, NaN
+        for none), ``mirrored``, ``margin`` (0 at the centre of the tier, 1 at its edge).
     """
     check_scale(scale)
     limits = limits or thresholds(metric)
     a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
     d = table.pair_distances(a, b, metric) if len(a) else np.zeros(0)
-    hashes = table.hashes
-    identical = (hashes[a] == hashes[b]) & np.array([len(h) > 0 for h in hashes[a]], dtype=bool)
-    same, near = _geometry_tiers(table, a, b, d, limits, scale)
-    tier = np.where(identical, "identical", np.where(same, "same", np.where(near, "near", "")))
-    return {"tier": tier, "distance": np.where(identical, 0.0, d), "size_ratio": table.size_ratios(a, b),
-            "mirrored": mirror_relation(table.handedness[a], table.handedness[b])}
+    facts = _pair_facts(table, a, b, d, limits, scale)
+    names = np.array(TIERS + ("",))
+    return {**facts, "tier": names[facts["tier"]]}
+
+
+def group_confidence(tier: int, margin: float) -> float:
+    """A group's place in the report, from its weakest member: identical 1; same from 1 down
+    to 0.5 and near from 0.5 down to 0 as that member's pair nears the edge of its tier
+    (``margin``). An order, not a probability: each tier's measured precision is in
+    docs/duplicates.md."""
+    if tier == 0:
+        return 1.0
+    top = 1.0 if tier == 1 else 0.5
+    return float(top - 0.5 * (0.2 + 0.8 * margin))
 
 
 def find_duplicates(table, metric: str = DEFAULT_METRIC, scale: str = "invariant", k: int = DEFAULT_NEIGHBOURS,
-                    method: str = "auto", threads: int | None = None, limits: dict | None = None) -> list[dict]:
-    """Duplicate groups of a :class:`~shapeidx.families.table.FamilyTable`.
+                    method: str = "auto", threads: int | None = None, limits: dict | None = None,
+                    tiers=DEFAULT_TIERS, keep=None) -> list[dict]:
+    """Duplicate groups of a :class:`~shapeidx.families.table.FamilyTable` (module docstring).
+
+    Parameters
+    ----------
+    tiers : tuple of str
+        The tiers reported (default :data:`DEFAULT_TIERS`); ``identical`` always is.
+    keep : (N,) bool, optional
+        Only these entries (a ``--where`` filter's keep-mask over the table's entries).
 
     Returns
     -------
     list of dict
-        Groups, largest first: ``members`` (paths, sorted) and ``pairs`` (``a``, ``b``,
-        ``tier``, ``distance``, ``size_ratio``, ``mirrored``).
+        Groups, most confident first: ``representative`` (a path), ``members`` (paths, the
+        representative first), ``tier`` (of the weakest member), ``confidence``
+        (:func:`group_confidence`), ``folders`` (the top-level folders its members are in),
+        and ``pairs``, one per other member: ``a`` (the representative), ``b``, ``tier``,
+        ``distance``, ``size_ratio``, ``unit``, ``mirrored``.
     """
     check_scale(scale)
+    if keep is not None:
+        table = table.subset(keep)
     limits = limits or thresholds(metric)
+    tiers = tuple(t for t in TIERS if t in set(tiers) | {"identical"})
+    loosest = max(TIERS.index(t) for t in tiers)
     n = len(table)
     if n == 0:
         return []
-    pairs_a, pairs_b, tiers, dists = [], [], [], []
-    # identical files: every member to the first of its hash
-    hashes = table.hashes
-    order = np.argsort(hashes, kind="stable")
-    sorted_hashes = hashes[order]
-    starts = np.flatnonzero(np.concatenate([[True], sorted_hashes[1:] != sorted_hashes[:-1]]))
-    ends = np.concatenate([starts[1:], [n]])
-    for lo, hi in zip(starts, ends):
-        if hi - lo > 1 and sorted_hashes[lo] not in (b"", ""):
-            members = np.sort(order[lo:hi])
-            pairs_a += [members[0]] * (len(members) - 1)
-            pairs_b += list(members[1:])
-            tiers += ["identical"] * (len(members) - 1)
-            dists += [0.0] * (len(members) - 1)
-    if n > 1:
+    # atoms: files of one content, never split
+    keys = np.array([str(h) if len(h) else f"\0{i}" for i, h in enumerate(table.hashes)], dtype=object)
+    _, atom = np.unique(keys, return_inverse=True)
+    atom = atom.ravel().astype(np.int64)
+    atoms = int(atom.max()) + 1
+    first_of = np.full(atoms, n, dtype=np.int64)
+    np.minimum.at(first_of, atom, np.arange(n))  # each atom's first entry (paths are sorted)
+    pair_a = np.zeros(0, np.int64)
+    pair_b = np.zeros(0, np.int64)
+    facts = {"tier": np.zeros(0, np.int64), "margin": np.zeros(0)}
+    if n > 1 and loosest > 0:
         a, b, d = _candidates(table, metric, min(k, n - 1), method, threads)
-        keep = (d <= limits["near"]) & (hashes[a] != hashes[b])
-        a, b, d = a[keep], b[keep], d[keep]
-        same, near = _geometry_tiers(table, a, b, d, limits, scale)
-        take = same | near
-        pairs_a += list(a[take])
-        pairs_b += list(b[take])
-        tiers += ["same" if s else "near" for s in same[take]]
-        dists += list(d[take])
-    if not pairs_a:
-        return []
-    pa, pb = np.array(pairs_a, dtype=np.int64), np.array(pairs_b, dtype=np.int64)
-    tier_code = np.array([TIERS.index(t) for t in tiers], dtype=np.int64)
-    dists = np.asarray(dists, dtype=np.float64)
-    pa, pb, tier_code, dists = _linking_pairs(n, pa, pb, tier_code, dists)
-    ratios = table.size_ratios(pa, pb)
-    mirrored = mirror_relation(table.handedness[pa], table.handedness[pb])
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+        keep_pairs = (d <= limits["near"]) & (atom[a] != atom[b])
+        a, b, d = a[keep_pairs], b[keep_pairs], d[keep_pairs]
+        facts = _pair_facts(table, a, b, d, limits, scale)
+        good = facts["tier"] <= loosest
+        pair_a, pair_b = a[good], b[good]
+        facts = {key: value[good] for key, value in facts.items()}
+        # one pair per two atoms: the best (tier, then margin)
+        x, y = np.minimum(atom[pair_a], atom[pair_b]), np.maximum(atom[pair_a], atom[pair_b])
+        order = np.lexsort((facts["margin"], facts["tier"], x * atoms + y))
+        first = order[np.concatenate([[True], np.diff((x * atoms + y)[order]) != 0])] if len(order) else order
+        pair_a, pair_b = pair_a[first], pair_b[first]
+        facts = {key: value[first] for key, value in facts.items()}
+    # both directions of every atom pair, by atom: (neighbour atom, pair, whether reversed)
+    xa, xb = atom[pair_a], atom[pair_b]
+    src = np.concatenate([xa, xb])
+    dst = np.concatenate([xb, xa])
+    which = np.concatenate([np.arange(len(pair_a)), np.arange(len(pair_a))])
+    flipped = np.concatenate([np.zeros(len(pair_a), bool), np.ones(len(pair_a), bool)])
+    by_src = np.argsort(src, kind="stable")
+    starts = np.searchsorted(src[by_src], np.arange(atoms + 1))
+    size = np.bincount(atom, minlength=atoms)
+    strict = np.bincount(src, weights=(facts["tier"][which] <= 1), minlength=atoms)
+    loose = np.bincount(src, minlength=atoms)
+    # representatives: most same-tier partners first, then most partners, then most copies
+    order = np.lexsort((first_of, -size, -loose, -strict))
+    assigned = np.zeros(atoms, dtype=bool)
+    members_of_atom = _members(atom, atoms)
+    groups = []
+    for rep in order.tolist():
+        if assigned[rep] or (starts[rep] == starts[rep + 1] and size[rep] < 2):
+            continue
+        assigned[rep] = True
+        # members: the atoms paired with the representative itself, not yet in a group
+        edges = by_src[starts[rep]:starts[rep + 1]]
+        edges = edges[~assigned[dst[edges]]]
+        assigned[dst[edges]] = True
+        group = _group(table, rep, dst[edges], which[edges], flipped[edges], facts, members_of_atom, first_of)
+        if len(group["members"]) > 1:
+            groups.append(group)
+    groups.sort(key=lambda g: (-g["confidence"], -len(g["members"]), g["members"][0]))
+    return groups
 
-    _, component = connected_components(coo_matrix((np.ones(len(pa)), (pa, pb)), shape=(n, n)), directed=False)
-    by_group: dict = {}
-    for i in np.lexsort((table.paths[pb], table.paths[pa], tier_code)):
-        by_group.setdefault(int(component[pa[i]]), []).append(int(i))
-    out = []
-    for pair_indices in by_group.values():
-        members = sorted({str(table.paths[pa[i]]) for i in pair_indices} | {str(table.paths[pb[i]]) for i in pair_indices})
-        pairs = [
-            {
-                "a": str(table.paths[pa[i]]),
-                "b": str(table.paths[pb[i]]),
-                "tier": TIERS[tier_code[i]],
-                "distance": float(dists[i]),
-                "size_ratio": None if not np.isfinite(ratios[i]) else float(ratios[i]),
-                "mirrored": bool(mirrored[i]),
-            }
-            for i in pair_indices
-        ]
-        out.append({"members": members, "pairs": pairs})
-    out.sort(key=lambda g: (-len(g["members"]), g["members"][0]))
-    return out
+
+def _members(labels: np.ndarray, count: int) -> list:
+    order = np.argsort(labels, kind="stable")
+    bounds = np.searchsorted(labels[order], np.arange(count + 1))
+    return [order[lo:hi] for lo, hi in zip(bounds[:-1], bounds[1:])]
+
+
+def _group(table, rep: int, chosen: np.ndarray, pairs_of: np.ndarray, flipped: np.ndarray, facts: dict,
+           members_of_atom, first_of) -> dict:
+    """One group: the representative's atom, then each chosen atom's files with its pair."""
+    paths = table.paths
+    head = first_of[rep]
+    pairs = []
+    weakest = (0, 0.0)
+    for other in members_of_atom[rep]:
+        if other != head:
+            pairs.append({"a": str(paths[head]), "b": str(paths[other]), "tier": "identical", "distance": 0.0,
+                          "size_ratio": 1.0, "unit": None, "mirrored": False})
+    for atom_b, k, back in zip(chosen.tolist(), pairs_of.tolist(), flipped.tolist()):
+        tier, margin = int(facts["tier"][k]), float(facts["margin"][k])
+        weakest = max(weakest, (tier, margin))
+        ratio, unit = float(facts["size_ratio"][k]), float(facts["unit"][k])
+        if back:  # the pair was found as (member, representative): sizes the other way round
+            ratio, unit = 1.0 / ratio, 1.0 / unit
+        for other in members_of_atom[atom_b]:
+            pairs.append({"a": str(paths[head]), "b": str(paths[other]), "tier": TIERS[tier],
+                          "distance": float(facts["distance"][k]),
+                          "size_ratio": None if not np.isfinite(ratio) else ratio,
+                          "unit": None if not np.isfinite(unit) else unit, "mirrored": bool(facts["mirrored"][k])})
+    pairs.sort(key=lambda p: (TIERS.index(p["tier"]), p["distance"], p["b"]))
+    members = [str(paths[head])] + [p["b"] for p in pairs]
+    folders = sorted({m.split("/", 1)[0] if "/" in m else "" for m in members})
+    return {"representative": str(paths[head]), "members": members, "tier": TIERS[weakest[0]],
+            "confidence": group_confidence(*weakest), "folders": folders, "pairs": pairs}

@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..distance import ANGLE_METRICS, FEATURES, METRIC_HISTOGRAMS, METRICS, metric_values
+from ..distance import ANGLE_FEATURES, ANGLE_METRICS, FEATURES, METRIC_HISTOGRAMS, METRICS, metric_values
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
-from ..distance.combined import angle_features, class_scales
+from ..distance.combined import class_scales
 from ..errors import StoreError
 from ..ragged import offsets_of
 from ..signing.parameters import HISTOGRAMS, SIGNATURE_VERSION
@@ -114,6 +114,13 @@ class RaggedHistograms:
         return out
 
 
+def _take_ragged(ragged: RaggedHistograms, rows: np.ndarray) -> RaggedHistograms:
+    """Rows ``rows`` of a ragged table, as one."""
+    lengths = ragged.lengths[rows]
+    starts = np.repeat(ragged.offsets[:-1][rows] - offsets_of(lengths)[:-1], lengths)
+    return RaggedHistograms(ragged.p[starts + np.arange(int(lengths.sum()))], offsets_of(lengths))
+
+
 def _padded_values(p, starts, lengths, k, width) -> np.ndarray:
     starts_r = np.repeat(starts, width)
     inside = k < np.repeat(lengths, width)
@@ -160,10 +167,17 @@ class FamilyTable:
     bounds: np.ndarray | None = None
     moments: np.ndarray | None = None
     angles: np.ndarray | None = None  # (N, 4, ANGLE_BINS) normal-angle probabilities, NaN where unknown
+    #: Histogram -> (N, 48) float32 rows of the candidate embedding the store keeps
+    #: (:func:`shapeidx.store.candidates.stored_d2_basis`), for the histograms it was asked for.
+    d2_basis: dict | None = None
 
     @classmethod
-    def load(cls, reader: StoreReader, histograms=HISTOGRAMS) -> "FamilyTable":
-        """The ok entries of ``reader``; refuses a store of another signature version."""
+    def load(cls, reader: StoreReader, histograms=HISTOGRAMS, embedding=None) -> "FamilyTable":
+        """The ok entries of ``reader``; refuses a store of another signature version.
+
+        ``histograms``: the D2 histograms to load (a metric's, ``METRIC_HISTOGRAMS``; combined-angle
+        needs none); ``embedding``: the histograms whose stored embedding rows to load
+        (default: the same)."""
         if reader.params.signature_version != SIGNATURE_VERSION:
             raise StoreError(
                 f"store {reader.path} holds signatures of version {reader.params.signature_version}, this shapeidx"
@@ -172,7 +186,11 @@ class FamilyTable:
         rows = np.flatnonzero(reader.column("entries/status") == STATUS_OK)
         hists = {name: RaggedHistograms.from_counts(*reader.counts(name, rows)) for name in histograms}
         means = np.stack([reader.column(f"histograms/{name}/mean")[rows] for name in HISTOGRAMS], axis=1)
+        from ..store.candidates import stored_d2_basis
+
+        basis = stored_d2_basis(reader, rows, histograms if embedding is None else embedding)
         return cls(
+            d2_basis=basis or None,
             paths=reader.paths[rows],
             rows=rows,
             histograms=hists,
@@ -190,6 +208,26 @@ class FamilyTable:
     def __len__(self) -> int:
         return len(self.paths)
 
+    def subset(self, keep) -> "FamilyTable":
+        """The entries ``keep`` selects (a boolean mask over the entries, or their indices), as a
+        table of their own: what a ``--where`` filter's keep-mask makes of the store."""
+        keep = np.asarray(keep)
+        rows = np.flatnonzero(keep) if keep.dtype == bool else np.asarray(keep, dtype=np.int64)
+        if keep.dtype == bool and len(keep) != len(self):
+            raise ValueError(f"keep-mask of {len(keep)} values for a table of {len(self)} entries")
+
+        def take(values):
+            return None if values is None else values[rows]
+
+        return FamilyTable(
+            paths=self.paths[rows], rows=self.rows[rows],
+            histograms={h: _take_ragged(r, rows) for h, r in self.histograms.items()},
+            fractions=self.fractions[rows], means=self.means[rows], hashes=self.hashes[rows],
+            extents=self.extents[rows], handedness=self.handedness[rows], missing_columns=self.missing_columns,
+            bounds=take(self.bounds), moments=take(self.moments), angles=take(self.angles),
+            d2_basis=None if self.d2_basis is None else {h: v[rows] for h, v in self.d2_basis.items()},
+        )
+
     def index_of(self, path: str) -> int | None:
         """Position of the entry with this relative path, or None."""
         i = int(np.searchsorted(self.paths, path))
@@ -200,18 +238,34 @@ class FamilyTable:
         """Each part's size in file units: its mean pair distance (ALL)."""
         return self.means[:, 0]
 
-    def pair_features(self, a: np.ndarray, b: np.ndarray, histograms=HISTOGRAMS) -> dict:
-        """The per-pair :data:`~shapeidx.distance.FEATURES` of entries ``a[k]``, ``b[k]``."""
+    def _cached(self, name: str, make):
+        """A per-entry array derived once (the tables are not changed after loading)."""
+        cache = self.__dict__.setdefault("_derived", {})
+        if name not in cache:
+            cache[name] = make()
+        return cache[name]
+
+    def pair_features(self, a: np.ndarray, b: np.ndarray, histograms=HISTOGRAMS, angles=("l1", "hellinger")) -> dict:
+        """The per-pair :data:`~shapeidx.distance.FEATURES` of entries ``a[k]``, ``b[k]``, and
+        the normal-angle histograms' distances named in ``angles`` (L1, Hellinger)."""
         a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
         features = {f"d_{h}": self.histograms[h].distances(a, b) if h in histograms else np.zeros(len(a)) for h in HISTOGRAMS}
         for i, c in enumerate(HISTOGRAMS[1:]):
             features[f"gap_{c}"] = np.abs(self.fractions[a, i] - self.fractions[b, i])
-        scales = class_scales(self.means)
+        scales = self._cached("scales", lambda: class_scales(self.means))
         gap = np.abs(scales[a] - scales[b])
         for i, c in enumerate(HISTOGRAMS[1:]):
             features[f"scale_{c}"] = gap[:, i]
-        if self.angles is not None:  # NaN for entries whose angles are unknown
-            features.update(angle_features(self.angles[a], self.angles[b]))
+        if self.angles is not None and angles:  # NaN for entries whose angles are unknown
+            # angle_features' L1 and Hellinger distances, from square roots taken once per entry
+            count = len(ANGLE_HISTOGRAMS)
+            if "l1" in angles:
+                l1 = np.abs(self.angles[a] - self.angles[b]).sum(axis=-1)
+                features.update({name: l1[:, i] for i, name in enumerate(ANGLE_FEATURES[:count])})
+            if "hellinger" in angles:
+                roots = self._cached("angle_roots", lambda: np.sqrt(self.angles))
+                hellinger = np.sqrt(((roots[a] - roots[b]) ** 2).sum(axis=-1) / 2)
+                features.update({name: hellinger[:, i] for i, name in enumerate(ANGLE_FEATURES[count:])})
         assert set(FEATURES) <= set(features)
         return features
 
@@ -222,11 +276,18 @@ class FamilyTable:
         missing = set(METRIC_HISTOGRAMS[metric]) - set(self.histograms)
         if missing:
             raise ValueError(f"metric {metric} needs histograms not loaded: {', '.join(sorted(missing))}")
-        if metric in ANGLE_METRICS and (self.angles is None or not np.isfinite(self.angles).all()):
+        known = self._cached("angles_known", lambda: self.angles is not None and bool(np.isfinite(self.angles).all()))
+        if metric in ANGLE_METRICS and not known:
             raise StoreError(f"metric {metric} needs the normal-angle histograms, which entries of this store lack"
                              " (built before them): rebuild it with 'shapeidx build DIR --full'")
-        features = self.pair_features(a, b, METRIC_HISTOGRAMS[metric])
-        return np.asarray(metric_values(features, (metric,))[metric], dtype=np.float64)
+        a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+        angles = {"combined-angle": ("hellinger",), "all-angle": ("l1",)}.get(metric, ())
+        out = np.empty(len(a))
+        step = PAIR_BLOCK_VALUES // 64  # bounds the (pairs, 4, bins) copies of the angle road
+        for lo in range(0, len(a), step):
+            features = self.pair_features(a[lo : lo + step], b[lo : lo + step], METRIC_HISTOGRAMS[metric], angles)
+            out[lo : lo + step] = metric_values(features, (metric,))[metric]
+        return out
 
     @property
     def radii(self) -> np.ndarray:

@@ -65,61 +65,132 @@ HNSW_EF_SEARCH = 256
 HNSW_EF_CONSTRUCTION = 200
 
 
-def _block_weights(metric: str) -> dict:
-    """Weight of each embedding block for ``metric`` (a histogram's, the fractions', the
-    scales', and for combined-angle each normal-angle histogram's, ``angle_H``)."""
-    hists = METRIC_HISTOGRAMS[metric]
+#: The bin count that the D2 blocks' weights assume (``D`` is L1 / bins; the median bin count
+#: is 109 to 154 per histogram on kicad6 and on the whole KiCad 6 library). A constant, not the
+#: store's median, so that an entry's vector depends on that entry alone.
+REFERENCE_BINS = 128
+
+
+def d2_basis(flat: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """(n, :data:`COARSE_BINS`) float32: each histogram (counts end to end) coarsened to bins of
+    :data:`FINE_PER_COARSE` (the tail folded into the last), as probabilities, square-rooted.
+
+    One entry's row depends on that entry only: the ranking section of every store file
+    keeps these rows (``rank/H/embedding``, :mod:`shapeidx.store.rank`), written with the
+    entries, so no run recomputes them.
+    """
+    lengths = np.asarray(lengths, dtype=np.int64)
+    n = len(lengths)
+    flat = np.asarray(flat, dtype=np.float64)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]) if n else np.zeros(0, np.int64)
+    k = np.arange(len(flat)) - np.repeat(starts, lengths)
+    coarse = np.minimum(k // FINE_PER_COARSE, COARSE_BINS - 1)
+    row = np.repeat(np.arange(n), lengths)
+    dense = np.zeros((n, COARSE_BINS))
+    np.add.at(dense, (row, coarse), flat)
+    totals = dense.sum(axis=1, keepdims=True)
+    dense = np.divide(dense, totals, out=np.zeros_like(dense), where=totals > 0)
+    return np.sqrt(dense).astype(np.float32)
+
+
+def stored_d2_basis(reader, rows: np.ndarray, histograms) -> dict:
+    """The :func:`d2_basis` rows of the store's entries ``rows`` (rows of ``reader``'s merged
+    view), per histogram, read from each file's ranking section (``rank/H/embedding``: memory
+    mapped; a file written before it computes them from its counts), or {} for a store whose
+    files lack ranking sections."""
+    histograms = tuple(histograms)
+    if not histograms or not len(rows):
+        return {}
+    sources = reader._sources
+    if any(source.rank is None for source in sources):
+        return {}
+    which, file_rows = reader.source[rows], reader.row[rows]
+    out = {h: np.zeros((len(rows), COARSE_BINS), dtype=np.float32) for h in histograms}
+    for i, source in enumerate(sources):
+        here = np.flatnonzero(which == i)
+        if not len(here):
+            continue
+        section = source.rank
+        positions = np.searchsorted(section.rows, file_rows[here])
+        for h in histograms:
+            out[h][here] = section.array(f"{h}/embedding")[positions]
+    return out
+
+
+def embedding_weights(metric: str) -> dict:
+    """Per block of the basis (:func:`embedding_basis`), the factor ``metric`` puts on it: a
+    number, or one per column.
+
+    Every metric is a weighted sum of per-pair distances (the histograms' ``D`` or Hellinger
+    distances, the class-fraction and class-scale gaps): the L1 norm of the vector of those
+    weighted terms. Each block is scaled by its term's weight, so that the Euclidean distance
+    of two vectors is the L2 norm of the same vector of terms (within a factor sqrt(terms)
+    of the metric, and equal to it for a pair that differs in one term). A Hellinger distance
+    is ``|sqrt p - sqrt q| / sqrt 2``; ``D`` (L1 / bins) of near histograms is about
+    ``2 |sqrt p - sqrt q| / bins`` of the fine bins, and the coarse bins' distance is smaller:
+    ``2 / (3 bins)`` was the best factor of 1/16 to 4 times that on the whole library (combined:
+    10-neighbour recall 0.963, 0.873 at ``2 / bins``). (Until issue 22 the blocks were scaled by the square root
+    of the weights, and the fractions and scales by their mean weight: 10-neighbour recall on
+    the whole KiCad 6 library 0.846 for combined-angle, 0.866 for combined, at the same over-fetch;
+    now 0.982 and 0.963,
+    docs/performance-families.md.)
+    """
+    d2 = 2.0 / (FINE_PER_COARSE * REFERENCE_BINS)
     if metric in ("combined", "combined-angle"):
         w = learned_weights(metric)["weights"]
+        weights = {"fractions": np.array([w[f"gap_{c}"] for c in CLASS_NAMES]),
+                   "scales": np.array([w[f"scale_{c}"] for c in CLASS_NAMES])}
         if metric == "combined":
-            weights = {h: w[f"d_{h}"] for h in HISTOGRAMS}
-        else:  # no D2 term: the angles' Hellinger distances with the class features
-            weights = {f"angle_{h}": w[f"hellinger_angle_{h}"] for h in ANGLE_HISTOGRAMS}
-        weights["fractions"] = float(np.mean([w[f"gap_{c}"] for c in HISTOGRAMS[1:]]))
-        weights["scales"] = float(np.mean([w[f"scale_{c}"] for c in HISTOGRAMS[1:]]))
-        return {k: v for k, v in weights.items() if v > 0 or k in ("fractions", "scales")}
-    weights = {h: 1.0 for h in hists}
-    # Weighted divides each D by the classes' agreement: a fraction gap separates parts
-    weights["fractions"] = 0.02 if metric == "weighted" else 0.0
-    weights["scales"] = 0.0
+            weights.update({f"d2_{h}": w[f"d_{h}"] * d2 for h in HISTOGRAMS})
+        else:
+            weights.update({f"angle_{h}": w[f"hellinger_angle_{h}"] / np.sqrt(2) for h in ANGLE_HISTOGRAMS})
+        return weights
+    if metric == "all-angle":
+        from ..distance.combined import ALL_ANGLE_WEIGHT
+
+        return {"d2_all": d2, "angle_all": 2.0 * ALL_ANGLE_WEIGHT}
+    hists = METRIC_HISTOGRAMS[metric]
+    share = 1.0 if metric in ("all", "weighted") else 1.0 / len(hists)
+    weights = {f"d2_{h}": d2 * share for h in hists}
+    if metric == "weighted":  # Weighted divides each D by the classes' agreement: a fraction gap separates parts
+        weights["fractions"] = np.full(3, 0.02 * 3.0)
     return weights
 
 
-def embed(table, metric: str = "combined", median_bins: dict | None = None) -> np.ndarray:
+def embedding_basis(table, blocks) -> dict:
+    """The named blocks of every entry's basis vector: ``d2_H`` (:func:`d2_basis` rows: the
+    store's own when it keeps them, else made from the loaded histograms), ``angle_H`` (the
+    normal-angle probabilities, square-rooted), ``fractions``, ``scales`` (ln of each class's
+    mean over the ALL mean). Each a function of its own entry only."""
+    out = {}
+    stored = getattr(table, "d2_basis", None) or {}
+    for block in blocks:
+        kind, _, h = block.partition("_")
+        if kind == "d2":
+            if h in stored:
+                out[block] = stored[h]
+            else:
+                ragged = table.histograms[h]
+                out[block] = d2_basis(ragged.p, ragged.lengths)
+        elif kind == "angle":
+            out[block] = np.sqrt(np.nan_to_num(table.angles[:, ANGLE_HISTOGRAMS.index(h)]))
+        elif block == "fractions":
+            out[block] = table.fractions
+        elif block == "scales":
+            out[block] = class_scales(table.means)
+    return out
+
+
+def embed(table, metric: str = "combined") -> np.ndarray:
     """(N, dim) float32 vectors of a :class:`~shapeidx.families.table.FamilyTable`'s entries.
 
-    Squared Euclidean distance between two vectors approximates (a monotone stand-in for)
-    the ``metric`` distance of the two entries near zero; see the module docstring.
-    ``median_bins``: per histogram, the median bin count of the whole store (default: of
-    ``table``), so that a store embedded in chunks gets the vectors it would get whole.
+    Euclidean distance between two vectors is a stand-in for the ``metric`` distance of the
+    two entries (:func:`embedding_weights`); an entry's vector depends on that entry alone.
     """
-    weights = _block_weights(metric)
-    blocks = []
+    weights = {block: w for block, w in embedding_weights(metric).items() if np.any(np.asarray(w) > 0)}
+    basis = embedding_basis(table, weights)
+    blocks = [np.asarray(basis[block], dtype=np.float64) * np.asarray(w) for block, w in weights.items()]
     n = len(table)
-    for h in HISTOGRAMS:
-        if h not in weights or weights[h] <= 0 or h not in table.histograms:
-            continue
-        ragged = table.histograms[h]
-        lengths = ragged.lengths
-        k = np.arange(len(ragged.p)) - np.repeat(ragged.offsets[:-1], lengths)
-        coarse = np.minimum(k // FINE_PER_COARSE, COARSE_BINS - 1)
-        row = np.repeat(np.arange(n), lengths)
-        dense = np.zeros((n, COARSE_BINS))
-        np.add.at(dense, (row, coarse), ragged.p)
-        # D is L1 / bins: a part with few bins weighs each bin more
-        median = median_bins[h] if median_bins is not None else (
-            np.median(lengths[lengths > 0]) if (lengths > 0).any() else 1)
-        scale = np.sqrt(weights[h] / np.maximum(median, 1))
-        blocks.append(np.sqrt(dense) * scale * np.sqrt(COARSE_BINS))
-    angles = getattr(table, "angles", None)
-    for k, h in enumerate(ANGLE_HISTOGRAMS):
-        if weights.get(f"angle_{h}", 0) > 0 and angles is not None:
-            # Euclidean distance of square roots is sqrt(2) times the Hellinger distance
-            blocks.append(np.sqrt(angles[:, k]) * np.sqrt(weights[f"angle_{h}"] / 2))
-    if weights.get("fractions", 0) > 0:
-        blocks.append(table.fractions * np.sqrt(weights["fractions"]) * 3.0)
-    if weights.get("scales", 0) > 0:
-        blocks.append(class_scales(table.means) * np.sqrt(weights["scales"]))
     vectors = np.concatenate(blocks, axis=1) if blocks else np.zeros((n, 1))
     return np.ascontiguousarray(np.nan_to_num(vectors), dtype=np.float32)
 

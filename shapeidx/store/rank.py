@@ -15,6 +15,10 @@ the same signatures laid out as :class:`~shapeidx.distance.HistogramBank` ranks 
     rank/H/order       (M,) int64      the rank position of each grouped row
     rank/H/totals      (M,) int64      each grouped row's pair total (at least 1), grouped order
     rank/H/coarse      (sum,) uint32   the grouped histograms with every ``coarse`` bins summed (lower bounds)
+    rank/H/embedding   (M, 48) float32 each ok entry's block of the candidate embedding (rank position
+                                       order; :func:`shapeidx.store.candidates.d2_basis`: a function of
+                                       that entry alone, so each file carries its own rows). Absent
+                                       from files written before it: computed from the counts then.
 
 Every dataset is contiguous and unfiltered: HDF5 gives its file offset, so a query maps it
 (``mmap``) instead of reading and decoding it, and touches only the pages it ranks. Such
@@ -53,6 +57,9 @@ COUNT_DTYPE = np.uint32
 #: ranking reads 1/COARSE of the counts to bound every entry's distance from below and
 #: computes exact distances only where the bound does not rule an entry out.
 COARSE = 8
+#: Arrays a file written before them lacks; :meth:`RankSection.array` computes them from the
+#: file's counts then (the same values), and checks skip their checksums.
+OPTIONAL = ("embedding",)
 #: Values per entry of ``rank/angles``: the normal-angle histograms laid end to end.
 ANGLE_WIDTH = len(ANGLE_HISTOGRAMS) * ANGLE_BINS
 
@@ -149,14 +156,20 @@ def _angles_of(columns: dict, ok: np.ndarray) -> np.ndarray:
 
 def write_rank_histogram(f: h5py.File, h: str, flat: np.ndarray, lengths: np.ndarray, ok: np.ndarray) -> None:
     """Histogram ``h`` of the ``rank/`` section from every entry's counts (flat, lengths); ``ok``: the ok rows."""
-    flat, lengths = take_ragged(np.asarray(flat, dtype=COUNT_DTYPE), offsets_of(lengths), ok)
-    values, groups, order, totals, coarse = grouped(flat, lengths)
-    del flat
+    flat_ok, lengths = take_ragged(np.asarray(flat, dtype=COUNT_DTYPE), offsets_of(lengths), ok)
+    values, groups, order, totals, coarse = grouped(flat_ok, lengths)
     _write(f, f"{RANK}/{h}/counts", values)
     _write(f, f"{RANK}/{h}/groups", groups)
     _write(f, f"{RANK}/{h}/order", order)
     _write(f, f"{RANK}/{h}/totals", totals)
     _write(f, f"{RANK}/{h}/coarse", coarse)
+    _write(f, f"{RANK}/{h}/embedding", _embedding_rows(flat_ok, lengths))
+
+
+def _embedding_rows(flat: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    from .candidates import d2_basis  # the embedding's home; imported here only when writing
+
+    return d2_basis(flat, lengths)
 
 
 def expected_rank(columns: dict, counts: dict, histograms):
@@ -176,13 +189,14 @@ def expected_rank(columns: dict, counts: dict, histograms):
         flat, lengths = take_ragged(np.asarray(flat, dtype=COUNT_DTYPE), offsets_of(lengths), ok)
         values, groups, order, totals, coarse = grouped(flat, lengths)
         yield from ((f"{h}/counts", values), (f"{h}/groups", groups), (f"{h}/order", order), (f"{h}/totals", totals),
-                    (f"{h}/coarse", coarse))
+                    (f"{h}/coarse", coarse), (f"{h}/embedding", _embedding_rows(flat, lengths)))
 
 
 def rank_datasets(histograms) -> list:
     """Every dataset name of a ``rank/`` section holding ``histograms``."""
     names = [f"{RANK}/{n}" for n in ("path_key", "rows", "fractions", "means", "angles")]
-    return names + [f"{RANK}/{h}/{n}" for h in histograms for n in ("counts", "groups", "order", "totals", "coarse")]
+    return names + [f"{RANK}/{h}/{n}" for h in histograms
+                    for n in ("counts", "groups", "order", "totals", "coarse") + OPTIONAL]
 
 
 def _map_file(file: h5py.File, path) -> mmap.mmap:
@@ -252,6 +266,8 @@ class RankSection:
     def array(self, name: str, verify: bool = True) -> np.ndarray:
         """The dataset ``rank/NAME``, mapped (read, if HDF5 did not place it contiguously);
         ``verify``: check the CRC-32 of the arrays of :data:`CRC_ON_MAP` (ValueError if it fails)."""
+        if name not in self._arrays and name.rsplit("/", 1)[-1] in OPTIONAL and f"{RANK}/{name}" not in self.file:
+            self._arrays[name] = self._computed(name)
         if name not in self._arrays:
             dataset = self.file[f"{RANK}/{name}"]
             offset = dataset.id.get_offset()
@@ -268,6 +284,21 @@ class RankSection:
                     raise ValueError(f"{RANK}/{name} fails its checksum")
             self._arrays[name] = values
         return self._arrays[name]
+
+    def stored(self, name: str) -> bool:
+        """Whether the file holds ``rank/NAME`` (an :data:`OPTIONAL` array may be computed instead)."""
+        return f"{RANK}/{name}" in self.file
+
+    def _computed(self, name: str) -> np.ndarray:
+        """An :data:`OPTIONAL` array the file lacks, made from its counts as a writer makes it."""
+        h = name.rsplit("/", 1)[0]
+        out = None
+        for bins, block, _, positions in self.blocks(h):
+            rows = _embedding_rows(np.asarray(block).reshape(-1), np.full(len(block), bins, dtype=np.int64))
+            if out is None:
+                out = np.zeros((len(self), rows.shape[1]), dtype=rows.dtype)
+            out[positions] = rows
+        return out if out is not None else _embedding_rows(np.zeros(0, COUNT_DTYPE), np.zeros(0, np.int64))
 
     def slots(self, h: str):
         """(group start of each group, grouped slot of each rank position) of histogram ``h``."""
@@ -300,6 +331,8 @@ class RankSection:
         wrong = []
         for name in rank_datasets(self.histograms):
             short = name[len(RANK) + 1 :]
+            if short.rsplit("/", 1)[-1] in OPTIONAL and name not in self.file:
+                continue  # a file written before it: computed from the checked counts
             dataset = self.file[name]
             expected = dataset.attrs.get(CHECKSUM)
             if expected is None or bytes_crc32(self.array(short, verify=False)) != int(expected):
