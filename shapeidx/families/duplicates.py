@@ -45,7 +45,7 @@ import numpy as np
 from ..errors import ShapeidxError
 from ..store.candidates import OVERFETCH as OVERFETCH_MOMENTS, candidate_pairs
 from .chirality import mirror_relation
-from ..distance.scale import check_scale, ratio_within_band
+from ..distance.scale import check_scale
 
 TIERS = ("identical", "same", "near")
 DEFAULT_METRIC = "combined-angle"
@@ -64,6 +64,14 @@ DEFAULT_NEIGHBOURS = 20
 #: Largest :func:`fingerprint_gap` for ``same`` and for ``near`` (docs/duplicates.md).
 FINGERPRINT_SAME = 0.01
 FINGERPRINT_NEAR = 0.06
+#: The exact road to ``same``: moments within this and sizes as for ``same`` make a pair
+#: ``same`` up to :data:`EXACT_DISTANCE_FACTOR` times the ``same`` distance. Some parts'
+#: signatures move far between two samplings (a box drawn as coincident bodies: 70 between
+#: its VRML and its own mirror image or re-faceted copy), while their exact moments do not;
+#: on the whole library this road added one pair of library parts to ``same`` (two names
+#: of one box) and 7 of 1,500 twins (docs/duplicates.md).
+FINGERPRINT_EXACT = 0.002
+EXACT_DISTANCE_FACTOR = 4.0
 
 
 def thresholds(metric: str) -> dict:
@@ -132,8 +140,8 @@ def _candidates(table, metric, k, method, threads):
     """
     from ..store.candidates import CandidateIndex
 
-    a, b, _, _, _ = candidate_pairs(table, metric, k, method, threads)
-    pieces_a, pieces_b = [a], [b]
+    known_a, known_b, known_d, _, _ = candidate_pairs(table, metric, k, method, threads)
+    pieces_a, pieces_b = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     vectors = fingerprint_vectors(table)
     if vectors is not None:
         unique, first, inverse = np.unique(vectors, axis=0, return_index=True, return_inverse=True)
@@ -161,11 +169,13 @@ def _candidates(table, metric, k, method, threads):
                 pieces_b.append(members[1:])
     a, b = np.concatenate(pieces_a), np.concatenate(pieces_b)
     a, b = np.minimum(a, b), np.maximum(a, b)
-    keep = a != b
-    a, b = a[keep], b[keep]
-    _, once = np.unique(a * len(table) + b, return_index=True)
-    a, b = a[once], b[once]
-    return a, b, table.pair_distances(a, b, metric)
+    n = len(table)
+    # the exact distance of each new pair once (the embedding's pairs already have theirs)
+    key = np.unique((a * n + b)[a != b])
+    key = key[~np.isin(key, known_a * n + known_b, assume_unique=True)]
+    a, b = key // n, key % n
+    return (np.concatenate([known_a, a]), np.concatenate([known_b, b]),
+            np.concatenate([known_d, table.pair_distances(a, b, metric)]))
 
 
 def unit_factor(ratios: np.ndarray, scale: str = "invariant") -> tuple[np.ndarray, np.ndarray]:
@@ -173,13 +183,18 @@ def unit_factor(ratios: np.ndarray, scale: str = "invariant") -> tuple[np.ndarra
     :data:`UNIT_FACTORS` (or its inverse) for a unit change, NaN where it is neither. An unknown
     ratio (NaN: a store without sizes) is ok with factor NaN."""
     ratios = np.asarray(ratios, dtype=np.float64)
-    factors = np.array((1.0,) + tuple(f for u in UNIT_FACTORS for f in (u, 1.0 / u)))
+    factors = np.sort(np.array((1.0,) + tuple(f for u in UNIT_FACTORS for f in (u, 1.0 / u))))
     if check_scale(scale) == "sensitive":
-        factors = factors[:1]
+        factors = np.ones(1)
+    logs = np.log(factors)
     with np.errstate(divide="ignore", invalid="ignore"):
-        gap = np.abs(np.log(ratios)[:, None] - np.log(factors)[None, :])
-    best = np.argmin(np.where(np.isnan(gap), np.inf, gap), axis=1) if len(ratios) else np.zeros(0, np.int64)
-    close = gap[np.arange(len(ratios)), best] <= SIZE_TOLERANCE if len(ratios) else np.zeros(0, bool)
+        x = np.log(ratios)
+    # the nearest factor (on the log axis) is one of the two around each ratio
+    upper = np.clip(np.searchsorted(logs, x), 1, len(logs) - 1) if len(logs) > 1 else np.zeros(len(x), np.int64)
+    lower = np.maximum(upper - 1, 0)
+    best = np.where(np.abs(x - logs[lower]) <= np.abs(x - logs[upper]), lower, upper)
+    with np.errstate(invalid="ignore"):
+        close = np.abs(x - logs[best]) <= SIZE_TOLERANCE
     unknown = np.isnan(ratios)
     factor = np.where(close, factors[best], np.nan)
     return close | unknown, factor
@@ -188,20 +203,26 @@ def unit_factor(ratios: np.ndarray, scale: str = "invariant") -> tuple[np.ndarra
 def _pair_facts(table, a, b, d, limits: dict, scale: str) -> dict:
     """Tier codes (0 identical, 1 same, 2 near, 3 none) and what each pair says."""
     hashes = table.hashes
-    identical = (hashes[a] == hashes[b]) & np.array([len(h) > 0 for h in hashes[a]], dtype=bool)
+    hashed = table._cached("hashed", lambda: np.array([len(h) > 0 for h in hashes], dtype=bool))
+    identical = (hashes[a] == hashes[b]) & hashed[a]
     gap = fingerprint_gap(table, a, b)
     unknown = np.isnan(gap)
     ratios = table.size_ratios(a, b)
     sized, factor = unit_factor(ratios, scale)
-    same = sized & (d <= limits["same"]) & (unknown | (gap <= FINGERPRINT_SAME))
+    with np.errstate(invalid="ignore"):
+        exact = sized & ~unknown & (gap <= FINGERPRINT_EXACT) & (d <= EXACT_DISTANCE_FACTOR * limits["same"])
+    same = (sized & (d <= limits["same"]) & (unknown | (gap <= FINGERPRINT_SAME))) | exact
     near = sized & (d <= limits["near"]) & (unknown | (gap <= FINGERPRINT_NEAR))
     tier = np.where(identical, 0, np.where(same, 1, np.where(near, 2, 3)))
     # how deep inside its tier's thresholds the pair lies: 0 at the centre, 1 at the edge
     with np.errstate(divide="ignore", invalid="ignore"):
         limit = np.where(tier == 1, limits["same"], limits["near"])
         fp_limit = np.where(tier == 1, FINGERPRINT_SAME, FINGERPRINT_NEAR)
-        size_gap = np.abs(np.log(ratios / np.where(np.isnan(factor), 1.0, factor)))
-        margin = np.nanmax(np.stack([d / limit, np.nan_to_num(gap) / fp_limit, np.nan_to_num(size_gap) / SIZE_TOLERANCE]), axis=0)
+        size_gap = np.nan_to_num(np.abs(np.log(ratios / np.where(np.isnan(factor), 1.0, factor))))
+        margin = np.nanmax(np.stack([d / limit, np.nan_to_num(gap) / fp_limit, size_gap / SIZE_TOLERANCE]), axis=0)
+        by_exact = np.nanmax(np.stack([d / (EXACT_DISTANCE_FACTOR * limits["same"]), np.nan_to_num(gap) / FINGERPRINT_EXACT,
+                                       size_gap / SIZE_TOLERANCE]), axis=0)
+    margin = np.where(exact & (tier == 1), np.minimum(margin, by_exact), margin)
     margin = np.where(tier == 0, 0.0, np.clip(margin, 0.0, 1.0))
     return {"tier": tier, "distance": np.where(identical, 0.0, d), "size_ratio": ratios,
             "unit": np.where(np.isnan(factor) | (factor == 1.0), np.nan, factor),
@@ -281,7 +302,7 @@ def find_duplicates(table, metric: str = DEFAULT_METRIC, scale: str = "invariant
     facts = {"tier": np.zeros(0, np.int64), "margin": np.zeros(0)}
     if n > 1 and loosest > 0:
         a, b, d = _candidates(table, metric, min(k, n - 1), method, threads)
-        keep_pairs = (d <= limits["near"]) & (atom[a] != atom[b])
+        keep_pairs = (d <= max(limits["near"], EXACT_DISTANCE_FACTOR * limits["same"])) & (atom[a] != atom[b])
         a, b, d = a[keep_pairs], b[keep_pairs], d[keep_pairs]
         facts = _pair_facts(table, a, b, d, limits, scale)
         good = facts["tier"] <= loosest
