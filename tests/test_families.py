@@ -405,7 +405,7 @@ def test_the_inverted_file_finds_what_brute_force_numpy_finds():
     recall = np.mean([len(set(truth[r]) & set(found[i])) / k for r, i in enumerate(picks)])
     assert recall >= 0.95
     assert not (found == np.arange(len(vectors))[:, None]).any()
-    assert CandidateIndex(vectors[:100], "ivf").method == "exact"  # too few to train cells on
+    assert CandidateIndex(vectors[:50], "ivf").method == "exact"  # too few to train cells on
 
 
 def test_equal_exact_moments_make_same_beyond_the_distance_threshold_but_not_without_bound(dup_store):

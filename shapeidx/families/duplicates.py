@@ -100,16 +100,26 @@ def fingerprint_gap(table, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     are integrals of the surface, not samples: a rotated, mirrored, rescaled or re-saved copy
     has the same values to rounding, where D2 distances carry the sampling noise.
     """
-    gaps = [aspect_gap(table.extents[a], table.extents[b])]
-    if table.moments is not None:
-        ma, mb = table.moments[a], table.moments[b]
+    def features():  # per entry, once: ln r2/r1, ln r3/r1, ln(area / sum r^2), |skewness| x 3
         with np.errstate(divide="ignore", invalid="ignore"):
-            gaps.append(np.abs(np.log(ma[:, 0] / mb[:, 0])))
-        gaps.append(np.abs(ma[:, 1:] - mb[:, 1:]).max(axis=1) if len(a) else np.zeros(0))
-    stacked = np.stack(gaps, axis=1)
+            parts = [np.log(table.extents[:, 1:] / table.extents[:, :1])]
+            if table.moments is not None:
+                parts += [np.log(table.moments[:, :1]), table.moments[:, 1:]]
+        return np.concatenate(parts, axis=1)
+
+    f = table._cached("fingerprint_features", features) if hasattr(table, "_cached") else features()
+    a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
     out = np.full(len(a), np.nan)
-    known = ~np.isnan(stacked).all(axis=1)
-    out[known] = np.nanmax(stacked[known], axis=1)
+    step = 1 << 20
+    for lo in range(0, len(a), step):
+        gaps = np.abs(f[a[lo:lo + step]] - f[b[lo:lo + step]])
+        # the proportions' gap is known only when both proportions are; each other term on its own
+        proportions = gaps[:, :2].max(axis=1)
+        stacked = np.stack([proportions, gaps[:, 2], gaps[:, 3:].max(axis=1)] if gaps.shape[1] > 2 else [proportions], axis=1)
+        known = ~np.isnan(stacked).all(axis=1)
+        part = np.full(len(stacked), np.nan)
+        part[known] = np.nanmax(stacked[known], axis=1)
+        out[lo:lo + step] = part
     return out
 
 

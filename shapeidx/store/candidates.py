@@ -66,7 +66,7 @@ EXACT_LIMIT = 20_000
 #: ``scripts/bench_families.py`` (docs/performance-families.md).
 IVF_LISTS_PER_ROOT = 4
 IVF_PROBE = 24
-IVF_TRAIN_PER_LIST = 64
+IVF_TRAIN_PER_LIST = 40
 IVF_SEED = 22
 #: HNSW graph degree and search breadth (``method="hnsw"``; recall measured by
 #: scripts/bench_families.py).
