@@ -61,11 +61,13 @@ class _SourceFile:
     :class:`StoreDamagedError` before any of it is used.
     """
 
-    def __init__(self, path: Path, seq: int, store: Path | None = None):
+    def __init__(self, path: Path, seq: int, store: Path | None = None, trusted: bool = False):
+        from .heaps import open_hdf5
+
         self.path = path
         self.seq = seq
         self.store = store or path
-        self.file = h5py.File(path, "r")
+        self.file = open_hdf5(path, trusted)
         self._columns: dict = {}
         self._offsets: dict = {}
 
@@ -510,7 +512,9 @@ def _open_main(path: Path) -> _SourceFile:
     check_store_directory(path)
     main = main_file(path)
     try:
-        return _SourceFile(main, 0, path)
+        from .verified import is_verified
+
+        return _SourceFile(main, 0, path, trusted=is_verified(path))
     except FileNotFoundError:
         from .files import build_state_path, committed_path, journal_dir, lock_path
 
