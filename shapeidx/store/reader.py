@@ -61,13 +61,15 @@ class _SourceFile:
     :class:`StoreDamagedError` before any of it is used.
     """
 
-    def __init__(self, path: Path, seq: int, store: Path | None = None, trusted: bool = False):
+    def __init__(self, path: Path, seq: int, store: Path | None = None):
         from .heaps import open_hdf5
+        from .verified import is_verified
 
         self.path = path
         self.seq = seq
         self.store = store or path
-        self.file = open_hdf5(path, trusted)
+        # global heaps checked first (a hang otherwise), but for the main file a build verified whole
+        self.file = open_hdf5(path, trusted=seq == 0 and store is not None and is_verified(store))
         self._columns: dict = {}
         self._offsets: dict = {}
 
@@ -512,9 +514,7 @@ def _open_main(path: Path) -> _SourceFile:
     check_store_directory(path)
     main = main_file(path)
     try:
-        from .verified import is_verified
-
-        return _SourceFile(main, 0, path, trusted=is_verified(path))
+        return _SourceFile(main, 0, path)
     except FileNotFoundError:
         from .files import build_state_path, committed_path, journal_dir, lock_path
 
