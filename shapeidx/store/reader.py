@@ -15,7 +15,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from ..errors import StoreDamagedError, StoreError
+from ..errors import NoAnswer, StoreDamagedError, StoreError
 from ..ragged import offsets_of, take_ragged
 from ..signing.histogram import Histogram, Signature
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS
@@ -42,6 +42,11 @@ from .layout import (
 #: when a store is opened, so a damaged one is left out; larger ones (segments merged from
 #: batches) are checked as the main file is: shapes at opening, checksums as they are read.
 VERIFY_ROWS = 4096
+
+
+class StoreBeingCreated(StoreError, NoAnswer):
+    """A store whose first build has begun but committed nothing: no answer exists yet (the
+    command line exits 6, "no answer", not 1: nothing is wrong, it is only too early)."""
 
 
 def damaged(store: Path, what: str, root: str | None = None) -> StoreDamagedError:
@@ -522,7 +527,8 @@ def _open_main(path: Path) -> _SourceFile:
                 build_state_path(path).exists() and not lock_path(path).exists()):
             raise damaged(path, f"its main file {main.name} is missing") from None
         if lock_path(path).exists():
-            raise StoreError(f"the store {path} is being created (a first build has just begun); try again") from None
+            raise StoreBeingCreated(f"the store {path} is being created: a first build has just begun and committed"
+                                    " nothing yet; try again in a moment") from None
         raise StoreError(f"{path} is not a shapeidx store (it holds no {main.name})") from None
     except PermissionError:
         raise StoreError(f"{path}: cannot open the store: permission denied") from None
