@@ -646,10 +646,12 @@ def serve(store, host, port, max_upload):
     except ImportError as exc:
         raise ShapeidxError(f"shapeidx serve needs the web extra ({exc.name} is missing): pip install 'shapeidx[web]'") from None
     service = StoreService(_store_path(store))
-    app = create_app(service, max_upload * 1024 * 1024)
+    from .web.guard import header_timeout_protocol
+
+    app = create_app(service, max_upload * 1024 * 1024, host=host)
     click.echo(f"shapeidx serve: {len(service.searcher):,} parts of {service.store} on http://{host}:{port}/ (Ctrl-C stops)")
     try:
-        uvicorn.run(app, host=host, port=port, log_level="warning", access_log=False)
+        uvicorn.run(app, host=host, port=port, log_level="warning", access_log=False, http=header_timeout_protocol())
     finally:
         service.close()
 

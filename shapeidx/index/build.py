@@ -132,13 +132,12 @@ def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
 def _params_of_damaged(store: Path) -> StoreParams | None:
     """The parameters a damaged store was built with, if the attributes of its main file or
     of one of its segments can still be read."""
-    import h5py
-
     from ..store.files import batch_files, main_file
+    from ..store.heaps import open_hdf5
 
     for path in [main_file(store)] + [p for _, p in reversed(batch_files(store))]:
         try:
-            with h5py.File(path, "r") as f:
+            with open_hdf5(path) as f:
                 return StoreParams.from_attrs(f.attrs)
         except (OSError, KeyError, ValueError):
             continue
