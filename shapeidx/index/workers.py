@@ -223,8 +223,10 @@ def limit_memory(limit: int | None) -> bool:
 
 
 def _worker_main(conn, params: StoreParams, root: str, parent: int, memory_limit: int | None = None) -> None:
+    from ..io.contained import run_here
     from ..system import keep_freed_memory
 
+    run_here()  # this process contains native crashes and hangs already: no child per file
     _die_with_parent()
     limit_memory(memory_limit)
     keep_freed_memory()
