@@ -124,7 +124,9 @@ def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
         entry = Entry.failed(task.path, digest, size, mtime, "out of memory")
         return Outcome(task, "failed", entry, size, mtime, time.monotonic() - started, replace_worker=True)
     except Exception as exc:  # a bug in a later stage must cost one file, not the build
-        reason = one_line(f"internal error: {type(exc).__name__}: {exc}")
+        from ..errors import exception_in_words
+
+        reason = one_line(f"cannot be signed: it holds {exception_in_words(exc)}")
         entry, kind = Entry.failed(task.path, digest, size, mtime, reason), "failed"
     return Outcome(task, kind, entry, size, mtime, time.monotonic() - started)
 
