@@ -124,7 +124,9 @@ def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
         entry = Entry.failed(task.path, digest, size, mtime, "out of memory")
         return Outcome(task, "failed", entry, size, mtime, time.monotonic() - started, replace_worker=True)
     except Exception as exc:  # a bug in a later stage must cost one file, not the build
-        reason = one_line(f"internal error: {type(exc).__name__}: {exc}")
+        from ..errors import exception_in_words
+
+        reason = one_line(f"cannot be signed: it holds {exception_in_words(exc)}")
         entry, kind = Entry.failed(task.path, digest, size, mtime, reason), "failed"
     return Outcome(task, kind, entry, size, mtime, time.monotonic() - started)
 
@@ -223,8 +225,10 @@ def limit_memory(limit: int | None) -> bool:
 
 
 def _worker_main(conn, params: StoreParams, root: str, parent: int, memory_limit: int | None = None) -> None:
+    from ..io.contained import run_here
     from ..system import keep_freed_memory
 
+    run_here()  # this process contains native crashes and hangs already: no child per file
     _die_with_parent()
     limit_memory(memory_limit)
     keep_freed_memory()
