@@ -519,6 +519,9 @@ def _open_main(path: Path) -> _SourceFile:
             raise damaged(path, f"its main file {main.name} is missing") from None
         if lock_path(path).exists():
             raise StoreError(f"the store {path} is being created (a first build has just begun); try again") from None
+        if (path / "shards.json").is_file():
+            raise StoreError(f"{path} is a sharded store: 'query' and 'build' take it whole; other commands take"
+                             f" one shard ({path}/shards/K)") from None
         raise StoreError(f"{path} is not a shapeidx store (it holds no {main.name})") from None
     except PermissionError:
         raise StoreError(f"{path}: cannot open the store: permission denied") from None
