@@ -330,11 +330,15 @@ def _store_path(store):
 @click.option("--scheduler", envvar="SHAPEIDX_SCHEDULER", metavar="ADDRESS",
               help="Index the files on this dask.distributed cluster (env SHAPEIDX_SCHEDULER) [default: locally].")
 @click.option("--worker-root", metavar="PATH", help="Where the cluster's workers see DIRECTORY [default: the same path].")
+@click.option("--shards", type=click.IntRange(1), metavar="N",
+              help="Shard the store by path key into N ordinary stores (STORE/shards/K); with --scheduler each"
+                   " shard is built on a worker of the cluster. A sharded store is queried as one (docs/scaling.md).")
 @click.option("--merge-after", type=click.IntRange(1), default=MERGE_AFTER, hidden=True)
 @click.pass_context
 def build(ctx, directory, store, points, seed, linear_deflection, angular_deflection, workers, full, rehash,
           retry_failed, timeout, worker_memory, commit_interval, wait, wait_timeout, strict, repair,
-          follow_outside_links, metadata, quiet, verbose, dry_run, as_json, scheduler, worker_root, merge_after):
+          follow_outside_links, metadata, quiet, verbose, dry_run, as_json, scheduler, worker_root, shards,
+          merge_after):
     """Index every part file under DIRECTORY into the store (incremental).
 
     \b
@@ -356,7 +360,16 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
     reporter = BuildReporter(quiet=quiet, verbose=verbose)
     store_path = _store_path(store)
     try:
-        summary = run_build(directory, store_path, options, reporter)
+        from .store.shards import is_sharded
+
+        if shards or is_sharded(store_path):
+            from .index.shards import run_sharded_build
+            from .store.shards import shard_count
+
+            summary = run_sharded_build(directory, store_path, options, reporter,
+                                        shards or shard_count(store_path))
+        else:
+            summary = run_build(directory, store_path, options, reporter)
     finally:
         reporter.close()
     if as_json:
@@ -411,8 +424,11 @@ where_option = click.option(
               help="Also write the answer as one self-contained HTML file (thumbnails, histograms, words).")
 @click.option("--thumbnails", default=200, show_default=True, type=click.IntRange(0),
               help="With --sheet: thumbnails for the first N hits (each new one is rendered and cached).")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="A sharded store (build --shards): rank each shard on a worker of this dask.distributed"
+                   " cluster and merge their exact top k [default: here, shard by shard].")
 def query(files, store, top, metric, entries, file_type, where, exclude_self, max_distance, scale, relative,
-          output_format, as_json, sheet, thumbnails):
+          output_format, as_json, sheet, thumbnails, scheduler):
     """The store's parts nearest to each FILE (or every part of DIR, or '-': a part on
     standard input; or --id PATH), nearest first: one result block per query.
 
@@ -428,7 +444,8 @@ def query(files, store, top, metric, entries, file_type, where, exclude_self, ma
     """
     from .console.queries import query_inputs
     from .errors import LoadError, NoAnswer, ShapeidxError, StoreDamagedError
-    from .search import Filters, Searcher, parse_where
+    from .search import Filters, open_searcher, parse_where
+    from .store.shards import is_sharded
     from .system import available_cores
 
     fmt = chosen_format(output_format, as_json)
@@ -445,9 +462,11 @@ def query(files, store, top, metric, entries, file_type, where, exclude_self, ma
         raise ShapeidxError(f"{sheet}: no folder {os.path.dirname(os.path.abspath(sheet))} to write the sheet in")
     filters = Filters(exclude_self, max_distance, scale, parse_where(where))
     store_path = _store_path(store)
+    if sheet and is_sharded(store_path):
+        raise click.UsageError("--sheet draws from one store: give a shard (STORE/shards/K) or leave --sheet out")
     failures = empty = 0
     blocks = []
-    with Searcher(store_path) as searcher:
+    with open_searcher(store_path, scheduler or None) as searcher:
         inputs = query_inputs(files, [searcher.resolve_entry(e) for e in entries], file_type)
         keys = searcher.present_metadata_keys() if fmt in ("csv", "tsv") else ()
         for number, item in enumerate(inputs):

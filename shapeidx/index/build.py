@@ -59,6 +59,8 @@ class BuildOptions:
     worker_root: str | None = None
     #: A CSV of metadata (a path column and any others) joined to the entries (shapeidx.store.metadata).
     metadata: str | None = None
+    #: (k, N): build only the files of shard k of N (by path key; shapeidx.store.shards) into the store.
+    shard: tuple | None = None
 
 
 @dataclass
@@ -174,10 +176,11 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     walk = walk_parts(root, options.follow_outside_links)
     _refuse_empty(given, walk)
     table = _metadata_table(options, root, walk, reporter)  # a bad table is refused before the store changes
+    walk = _shard_walk(walk, options)
     with _sigterm_as_interrupt(), StoreWriter(store, params, root, options.wait, reporter.waiting,
                                               options.wait_timeout, options.repair, reporter.warning) as writer:
         if options.wait:  # walk again: the tree may have changed while another build held the lock
-            walk = walk_parts(root, options.follow_outside_links)
+            walk = _shard_walk(walk_parts(root, options.follow_outside_links), options)
         for warning in walk.warnings:
             reporter.warning(warning)
         if table is not None:
@@ -211,6 +214,20 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     return summary
 
 
+def _shard_walk(walk, options: BuildOptions):
+    """The walk narrowed to the files of ``options.shard`` (the whole walk without one)."""
+    if options.shard is None:
+        return walk
+    from ..store.shards import shard_of_paths
+
+    k, count = options.shard
+    mine = shard_of_paths([f.path for f in walk.files], count) == k
+    walk.files = [f for f, keep in zip(walk.files, mine.tolist()) if keep]
+    if k:
+        walk.warnings = []  # the first shard's build says them
+    return walk
+
+
 def _metadata_table(options: BuildOptions, root: Path, walk, reporter):
     """The ``--metadata`` table read and checked (None without it), with a warning for rows
     that name no part file of the tree."""
@@ -223,7 +240,7 @@ def _metadata_table(options: BuildOptions, root: Path, walk, reporter):
         reporter.warning(warning)
     known = {f.path for f in walk.files}
     strays = [p for p in table.paths if p not in known]
-    if strays:
+    if strays and (options.shard is None or options.shard[0] == 0):  # a sharded build says it once
         reporter.warning(f"--metadata {options.metadata}: {len(strays)} of its {len(table)} rows name no part file of"
                          f" {root} (first: {strays[0]}); they are kept and match no entry")
     return table
@@ -275,9 +292,10 @@ def _pool(options: BuildOptions, params: StoreParams, root: Path):
 def _dry_run(root: Path, store: Path, params: StoreParams, options, reporter, summary: BuildSummary) -> BuildSummary:
     """What a build would do, without the lock and without writing anything."""
     walk = walk_parts(root, options.follow_outside_links)
+    table = _metadata_table(options, root, walk, reporter)
+    walk = _shard_walk(walk, options)
     for warning in walk.warnings:
         reporter.warning(warning)
-    table = _metadata_table(options, root, walk, reporter)
     if table is not None:
         summary.metadata_rows = len(table)
     if store.exists() or store.with_name(store.name + ".converting").exists():

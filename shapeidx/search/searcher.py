@@ -375,6 +375,7 @@ class Searcher:
             valid &= exact <= filters.max_distance
         if not valid.any():
             nearest_at = float(np.min(exact)) if len(exact) else float("nan")
+            answer.nearest = nearest_at if np.isfinite(nearest_at) else None
             answer.reason = (f"no hit within --max-distance {filters.max_distance:g}"
                              + (f" (the nearest is at {nearest_at:.6g})" if np.isfinite(nearest_at) else ""))
             return answer
