@@ -135,6 +135,13 @@ class TestSplit:
         single = data_dir / "kicad6-step" / "Battery" / "BatteryHolder_Keystone_500.step"
         assert _solids_declared(single) == 1 and split_parts(single) is None
 
+    def test_kicad_vrml_bodies_are_the_solids_of_its_step_twin(self, data_dir):
+        """Mesh connectivity of the VRML export against OpenCASCADE's solids of the STEP file."""
+        name = "Transformer_THT/Transformer_CHK_EI54-12VA_Neutral"
+        vrml, step = split_parts(data_dir / "kicad6" / f"{name}.wrl"), split_parts(data_dir / "kicad6-step" / f"{name}.step")
+        assert sum(p.count for p in vrml) == sum(p.count for p in step) == 15
+        assert sorted(p.count for p in vrml) != [1] * len(vrml)  # its pins found identical in the mesh too
+
     def test_mesh_bodies(self, tmp_path):
         trimesh = pytest.importorskip("trimesh")
         rng = np.random.default_rng(4)
