@@ -61,6 +61,8 @@ class BuildOptions:
     metadata: str | None = None
     #: (k, N): build only the files of shard k of N (by path key; shapeidx.store.shards) into the store.
     shard: tuple | None = None
+    #: Also sign each file's sub-parts into the parts store ``STORE/parts`` (shapeidx.io.parts).
+    parts: bool = False
 
 
 @dataclass
@@ -82,6 +84,9 @@ class BuildSummary:
     #: Rows of the metadata table this build read (None: no --metadata), and whether it changed.
     metadata_rows: int | None = None
     metadata_changed: bool = False
+    #: With ``--parts``: sub-entries written by this build, and the parts store's ok sub-entries after it.
+    parts_indexed: int | None = None
+    parts_entries: int | None = None
 
     def line(self) -> str:
         return f"{self.indexed} indexed, {self.unchanged} unchanged, {self.removed} removed, {self.failed} failed"
@@ -103,6 +108,8 @@ class BuildSummary:
             "failures": [{"path": path, "reason": reason} for path, reason in self.failures],
             "metadata": None if self.metadata_rows is None else {"rows": self.metadata_rows,
                                                                   "changed": self.metadata_changed},
+            "parts": None if self.parts_indexed is None else {"indexed": self.parts_indexed,
+                                                              "entries": self.parts_entries},
         }
 
 
@@ -171,6 +178,8 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     summary = BuildSummary(root=str(root))
     if options.worker_root and not options.scheduler:
         raise ShapeidxError("--worker-root is where a cluster's workers see the tree: it needs --scheduler")
+    if options.parts and options.scheduler:
+        raise ShapeidxError("--parts runs on local workers only (not with --scheduler)")
     if options.dry_run:
         return _dry_run(root, store, params, options, reporter, summary)
     walk = walk_parts(root, options.follow_outside_links)
@@ -192,25 +201,43 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         committer = Committer(writer, options.commit_interval, options.merge_after, reporter)
         committer.remove(plan.removed)
         summary.removed = len(plan.removed)
+        parts = _parts_committer(store, params, root, options, reporter, plan, walk) if options.parts else None
+        committers = [committer] + ([parts] if parts else [])
         pool = _pool(options, params, root)
         try:
             for outcome in pool.run(plan.tasks):
                 if outcome is not None:
                     _redact_outside(outcome, root)
                     _count(summary, outcome)
-                    committer.add(outcome)
+                    for one in committers:
+                        one.add(outcome)
                     reporter.outcome(outcome)
-                committer.tick()
+                for one in committers:
+                    one.tick()
         except (KeyboardInterrupt, ShapeidxError):  # e.g. a lost Dask scheduler: keep what came back
-            committer.commit()
+            for one in committers:
+                one.commit()
+            if parts:
+                parts.writer.close("interrupted")
             raise
         finally:
             pool.close()
-        committer.finish()
+        for one in committers:
+            one.finish()
+        if parts:
+            parts.writer.close("finished")
         writer.facts = {"indexed": summary.indexed, "failed": summary.failed, "removed": summary.removed,
                         "unchanged": summary.unchanged}
     summary.seconds = time.monotonic() - started
     _store_counts(store, summary)
+    if options.parts:
+        from ..store.files import parts_store
+
+        summary.parts_indexed = summary.parts_indexed or 0
+        with open_store(parts_store(store)) as reader:
+            from ..store.known import known_files
+
+            summary.parts_entries = known_files(reader).status_counts()[0]
     return summary
 
 
@@ -226,6 +253,26 @@ def _shard_walk(walk, options: BuildOptions):
     if k:
         walk.warnings = []  # the first shard's build says them
     return walk
+
+
+def _parts_committer(store: Path, params, root: Path, options: BuildOptions, reporter, plan, walk):
+    """The committer of the parts store (``STORE/parts``), its plan merged into ``plan``."""
+    from ..store.files import parts_store
+    from .commit import PartsCommitter
+    from .plan import plan_parts
+
+    path = parts_store(store)
+    writer = StoreWriter(path, params, root, options.wait, reporter.waiting, options.wait_timeout, options.repair,
+                         reporter.warning)
+    try:
+        with open_store(path, skip_damaged=True) as reader:
+            removed = plan_parts(plan, walk, reader, options)
+    except BaseException:
+        writer.close()
+        raise
+    committer = PartsCommitter(writer, options.commit_interval, options.merge_after, reporter)
+    committer.remove(removed)
+    return committer
 
 
 def _metadata_table(options: BuildOptions, root: Path, walk, reporter):
@@ -330,6 +377,8 @@ def _redact_outside(outcome: Outcome, root: Path) -> None:
 
 
 def _count(summary: BuildSummary, outcome: Outcome) -> None:
+    if outcome.parts is not None:
+        summary.parts_indexed = (summary.parts_indexed or 0) + sum(e.status == 0 for e in outcome.parts)
     if outcome.kind == "indexed":
         summary.indexed += 1
     elif outcome.kind == "failed":

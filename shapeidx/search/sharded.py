@@ -34,17 +34,19 @@ from .hits import Answer, Hit, absolute
 from .searcher import Filters, Query, Searcher
 
 
-def open_searcher(store, scheduler: str | None = None):
+def open_searcher(store, scheduler: str | None = None, parts: bool = False):
     """A :class:`Searcher` of an ordinary store, a :class:`ShardedSearcher` of a sharded one
     (``scheduler``: ranked on that Dask cluster's workers). ``scheduler`` with an ordinary store
-    is refused in one line."""
+    is refused in one line; so are ``parts`` (the sub-entries) with a sharded one."""
     from ..store.shards import is_sharded
 
     if is_sharded(store):
+        if parts:
+            raise StoreError(f"{store} is a sharded store: --parts ranks the sub-entries of an ordinary store")
         return ShardedSearcher(store, scheduler)
     if scheduler:
         raise StoreError(f"{store} is not a sharded store: --scheduler queries a store built with --shards")
-    return Searcher(store)
+    return Searcher(store, parts=parts)
 
 
 #: Per process (a Dask worker's, or this one's): the shards kept open, by path, with what their
