@@ -196,8 +196,8 @@ def features_between(a: Signature, b: Signature) -> dict:
 
 
 def compare(a: Signature, b: Signature) -> dict:
-    """Every metric between two signatures: ``{"all", "avg3", "avg4", "weighted", "combined", "combined-angle",
-    "all-angle"}`` (the last two only when both carry normal-angle histograms)."""
+    """Every metric of the registry (:data:`~shapeidx.distance.metrics.METRICS`) between two signatures,
+    by name; the metrics that read normal-angle histograms only when both carry them."""
     features = features_between(a, b)
     metrics = [m for m in METRICS if m not in ANGLE_METRICS or ANGLE_FEATURES[0] in features]
     return {name: float(value) for name, value in metric_values(features, metrics).items()}
