@@ -31,7 +31,8 @@ as one of
 ``mesh``        a usable part: finite vertices, indices in range, positive finite area
 ``load_error``  a clean :class:`~shapeidx.errors.LoadError`: one line, naming the file, not
                 a wrapped internal exception
-``wrapped``     a LoadError that only wraps an internal exception ("cannot read (KeyError: ...")
+``wrapped``     a LoadError that only stands for an internal exception (its reason says the
+                input was something "shapeidx's checks did not foresee")
 ``exception``   any other exception (its type is recorded)
 ``crash``       the worker died (a signal: a native crash, or killed)
 ``hang``        the worker ran past the time limit and was killed
@@ -394,7 +395,7 @@ def run_case(path: str, root: str, signature: bool) -> dict:
 
     import numpy as np
 
-    from shapeidx.errors import LoadError, printable
+    from shapeidx.errors import UNFORESEEN, LoadError, printable
     from shapeidx.io import LoadLimits, load
     from shapeidx.signing.solid import make_solid
 
@@ -415,7 +416,7 @@ def run_case(path: str, root: str, signature: bool) -> dict:
             }
         except LoadError as exc:
             message = str(exc)
-            clean = "\n" not in message and message.startswith(printable(path)) and "cannot read (" not in message
+            clean = "\n" not in message and message.startswith(printable(path)) and "cannot read (" not in message and UNFORESEEN not in message
             result = {"outcome": "load_error" if clean else "wrapped", "error": message}
         except BaseException as exc:  # noqa: BLE001 - everything is a finding
             result = {"outcome": "exception", "error": f"{type(exc).__name__}: {exc}"[:300], "type": type(exc).__name__}

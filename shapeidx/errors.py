@@ -52,6 +52,29 @@ def plain_reason(text: str) -> str:
     return printable(" ".join(text.split()))
 
 
+#: What a reason says when a reader met something its own checks did not foresee (an internal
+#: exception, said in words): the tests and scripts/fuzz.py count such reasons as gaps to close.
+UNFORESEEN = "which shapeidx's checks did not foresee"
+
+_EXCEPTION_WORDS = (
+    (OverflowError, "a number too large to compute with"),
+    (ZeroDivisionError, "values that lead to a division by zero"),
+    (ArithmeticError, "values that lead to a numeric failure"),
+    (UnicodeError, "text that is not in the expected encoding"),
+    (LookupError, "a reference to an element that does not exist"),
+    (ValueError, "a value of the wrong form or out of range"),
+    (TypeError, "a value of the wrong kind"),
+)
+
+
+def exception_in_words(exc: BaseException) -> str:
+    """What an unforeseen exception says about the input, in words without its class name or
+    message (``OverflowError: Python int too large to convert to C long`` becomes "a number too
+    large to compute with"); always ends with :data:`UNFORESEEN` and a request to report it."""
+    words = next((w for kind, w in _EXCEPTION_WORDS if isinstance(exc, kind)), "something")
+    return f"{words}, {UNFORESEEN} (please report the file)"
+
+
 def timestamp() -> str:
     """Local time with its UTC offset, to the second: ``2026-12-01T18:02:11+0000``."""
     import time

@@ -50,6 +50,12 @@ class LoadLimits:
         other formats once the file is read. The default, 4 GiB, admits some 5 million
         triangles. What no count foresees (Python objects of a huge text file) is bounded
         by the build workers' memory limit instead (:mod:`shapeidx.index.workers`).
+        Also the memory limit of the child process OpenCASCADE reads STEP and IGES in
+        (:mod:`shapeidx.io.contained`), beyond what that process holds when it starts.
+    max_seconds : float or None
+        Seconds OpenCASCADE may take to read and facet one STEP or IGES file in its child
+        process (:mod:`shapeidx.io.contained`) before it is stopped and the file refused;
+        None for no limit. Inside a build's workers the build's ``--timeout`` applies instead.
     """
 
     max_triangles: int = 50_000_000
@@ -59,6 +65,7 @@ class LoadLimits:
     faceting: Faceting | None = None
     max_bytes: int = 4 << 30
     max_polygon_corners: int = 20_000
+    max_seconds: float | None = 120.0
 
     def estimated_bytes(self, triangles: int, vertices: int = 0) -> int:
         """Peak memory of cleaning a part of ``triangles`` triangles over ``vertices`` points.

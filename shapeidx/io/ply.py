@@ -164,12 +164,15 @@ def _read_ascii(path, text: str, elements: list[_Element]):
                         pos += 1 + n
             except (ValueError, IndexError):
                 raise LoadError(path, f"bad PLY {element.name} row {' '.join(r)[:60]!r}") from None
-        values[element.name] = {
-            p.name: (np.array(columns[p.name][0], dtype=np.int64), np.array(columns[p.name][1], dtype=np.int64))
-            if p.count_dtype
-            else np.array(columns[p.name][1])
-            for p in element.properties
-        }
+        try:
+            values[element.name] = {
+                p.name: (np.array(columns[p.name][0], dtype=np.int64), np.array(columns[p.name][1], dtype=np.int64))
+                if p.count_dtype
+                else np.array(columns[p.name][1])
+                for p in element.properties
+            }
+        except OverflowError:
+            raise LoadError(path, f"PLY {element.name} list holds a number too large to be an index (past 2^63)") from None
     return values
 
 

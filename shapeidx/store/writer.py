@@ -74,7 +74,7 @@ def _make_store_directory(store: Path) -> None:
     mistake must not put a store inside it.
     """
     if store.is_dir():
-        ours = {"main.h5", "journal", "lock", "build.json", "verified", "thumbs", "committed", "metadata.h5"}
+        ours = {"main.h5", "journal", "lock", "build.json", "verified", "thumbs", "committed", "metadata.h5", "parts"}
         others = [p.name for p in store.iterdir() if p.name not in ours and ".tmp-" not in p.name
                   and not p.name.startswith("main.h5.")]
         if others and not main_file(store).exists():

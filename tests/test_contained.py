@@ -1,0 +1,171 @@
+"""OpenCASCADE crashes and hangs cost one error line in every command, not the process.
+
+The files are made as the attack made them: a real kicad6 STEP file with one ``)`` taken
+out of one entity (some such files crash OpenCASCADE 7/8 with SIGSEGV), and a real file
+whose one EDGE_LOOP lists tens of thousands of edges (OpenCASCADE then reads for minutes).
+Each load runs in a separate Python process, so that a crash before the containment shows
+as a failed test, not as a dead test run.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from clitools import shapeidx_command
+
+SEED_PART = "Capacitor_THT/C_Axial_L5.1mm_D3.1mm_P10.00mm_Horizontal.step"
+
+LOAD_EACH = """
+import json, sys
+from shapeidx.errors import LoadError
+from shapeidx.io import LoadLimits, load
+for path in sys.argv[2:]:
+    try:
+        mesh = load(path, LoadLimits(max_seconds=float(sys.argv[1])))
+        print(json.dumps({"path": path, "mesh": len(mesh.face_sizes)}), flush=True)
+    except LoadError as exc:
+        print(json.dumps({"path": path, "error": str(exc)}), flush=True)
+"""
+
+
+def _load_each(paths, seconds=120.0, timeout=600):
+    """Load every file in one fresh process; its exit status and one outcome per file."""
+    run = subprocess.run([sys.executable, "-c", LOAD_EACH, str(seconds), *map(str, paths)],
+                         capture_output=True, text=True, timeout=timeout)
+    return run, [json.loads(line) for line in run.stdout.splitlines()]
+
+
+def missing_parenthesis(source: bytes, count: int, seed: int = 1) -> list[bytes]:
+    """``count`` copies of a STEP file, each with one ``)`` deleted from one entity."""
+    lines = source.split(b"\n")
+    rng = random.Random(seed)
+    entities = [i for i, line in enumerate(lines) if line.startswith(b"#") and b")" in line]
+    out = []
+    for _ in range(count):
+        i = rng.choice(entities)
+        line = lines[i]
+        j = rng.choice([k for k, c in enumerate(line) if c == ord(")")])
+        out.append(b"\n".join(lines[:i] + [line[:j] + line[j + 1:]] + lines[i + 1:]))
+    return out
+
+
+@pytest.fixture(scope="module")
+def mutated(data_dir, tmp_path_factory) -> list[Path]:
+    folder = tmp_path_factory.mktemp("mutated")
+    source = (data_dir / "kicad6-step" / SEED_PART).read_bytes()
+    paths = []
+    for k, content in enumerate(missing_parenthesis(source, 11)):
+        paths.append(folder / f"case{k}.step")
+        paths[-1].write_bytes(content)
+    return paths
+
+
+@pytest.fixture(scope="module")
+def loaded(mutated):
+    return _load_each(mutated)
+
+
+@pytest.fixture(scope="module")
+def crashing(loaded) -> Path:
+    run, outcomes = loaded
+    found = [Path(o["path"]) for o in outcomes if "crashed" in o.get("error", "")]
+    assert found, outcomes
+    return found[0]
+
+
+def test_a_crash_of_opencascade_is_one_error_line(mutated, loaded):
+    run, outcomes = loaded
+    assert run.returncode == 0, f"the process died ({run.returncode}) after {len(outcomes)} files: {run.stderr[-500:]}"
+    assert len(outcomes) == len(mutated)
+    crashed = [o for o in outcomes if "error" in o and "OpenCASCADE crashed reading it (signal 11, SIGSEGV)" in o["error"]]
+    assert crashed, outcomes  # the class of input does crash OpenCASCADE: the test sees containment
+    for outcome in outcomes:
+        assert "mesh" in outcome or outcome["error"].startswith(outcome["path"] + ": "), outcome
+    assert any("mesh" in o for o in outcomes)  # and the process is still good for the files after
+
+
+@pytest.mark.parametrize("command", ["signature", "inspect"])
+def test_commands_survive_a_crashing_file(crashing, command):
+    result = subprocess.run(shapeidx_command(command, crashing), capture_output=True, text=True, timeout=300)
+    assert result.returncode > 0, result
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(crashing) in lines[0] and "OpenCASCADE crashed reading it" in lines[0], result.stderr
+
+
+def test_compare_survives_a_crashing_file(data_dir, crashing):
+    good = data_dir / "kicad6-step" / SEED_PART
+    result = subprocess.run(shapeidx_command("compare", good, crashing), capture_output=True, text=True, timeout=300)
+    assert result.returncode > 0 and "Traceback" not in result.stderr
+    assert "OpenCASCADE crashed reading it" in result.stderr and str(crashing) in result.stderr
+
+
+def _long_edge_loop(source: str, edges: int) -> str:
+    match = re.search(r"#(\d+) = EDGE_LOOP\('',\((#[^)]*)\)\);", source)
+    refs = ",".join([match.group(2).split(",")[0]] * edges)
+    return source.replace(match.group(0), f"#{match.group(1)} = EDGE_LOOP('',({match.group(2)},{refs}));")
+
+
+def test_a_hang_is_stopped_by_the_time_limit(data_dir, tmp_path):
+    """An EDGE_LOOP of 15,000 edges (under the parameter limit): OpenCASCADE reads for
+    many seconds; the contained read stops at the limit and says so."""
+    source = (data_dir / "kicad6-step" / SEED_PART).read_text()
+    slow = tmp_path / "slow.step"
+    slow.write_text(_long_edge_loop(source, 15_000))
+    started = time.monotonic()
+    run, outcomes = _load_each([slow], seconds=1.0)
+    assert run.returncode == 0, run.stderr
+    assert outcomes[0]["error"] == f"{slow}: OpenCASCADE took longer than 1 s reading it (stopped)"
+    assert time.monotonic() - started < 60
+
+
+def test_an_entity_of_too_many_parameters_is_refused_before_reading(data_dir, tmp_path):
+    from shapeidx.errors import LoadError
+    from shapeidx.io import load
+    from shapeidx.io.step import MAX_STEP_PARAMETERS
+
+    source = (data_dir / "kicad6-step" / SEED_PART).read_text()
+    huge = tmp_path / "huge.step"
+    huge.write_text(_long_edge_loop(source, 200_000))
+    started = time.process_time()
+    with pytest.raises(LoadError, match=r"has an entity \(#\d+\) of 200,00\d parameters, more than the limit"):
+        load(huge)
+    assert time.process_time() - started < 5
+    # the limit leaves every real part alone: the most in the KiCad library is 3,095
+    assert MAX_STEP_PARAMETERS > 5 * 3_095
+    ok = tmp_path / "ok.step"
+    ok.write_text(_long_edge_loop(source, 10))
+    assert len(load(ok).face_sizes) > 0
+
+
+def test_build_workers_read_in_their_own_process(loaded, crashing, tmp_path):
+    """A build's worker is a container already: the crash kills the worker (and costs the
+    file), it is not read in a second child process per file."""
+    import shutil
+
+    from shapeidx.store import STATUS_FAILED, STATUS_OK, open_store
+    from storetools import FAST_POINTS
+
+    run, outcomes = loaded
+    good = next(Path(o["path"]) for o in outcomes if "mesh" in o)
+    tree = tmp_path / "parts"
+    tree.mkdir()
+    shutil.copy(crashing, tree / "crash.step")
+    shutil.copy(good, tree / "good.step")
+    store = tmp_path / "s.h5"
+    build = subprocess.run(shapeidx_command("build", tree, "--store", store, "--points", FAST_POINTS, "--workers", "1"),
+                           capture_output=True, text=True, timeout=600)
+    assert build.returncode == 0, build.stderr
+    with open_store(store) as reader:
+        status = dict(zip(reader.paths, reader.column("entries/status")))
+        reasons = dict(zip(reader.paths, reader.column("entries/reason")))
+    assert status["good.step"] == STATUS_OK
+    assert status["crash.step"] == STATUS_FAILED
+    assert reasons["crash.step"] == "worker process died (SIGSEGV) while indexing this file", reasons
