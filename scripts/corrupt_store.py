@@ -89,26 +89,25 @@ def garbage(path: Path, rng: random.Random) -> str:
 
 
 def heap_free_zero(path: Path, rng: random.Random) -> str:
-    """The last free-space object of the first global heap collection given size 0."""
+    """The free-space object of the first global heap collection that has one given size 0."""
     data = path.read_bytes()
     at = data.find(b"GCOL")
-    if at < 0:
-        return "no global heap (nothing done)"
-    size = struct.unpack_from("<Q", data, at + 8)[0]
-    p, end, free = at + 16, at + size, None
-    while p + 16 <= end:
-        index, length = struct.unpack_from("<H", data, p)[0], struct.unpack_from("<Q", data, p + 8)[0]
-        if index == 0:
-            free = p
-        p += length if index == 0 else 16 + (length + 7) // 8 * 8
-        if length == 0:
-            break
-    if free is None:
-        return "no free space object (nothing done)"
-    with open(path, "r+b") as f:
-        f.seek(free + 8)
-        f.write(struct.pack("<Q", 0))
-    return f"global heap free space at {free:,} given size 0"
+    while at >= 0:
+        size = struct.unpack_from("<Q", data, at + 8)[0]
+        p, end = at + 16, min(at + size, len(data))
+        while p + 16 <= end:
+            index, length = struct.unpack_from("<H", data, p)[0], struct.unpack_from("<Q", data, p + 8)[0]
+            if index == 0 and length >= 16:
+                with open(path, "r+b") as f:
+                    f.seek(p + 8)
+                    f.write(struct.pack("<Q", 0))
+                return f"global heap free space at {p:,} (collection at {at:,}) given size 0"
+            step = length if index == 0 else 16 + (length + 7) // 8 * 8
+            if step < 16:
+                break
+            p += step
+        at = data.find(b"GCOL", at + 4)
+    return "no free space object (nothing done)"
 
 
 def heap_object_size(path: Path, rng: random.Random) -> str:
