@@ -296,3 +296,16 @@ class TestWhatABuildSays:
         for text in (result.stderr, failed.stdout):
             assert "found '\\xe9'" in text and "number: '\\xe9'" in text and "empty\\u202e.stl" in text
         assert "invoice\\u202egpj.wrl" in query.stdout
+
+    def test_build_verbose_says_which_merge_happened(self, data_dir, tmp_path):
+        """A merge of the journal's newest segments is not 'the journal merged into the store'."""
+        tree = small_kicad(data_dir, tmp_path, ["LED_SMD", "Diode_SMD"])
+        store = tmp_path / "s.shapeidx"
+        result = run_shapeidx("build", tree, "--store", store, "-v", "--points", "128", "--workers", "1",
+                              "--commit-interval", "0.05", "--merge-after", "2")
+        assert result.returncode == 0, result.stderr
+        merges = [line for line in result.stderr.splitlines() if " merged " in line]
+        assert merges and all(line.endswith(("merged the journal into the main file",
+                                              "merged the journal's newest segments into one")) for line in merges)
+        again = run_shapeidx("build", tree, "--store", store, "-v", "--points", "128", "--workers", "1")
+        assert again.returncode == 0 and " merged " not in again.stderr  # nothing changed: nothing merged
