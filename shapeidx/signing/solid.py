@@ -28,6 +28,7 @@ from ..errors import LoadError
 from ..io.base import PolygonMesh, check_coordinate_range, without_float_warnings
 from .mesh import (
     Shells,
+    far_pieces,
     flip_faces,
     merge_vertices,
     orient_shells,
@@ -353,6 +354,16 @@ def make_solid(mesh: PolygonMesh, path=None) -> Solid:
     }
     if not np.isfinite(read_area) or read_area <= 0:
         raise LoadError(path, "has zero surface area (every face is degenerate)")
+    far, distance, size = far_pieces(vertices, triangles)
+    report["far_removed"] = 0
+    if far is not None:  # tolerances follow the body's size, not a stray piece's distance
+        triangles = triangles[~far]
+        report["far_removed"] = int(far.sum())
+        warnings.append(f"{int(far.sum())} triangle(s) far from the rest left out (up to {distance:.3g} away from a part "
+                        f"{size:.3g} across: stray geometry?)")
+        referenced = np.zeros(len(vertices), dtype=bool)
+        referenced[triangles] = True
+        used = vertices[referenced]
 
     # work near the origin: volumes, winding numbers and booleans lose precision far from it
     centre = (used.min(axis=0) + used.max(axis=0)) / 2
