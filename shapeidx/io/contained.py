@@ -112,9 +112,10 @@ def _limit_memory(limit: int | None) -> None:
     try:
         import resource
 
-        _, hard = resource.getrlimit(resource.RLIMIT_DATA)
-        if hard != resource.RLIM_INFINITY:
-            limit = min(limit, hard)
+        soft, hard = resource.getrlimit(resource.RLIMIT_DATA)
+        for bound in (soft, hard):  # never above a limit the process already has
+            if bound != resource.RLIM_INFINITY:
+                limit = min(limit, bound)
         resource.setrlimit(resource.RLIMIT_DATA, (limit, hard))
     except (ImportError, ValueError, OSError):
         pass
