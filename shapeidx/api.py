@@ -131,9 +131,8 @@ def query(store, part=None, top: int = 10, metric: str = "weighted", entry: str 
     top : int
         How many hits.
     metric : str
-        A name of :data:`shapeidx.distance.METRICS`: ``"weighted"`` (the paper's, the
-        default), ``"all"``, ``"avg3"``, ``"avg4"``, ``"combined"``, ``"combined-angle"``,
-        ``"all-angle"``.
+        A name of the metric registry, :data:`shapeidx.distance.METRICS` (one record
+        each in :mod:`shapeidx.distance.metrics`); ``"weighted"``, the paper's, by default.
     entry : str, optional
         Instead of ``part``, an entry of the store (its path relative to the root).
     file_type : str, optional

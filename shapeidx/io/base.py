@@ -99,12 +99,47 @@ class LoadLimits:
             )
 
 
+class NotRegularFile(OSError):
+    """A name that is a FIFO, socket or device, not a file: ``str()`` says which."""
+
+    def __str__(self) -> str:
+        return self.strerror
+
+
+def open_regular(path: str | os.PathLike):
+    """Open a file for reading in binary, refusing anything but a regular file.
+
+    The file is opened with ``O_NONBLOCK`` and checked on its descriptor (``fstat``), so a
+    FIFO, socket or device under the name (put there after a build, say) is refused at once
+    instead of blocking the reading thread forever (a FIFO without a writer blocks ``open``);
+    the check and the read are of the same file. Raises :class:`IsADirectoryError` for a
+    directory, :class:`NotRegularFile` for the rest, as ``open`` raises for a missing file.
+    """
+    import errno
+    import stat
+
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    try:
+        mode = os.fstat(fd).st_mode
+        if stat.S_ISDIR(mode):
+            raise IsADirectoryError(errno.EISDIR, "is a directory, not a file", os.fspath(path))
+        if not stat.S_ISREG(mode):
+            kind = ("a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
+                    else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a special file")
+            raise NotRegularFile(errno.EINVAL, f"is {kind}, not a regular file", os.fspath(path))
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
 def file_hash(path: str | os.PathLike) -> str:
     """SHA-256 of a file's bytes, as 64 hex digits (what a store entry records)."""
     import hashlib
 
     digest = hashlib.sha256()
-    with open(path, "rb") as f:
+    with open_regular(path) as f:
         while chunk := f.read(1 << 20):
             digest.update(chunk)
     return digest.hexdigest()
@@ -226,23 +261,28 @@ def read_bytes(path: str | os.PathLike, limits: LoadLimits | None = None) -> tup
     limits = limits or LoadLimits()
     path = Path(path)
     try:
-        with open(path, "rb") as f:
+        with open_regular(path) as f:
             head = f.read(2)
             if head != GZIP_MAGIC:
                 return head + f.read(), False
+            f.seek(0)
+            return gunzip_bounded(f, path, limits.max_uncompressed_bytes), True
+    except LoadError:
+        raise
     except FileNotFoundError:
         raise LoadError(path, "no such file") from None
     except IsADirectoryError:
         raise LoadError(path, "is a directory, not a file") from None
+    except NotRegularFile as exc:
+        raise LoadError(path, str(exc)) from None
     except PermissionError:
         raise LoadError(path, "permission denied") from None
     except OSError as exc:
         raise LoadError(path, f"cannot read: {exc.strerror or exc}") from None
-    return gunzip_bounded(path, path, limits.max_uncompressed_bytes), True
 
 
 def gunzip_bounded(source, path: Path, max_bytes: int) -> bytes:
-    """Decompress gzip data from ``source`` (a path, or the compressed bytes), refusing to
+    """Decompress gzip data from ``source`` (a path, an open file or the compressed bytes), refusing to
     expand beyond ``max_bytes``; ``path`` names the file in errors."""
     declared = _gzip_declared_size(source)
     if declared is not None and declared > max_bytes:
@@ -281,15 +321,20 @@ def _gzip_declared_size(source) -> int | None:
     streaming limit the one that refuses."""
     try:
         if isinstance(source, (bytes, bytearray, memoryview)):
-            tail = bytes(source[-4:])
-        else:
-            with open(source, "rb") as f:
-                f.seek(0, os.SEEK_END)
-                if f.tell() < 18:
+            tail = bytes(source[-4:]) if len(source) >= 18 else b""
+        elif hasattr(source, "seek"):  # an open file: read its end, then go back
+            at = source.tell()
+            try:
+                source.seek(0, os.SEEK_END)
+                if source.tell() < 18:
                     return None
-                f.seek(-4, os.SEEK_END)
-                tail = f.read(4)
-    except OSError:
+                source.seek(-4, os.SEEK_END)
+                tail = source.read(4)
+            finally:
+                source.seek(at)
+        else:
+            return None
+    except (OSError, ValueError):
         return None
     return int.from_bytes(tail, "little") if len(tail) == 4 else None
 

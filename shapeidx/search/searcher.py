@@ -109,11 +109,20 @@ class Searcher:
         A file of the store (a journal segment included) fails its checks.
     """
 
-    def __init__(self, store: str | os.PathLike):
+    def __init__(self, store: str | os.PathLike, parts: bool = False):
         from ..store import open_store
+        from ..store.files import parts_store
         from ..store.ranked import ranked_view
 
         self.store = Path(store)
+        #: Whether this searcher ranks the store's sub-entries (``build --parts``) instead of its files.
+        self.parts = parts
+        if parts:
+            self.store = parts_store(store)
+            if not self.store.is_dir():
+                open_store(Path(store)).close()  # no store at all: that error first
+                raise StoreError(f"the store {store} has no sub-parts: build it with 'shapeidx build DIR --store {store}"
+                                 " --parts' (docs/assemblies.md)")
         self.reader = open_store(self.store)
         try:
             check_usable(self.reader)
@@ -375,6 +384,7 @@ class Searcher:
             valid &= exact <= filters.max_distance
         if not valid.any():
             nearest_at = float(np.min(exact)) if len(exact) else float("nan")
+            answer.nearest = nearest_at if np.isfinite(nearest_at) else None
             answer.reason = (f"no hit within --max-distance {filters.max_distance:g}"
                              + (f" (the nearest is at {nearest_at:.6g})" if np.isfinite(nearest_at) else ""))
             return answer
@@ -394,9 +404,27 @@ class Searcher:
         hits = []
         for rank, k in enumerate(order, start=1):
             position, relative = int(positions[near[k]]), str(paths[k])
-            hits.append(Hit(rank, float(distances[near[k]]), absolute(self.root, relative), relative,
-                            self.metadata_at(position)))
+            parent, count = self.parent_at(position) if self.parts else (None, None)
+            hits.append(Hit(rank, float(distances[near[k]]), absolute(self.root, parent or relative), relative,
+                            self.metadata_at(position), parent, count))
         return hits
+
+    def parent_at(self, position: int) -> tuple[str, int]:
+        """The file (relative path) holding the sub-entry at ``position``, and how many times."""
+        from ..store.layout import COUNT_COLUMN, PARENT_COLUMN
+
+        i, row = self.view.locate(position)
+        source = self.view.sources[i]
+        return source.text_at(PARENT_COLUMN, row), int(source.value_at(COUNT_COLUMN, row))
+
+    def parents(self) -> tuple[np.ndarray, np.ndarray]:
+        """The file (relative path) and count of every ranked sub-entry (read once)."""
+        from ..store.layout import COUNT_COLUMN, PARENT_COLUMN
+
+        if "parents" not in self._cache:
+            count = self._file_column(COUNT_COLUMN, None)
+            self._cache["parents"] = (self._file_column(PARENT_COLUMN, None), count.astype(np.int64))
+        return self._cache["parents"]
 
     def empty_reason(self) -> str:
         """Why a store has nothing to rank: no entry yet (a build runs, stopped, or none ran), or none ok."""
