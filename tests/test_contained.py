@@ -169,3 +169,43 @@ def test_build_workers_read_in_their_own_process(loaded, crashing, tmp_path):
     assert status["good.step"] == STATUS_OK
     assert status["crash.step"] == STATUS_FAILED
     assert reasons["crash.step"] == "worker process died (SIGSEGV) while indexing this file", reasons
+
+
+def _iges_of(step: Path, out: Path, mode: int = 1) -> Path:
+    """A real kicad6 part written as IGES by OpenCASCADE's own writer (in a child process)."""
+    code = ("import sys\n"
+            "from OCP.STEPControl import STEPControl_Reader\n"
+            "from OCP.IGESControl import IGESControl_Writer\n"
+            "r = STEPControl_Reader(); r.ReadFile(sys.argv[1]); r.TransferRoots()\n"
+            "w = IGESControl_Writer('MM', int(sys.argv[3])); w.AddShape(r.OneShape()); w.ComputeModel()\n"
+            "assert w.Write(sys.argv[2])\n")
+    subprocess.run([sys.executable, "-c", code, str(step), str(out), str(mode)], check=True, timeout=300,
+                   capture_output=True)
+    return out
+
+
+def test_an_iges_directory_line_missing_is_refused_and_would_crash(data_dir, tmp_path):
+    """One line of the Directory section deleted: refused with a reason before OpenCASCADE
+    sees it; and with that check off, OpenCASCADE's crash is still contained."""
+    whole = _iges_of(data_dir / "kicad6-step" / SEED_PART, tmp_path / "whole.igs")
+    lines = whole.read_bytes().split(b"\n")
+    directory = [i for i, line in enumerate(lines) if len(line) >= 73 and line[72:73] == b"D"]
+    rng = random.Random(2)
+    paths = []
+    for k in range(3):
+        i = rng.choice(directory[1:])
+        paths.append(tmp_path / f"cut{k}.igs")
+        paths[-1].write_bytes(b"\n".join(lines[:i] + lines[i + 1:]))
+    run, outcomes = _load_each([whole, *paths])
+    assert run.returncode == 0 and "mesh" in outcomes[0], outcomes
+    for outcome in outcomes[1:]:
+        assert re.search(r"not a valid IGES file \(Directory section: line \d+ is numbered \d+ \(a line missing",
+                         outcome["error"]), outcome
+    unchecked = ("import sys\n"
+                 "import shapeidx.io.step as step\n"
+                 "step._directory_problem = lambda numbers: None\n"
+                 "from shapeidx.io import load\n"
+                 "try:\n    load(sys.argv[1])\nexcept Exception as exc:\n    print(exc)\n")
+    result = subprocess.run([sys.executable, "-c", unchecked, str(paths[0])], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result
+    assert "OpenCASCADE crashed reading it (signal 11, SIGSEGV)" in result.stdout, result.stdout
