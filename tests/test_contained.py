@@ -209,3 +209,48 @@ def test_an_iges_directory_line_missing_is_refused_and_would_crash(data_dir, tmp
     result = subprocess.run([sys.executable, "-c", unchecked, str(paths[0])], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result
     assert "OpenCASCADE crashed reading it (signal 11, SIGSEGV)" in result.stdout, result.stdout
+
+
+def test_the_web_server_survives_an_upload_that_crashes_opencascade(data_dir, crashing, tmp_path):
+    """A real ``shapeidx serve``: the crashing upload is a 422 with the line, and the server
+    goes on answering (the same upload killed it before)."""
+    import socket
+    import shutil
+
+    import httpx
+
+    from storetools import FAST_POINTS
+
+    tree = tmp_path / "parts"
+    tree.mkdir()
+    good = data_dir / "kicad6-step" / SEED_PART
+    shutil.copy(good, tree / "good.step")
+    store = tmp_path / "s.shapeidx"
+    subprocess.run(shapeidx_command("build", tree, "--store", store, "--points", FAST_POINTS, "--workers", "1"),
+                   check=True, capture_output=True, timeout=600)
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    server = subprocess.Popen(shapeidx_command("serve", "--store", store, "--port", port),
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 120
+        while True:
+            try:
+                if httpx.get(f"{base}/api/store", timeout=5).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            assert server.poll() is None and time.monotonic() < deadline, server.stderr.read() if server.poll() else "no answer"
+            time.sleep(0.5)
+        answer = httpx.post(f"{base}/api/query", files={"file": ("crash.step", crashing.read_bytes())}, timeout=300)
+        assert answer.status_code == 422, answer.text
+        assert "OpenCASCADE crashed reading it (signal 11, SIGSEGV)" in answer.json()["error"]
+        assert server.poll() is None
+        again = httpx.post(f"{base}/api/query", files={"file": ("good.step", good.read_bytes())}, data={"top": "1"},
+                           timeout=300)
+        assert again.status_code == 200, again.text
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
