@@ -254,3 +254,25 @@ def test_the_web_server_survives_an_upload_that_crashes_opencascade(data_dir, cr
     finally:
         server.terminate()
         server.wait(timeout=30)
+
+
+def test_what_the_child_does_becomes_one_line(tmp_path):
+    """The mechanism on its own, with real deeds of the child: a result, an abort, a hang,
+    an unforeseen exception (no traceback, no exception name)."""
+    import os
+
+    from shapeidx.errors import LoadError
+    from shapeidx.io.contained import run_contained
+
+    where = tmp_path / "f.step"
+    assert run_contained(divmod, (7, 2), where) == (3, 1)
+    with pytest.raises(LoadError, match=r"f.step: OpenCASCADE crashed reading it \(signal 6, SIGABRT\)$"):
+        run_contained(os.abort, (), where)
+    started = time.monotonic()
+    with pytest.raises(LoadError, match=r"f.step: OpenCASCADE took longer than 0.5 s reading it \(stopped\)$"):
+        run_contained(time.sleep, (60,), where, seconds=0.5)
+    assert time.monotonic() - started < 30
+    with pytest.raises(LoadError) as caught:
+        run_contained(int, ("x",), where)
+    assert str(caught.value).startswith(f"{where}: cannot be read: it holds a value of the wrong form")
+    assert "ValueError" not in str(caught.value)

@@ -35,7 +35,7 @@ import signal
 import threading
 from multiprocessing.connection import wait
 
-from ..errors import LoadError, OutOfMemory
+from ..errors import LoadError, OutOfMemory, exception_in_words
 
 __all__ = ["run_contained", "run_here", "is_contained", "DEFAULT_SECONDS"]
 
@@ -144,6 +144,8 @@ def _child(conn, function, args, memory: int | None) -> None:
         result = ("oom", None, None, None)
     except RecursionError:
         result = ("error", None, "nesting too deep to read", None)
+    except Exception as exc:  # noqa: BLE001 (a reader bug: one line in words, not a traceback on stderr)
+        result = ("error", None, f"cannot be read: it holds {exception_in_words(exc)}", None)
     try:
         conn.send(result)
     except MemoryError:
