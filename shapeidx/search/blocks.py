@@ -258,17 +258,18 @@ class BlockIndex:
         order = order[np.isfinite(bound[order])]
         taken, positions, exact = 0, [], []
         reach = np.inf
+        round_size = max(FIRST_ROUND, 16 * top)
         while taken < len(order) and bound[order[taken]] <= reach:
-            # the first round: the nearest blocks up to FIRST_ROUND entries; then every block the
-            # bounds cannot rule out, nearest first, in rounds of as many
+            # rounds of blocks, nearest bound first, each twice the last: the first measured
+            # exactly, the next through each entry's own bound first; each round's exact
+            # distances bring the reach down for the next
             size = 0
             first = taken
-            while taken < len(order) and bound[order[taken]] <= reach and (size < max(FIRST_ROUND, 16 * top)
-                                                                            or np.isfinite(reach)
-                                                                            or taken == first):
+            while taken < len(order) and bound[order[taken]] <= reach and (size < round_size or taken == first):
                 b = order[taken]
                 size += int(self.ends[b] - self.starts[b])
                 taken += 1
+            round_size *= 2
             chosen = np.concatenate([self.perm[self.starts[b] : self.ends[b]] for b in order[first:taken]])
             if keep is not None:
                 chosen = chosen[keep[chosen]]
