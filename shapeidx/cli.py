@@ -323,6 +323,9 @@ def _store_path(store):
               help="A CSV joined to the parts for --where: a path column (path, file or filename) and any others"
                    " (part number, material, project, ...). Read again by every build given it; no part is signed"
                    " again for it. Without it the store keeps the table it has.")
+@click.option("--parts", is_flag=True,
+              help="Also sign each file's sub-parts (the solids of a STEP assembly, the bodies of a mesh) as entries"
+                   " FILE#n of their own, for where-used and query --parts (docs/assemblies.md).")
 @click.option("--quiet", "-q", is_flag=True, help="Print only warnings, errors and files that failed for the first time.")
 @click.option("--verbose", "-v", is_flag=True, help="A line per indexed file and per commit.")
 @click.option("--dry-run", is_flag=True, help="Only say what a build would do: walk and plan, change nothing.")
@@ -330,11 +333,15 @@ def _store_path(store):
 @click.option("--scheduler", envvar="SHAPEIDX_SCHEDULER", metavar="ADDRESS",
               help="Index the files on this dask.distributed cluster (env SHAPEIDX_SCHEDULER) [default: locally].")
 @click.option("--worker-root", metavar="PATH", help="Where the cluster's workers see DIRECTORY [default: the same path].")
+@click.option("--shards", type=click.IntRange(1), metavar="N",
+              help="Shard the store by path key into N ordinary stores (STORE/shards/K); with --scheduler each"
+                   " shard is built on a worker of the cluster. A sharded store is queried as one (docs/scaling.md).")
 @click.option("--merge-after", type=click.IntRange(1), default=MERGE_AFTER, hidden=True)
 @click.pass_context
 def build(ctx, directory, store, points, seed, linear_deflection, angular_deflection, workers, full, rehash,
           retry_failed, timeout, worker_memory, commit_interval, wait, wait_timeout, strict, repair,
-          follow_outside_links, metadata, quiet, verbose, dry_run, as_json, scheduler, worker_root, merge_after):
+          follow_outside_links, metadata, parts, quiet, verbose, dry_run, as_json, scheduler, worker_root, shards,
+          merge_after):
     """Index every part file under DIRECTORY into the store (incremental).
 
     \b
@@ -352,11 +359,20 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
                            dry_run=dry_run, repair=repair, follow_outside_links=follow_outside_links,
                            linear_deflection=linear_deflection, angular_deflection=angular_deflection,
                            worker_memory=None if worker_memory is None else int(worker_memory * (1 << 30)),
-                           scheduler=scheduler or None, worker_root=worker_root, metadata=metadata)
+                           scheduler=scheduler or None, worker_root=worker_root, metadata=metadata, parts=parts)
     reporter = BuildReporter(quiet=quiet, verbose=verbose)
     store_path = _store_path(store)
     try:
-        summary = run_build(directory, store_path, options, reporter)
+        from .store.shards import is_sharded
+
+        if shards or is_sharded(store_path):
+            from .index.shards import run_sharded_build
+            from .store.shards import shard_count
+
+            summary = run_sharded_build(directory, store_path, options, reporter,
+                                        shards or shard_count(store_path))
+        else:
+            summary = run_build(directory, store_path, options, reporter)
     finally:
         reporter.close()
     if as_json:
@@ -368,6 +384,8 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
         click.echo(
             f"shapeidx build: {summary.line()} in {duration(summary.seconds)};"
             f" store: {summary.store_ok} ok, {summary.store_failed} failed, {_size(summary.store_bytes)}"
+            + (f"; parts: {summary.parts_indexed} signed, {summary.parts_entries} in the store"
+               if summary.parts_entries is not None else "")
         )
     if strict and summary.store_failed:
         reporter.say(
@@ -406,13 +424,19 @@ where_option = click.option(
 @click.option("--scale", type=click.Choice(("invariant", "sensitive")), default="invariant", show_default=True,
               help="sensitive: leave out parts whose size differs by more than a factor 2 (docs/families.md).")
 @click.option("--relative", is_flag=True, help="Print paths relative to the indexed folder (table, csv, tsv).")
+@click.option("--parts", is_flag=True,
+              help="Rank the store's sub-parts (FILE#n, built with build --parts) instead of its files; each hit"
+                   " names its parent file and how many times that file holds it.")
 @format_options
 @click.option("--sheet", metavar="OUT.html",
               help="Also write the answer as one self-contained HTML file (thumbnails, histograms, words).")
 @click.option("--thumbnails", default=200, show_default=True, type=click.IntRange(0),
               help="With --sheet: thumbnails for the first N hits (each new one is rendered and cached).")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="A sharded store (build --shards): rank each shard on a worker of this dask.distributed"
+                   " cluster and merge their exact top k [default: here, shard by shard].")
 def query(files, store, top, metric, entries, file_type, where, exclude_self, max_distance, scale, relative,
-          output_format, as_json, sheet, thumbnails):
+          parts, output_format, as_json, sheet, thumbnails, scheduler):
     """The store's parts nearest to each FILE (or every part of DIR, or '-': a part on
     standard input; or --id PATH), nearest first: one result block per query.
 
@@ -428,7 +452,8 @@ def query(files, store, top, metric, entries, file_type, where, exclude_self, ma
     """
     from .console.queries import query_inputs
     from .errors import LoadError, NoAnswer, ShapeidxError, StoreDamagedError
-    from .search import Filters, Searcher, parse_where
+    from .search import Filters, open_searcher, parse_where
+    from .store.shards import is_sharded
     from .system import available_cores
 
     fmt = chosen_format(output_format, as_json)
@@ -445,9 +470,11 @@ def query(files, store, top, metric, entries, file_type, where, exclude_self, ma
         raise ShapeidxError(f"{sheet}: no folder {os.path.dirname(os.path.abspath(sheet))} to write the sheet in")
     filters = Filters(exclude_self, max_distance, scale, parse_where(where))
     store_path = _store_path(store)
+    if sheet and is_sharded(store_path):
+        raise click.UsageError("--sheet draws from one store: give a shard (STORE/shards/K) or leave --sheet out")
     failures = empty = 0
     blocks = []
-    with Searcher(store_path) as searcher:
+    with open_searcher(store_path, scheduler or None, parts=parts) as searcher:
         inputs = query_inputs(files, [searcher.resolve_entry(e) for e in entries], file_type)
         keys = searcher.present_metadata_keys() if fmt in ("csv", "tsv") else ()
         for number, item in enumerate(inputs):
@@ -479,7 +506,7 @@ def query(files, store, top, metric, entries, file_type, where, exclude_self, ma
             block = answer.to_dict()
             if answer.reason is not None:
                 block["reason"] = answer.reason
-            _print_block(block, fmt, several, first=number == 0, relative=relative, keys=keys)
+            _print_block(block, fmt, several, first=number == 0, relative=relative, keys=keys, parts=parts)
             if fmt == "json":
                 blocks.append(block)
     if fmt == "json":
@@ -493,25 +520,95 @@ def query(files, store, top, metric, entries, file_type, where, exclude_self, ma
 QUERY_COLUMNS = ["query", "rank", "distance", "path", "relative_path"]
 
 
-def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bool, keys=()) -> None:
+PART_COLUMNS = ["parent", "count"]
+
+
+def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bool, keys=(), parts: bool = False) -> None:
     if fmt == "json":
         return
-    named = {key: (key if key not in QUERY_COLUMNS + ["metric"] else f"metadata.{key}") for key in keys}
+    columns = QUERY_COLUMNS + (PART_COLUMNS if parts else [])
+    named = {key: (key if key not in columns + ["metric"] else f"metadata.{key}") for key in keys}
     rows = [{"query": block["query"], **{k: v for k, v in hit.items() if k != "metadata"},
              **{named[key]: hit["metadata"].get(key, "") for key in keys}} for hit in block["hits"]]
     if fmt == "jsonl":
-        emit_rows(fmt, QUERY_COLUMNS, [{**row, "metric": block["metric"]} for row in rows])
+        emit_rows(fmt, columns, [{**row, "metric": block["metric"]} for row in rows])
         return
     if relative:
         rows = [{**row, "path": row["relative_path"]} for row in rows]
     if fmt in ("csv", "tsv"):
-        emit_rows(fmt, QUERY_COLUMNS + list(named.values()), rows, header=first)
+        emit_rows(fmt, columns + list(named.values()), rows, header=first)
         return
     if several:
         click.echo(("" if first else "\n") + f"query {printable(block['query'])}")
     for row, hit in zip(rows, block["hits"]):
         shown = "  ".join(f"{key}={printable(value)}" for key, value in hit["metadata"].items())
+        if parts:  # the sub-part first: the path is its file
+            shown = f"part={printable(hit['relative_path'])} x{hit['count']}" + (f"  {shown}" if shown else "")
         click.echo(f"{row['rank']:>4}  {row['distance']:<11.6g} {printable(row['path'])}" + (f"  {shown}" if shown else ""))
+
+
+@main.command("where-used", context_settings=CONTEXT)
+@click.argument("part", required=False)
+@store_option
+@click.option("--id", "entry", metavar="PATH",
+              help="Ask about an entry of the store instead of PART: a sub-part FILE#n or a file of the indexed folder.")
+@click.option("--top", "-k", default=10, show_default=True, type=click.IntRange(1), help="How many files.")
+@metric_option("weighted")
+@click.option("--max-distance", type=FiniteFloat(0), metavar="D",
+              help="Only sub-parts within D; each file's count is then of all its sub-parts within D.")
+@format_options
+def where_used(part, store, entry, top, metric, max_distance, output_format, as_json):
+    """The files that hold a sub-part like PART (or --id PATH), nearest first: how far their
+    nearest sub-part is, which it is, and how many times the file holds it. The store must be
+    built with --parts (docs/assemblies.md).
+
+    Exits 6 when no file answers (--max-distance), saying why.
+
+    \b
+    Example:
+      shapeidx build library/ --store lib.shapeidx --parts
+      shapeidx where-used pin.step --store lib.shapeidx --top 5
+      shapeidx where-used --id Connector/conn_2x10.step#3 --store lib.shapeidx --max-distance 0.05 --format csv
+    """
+    from .errors import NoAnswer
+    from .search import Searcher
+    from .search.where_used import where_used as rank_uses
+    from .system import available_cores
+
+    fmt = chosen_format(output_format, as_json)
+    if bool(part) == bool(entry):
+        raise click.UsageError("give either PART or --id PATH")
+    with Searcher(_store_path(store), parts=True) as searcher:
+        if entry:
+            question = searcher.query_of_entry(searcher.resolve_entry(_part_entry(searcher, entry)))
+        else:
+            question = searcher.query_of_part(part, label=part, threads=available_cores())
+        answer = rank_uses(searcher, question, top, metric, max_distance)
+    if answer.reason is not None:
+        raise NoAnswer(f"no answer for {answer.query}: {answer.reason}")
+    if fmt == "json":
+        emit_json(answer.to_dict())
+        return
+    rows = [use.to_dict() for use in answer.uses]
+    if fmt in ("csv", "tsv", "jsonl"):
+        emit_rows(fmt, ["rank", "distance", "count", "path", "relative_path", "part", "title"],
+                  [{**row, "parts": " ".join(row["parts"])} for row in rows])
+        return
+    for use in answer.uses:
+        title = f"  title={printable(use.title)}" if use.title else ""
+        click.echo(f"{use.rank:>4}  {use.distance:<11.6g} x{use.count:<4} {printable(use.path)}  part={printable(use.part)}{title}")
+
+
+def _part_entry(searcher, entry: str) -> str:
+    """``--id`` of where-used: a sub-entry ``FILE#n``; a whole file that is one part is its ``FILE#1``."""
+    name = searcher.resolve_entry(entry)
+    if searcher.view.find(name) is None and searcher.view.find(f"{name}#1") is not None:
+        return f"{name}#1"
+    if searcher.view.find(name) is None:
+        inside = searcher.entry_path_of(entry)
+        if inside is not None and searcher.view.find(f"{inside}#1") is not None:
+            return f"{inside}#1"
+    return name
 
 
 @main.command(context_settings=CONTEXT)
@@ -646,10 +743,12 @@ def serve(store, host, port, max_upload):
     except ImportError as exc:
         raise ShapeidxError(f"shapeidx serve needs the web extra ({exc.name} is missing): pip install 'shapeidx[web]'") from None
     service = StoreService(_store_path(store))
-    app = create_app(service, max_upload * 1024 * 1024)
+    from .web.guard import header_timeout_protocol
+
+    app = create_app(service, max_upload * 1024 * 1024, host=host)
     click.echo(f"shapeidx serve: {len(service.searcher):,} parts of {service.store} on http://{host}:{port}/ (Ctrl-C stops)")
     try:
-        uvicorn.run(app, host=host, port=port, log_level="warning", access_log=False)
+        uvicorn.run(app, host=host, port=port, log_level="warning", access_log=False, http=header_timeout_protocol())
     finally:
         service.close()
 
@@ -768,32 +867,36 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
         emit_json({"collection": directory, "store": str(store_path), **result})
         return
     scores = ("nn", "ft", "st", "e", "dcg")
+    family = ("knn", "nmi", "ari")  # classification and clustering agreement: the whole collection's only
     if fmt != "table":
         rows = []
         for name, figures in result["metrics"].items():
             rows.append({"metric": name, "class": "", **{s: figures[s] for s in scores},
-                         "in_sample": bool(figures.get("in_sample", False))})
+                         **{s: figures.get(s, "") for s in family}, "in_sample": bool(figures.get("in_sample", False))})
             for cls, per in figures.get("per_class", {}).items():
-                rows.append({"metric": name, "class": cls, **{s: per[s] for s in scores},
+                rows.append({"metric": name, "class": cls, **{s: per[s] for s in scores}, **{s: "" for s in family},
                              "in_sample": bool(figures.get("in_sample", False))})
-        emit_rows(fmt, ["metric", "class", *scores, "in_sample"], rows)
+        emit_rows(fmt, ["metric", "class", *scores, *family, "in_sample"], rows)
         return
     click.echo(
         f"{directory}: {result['models']} models in {result['classes']} classes, {result['points']} points"
         + (f" ({result['unlabelled']} files outside class folders left out)" if result["unlabelled"] else "")
     )
-    click.echo(f"{'distance':30s} {'NN':>6s} {'FT':>6s} {'ST':>6s} {'E':>6s} {'DCG':>6s}   {'kNN':>6s} {'NMI':>6s} {'ARI':>6s}")
+    labels = {name: metric_label(name) + (" (in-sample)" if figures.get("in_sample") else "")
+              for name, figures in result["metrics"].items()}
+    width = max([30, *map(len, labels.values())] + [len(c) + 2 for f in result["metrics"].values() for c in f.get("per_class", {})])
+    click.echo(f"{'distance':{width}s} {'NN':>6s} {'FT':>6s} {'ST':>6s} {'E':>6s} {'DCG':>6s}   {'kNN':>6s} {'NMI':>6s} {'ARI':>6s}")
     for name, figures in result["metrics"].items():
-        label = metric_label(name) + (" (in-sample)" if figures.get("in_sample") else "")
-        family = "   " + " ".join(f"{figures[s]:6.3f}" for s in ("knn", "nmi", "ari")) if "knn" in figures else ""
-        click.echo(f"{label:30s} " + " ".join(f"{figures[s]:6.3f}" for s in scores) + family)
+        agreement = "   " + " ".join(f"{figures[s]:6.3f}" for s in family) if "knn" in figures else ""
+        click.echo(f"{labels[name]:{width}s} " + " ".join(f"{figures[s]:6.3f}" for s in scores) + agreement)
         for cls, per in figures.get("per_class", {}).items():
-            click.echo(f"  {cls[:28]:28s} " + " ".join(f"{per[s]:6.3f}" for s in scores))
+            click.echo(f"  {printable(cls):{width - 2}s} " + " ".join(f"{per[s]:6.3f}" for s in scores))
     for name, figures in result["metrics"].items():
         if figures.get("in_sample"):
             click.echo(f"note: {metric_label(name)}'s weights were learned on this collection"
                        f" ({figures['learned_on']}): its figures are in-sample and flatter it;"
-                       " --cross-validate gives out-of-sample ones")
+                       + (" its (cross-validated) row gives out-of-sample ones" if cross_validate
+                          else " --cross-validate gives out-of-sample ones"))
 
 
 # --------------------------------------------------------------------------- families (classify, cluster, duplicates)
@@ -891,11 +994,14 @@ def classify(parts, store, k, metric, label_depth, labels_file, where, scale, ou
     if fmt != "table":
         emit_rows(fmt, ["path", "label", "confidence"], results)
         return
+    width = max([5] + [len(printable(nb["label"])) for r in results for nb in r["neighbours"]])
     for r in results:
         label = r["label"] if r["label"] is not None else "(no voter)"
         click.echo(f"{printable(r['path'])}: {printable(label)} (confidence {r['confidence']:.2f})")
+        if r["neighbours"]:
+            click.echo(f"    {'distance':<11s} {'label':{width}s}  voter")
         for nb in r["neighbours"]:
-            click.echo(f"    {nb['distance']:<11.6g} {printable(nb['label']):24s} {printable(nb['path'])}")
+            click.echo(f"    {nb['distance']:<11.6g} {printable(nb['label']):{width}s}  {printable(nb['path'])}")
 
 
 @main.command(context_settings=CONTEXT)
@@ -1005,14 +1111,20 @@ def duplicates(store, metric, with_near, where, scale, as_csv, output_format, as
     members = sum(len(g["members"]) for g in groups)
     click.echo(f"{len(groups)} group(s) of duplicates, {members} entries, among {len(table)} entries"
                f" ({metric}; tiers {', '.join(tiers)}; most confident first)")
+    def size_of(p):
+        ratio = "?" if p["size_ratio"] is None else f"x{p['size_ratio']:.4g}"
+        return ratio + (f" (unit factor {p['unit']:.4g})" if p.get("unit") else "")
+
+    pairs = [p for group in groups for p in group["pairs"]]
+    tier_width = max([4] + [len(p["tier"]) for p in pairs])
+    size_width = max([4] + [len(size_of(p)) for p in pairs])
     for g, group in enumerate(groups, start=1):
         click.echo(f"group {g}: {len(group['members'])} parts, {group['tier']}, confidence {group['confidence']:.2f}:"
                    f" {printable(group['representative'])}")
+        click.echo(f"  {'tier':{tier_width}s}  {'distance':<10s} {'size':{size_width}s}  {'mirrored':8s}  part")
         for p in group["pairs"]:
-            ratio = "size ?" if p["size_ratio"] is None else f"size x{p['size_ratio']:.4g}"
-            unit = f" (unit factor {p['unit']:.4g})" if p.get("unit") else ""
-            mirror = ", mirrored" if p["mirrored"] else ""
-            click.echo(f"  {p['tier']:9s} {p['distance']:<10.4g} {ratio}{unit}{mirror}  {printable(p['b'])}")
+            click.echo(f"  {p['tier']:{tier_width}s}  {p['distance']:<10.4g} {size_of(p):{size_width}s}"
+                       f"  {'yes' if p['mirrored'] else '':8s}  {printable(p['b'])}")
 
 
 if __name__ == "__main__":  # pragma: no cover

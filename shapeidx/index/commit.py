@@ -54,8 +54,10 @@ class Committer:
         due = time.monotonic() - self.last >= self.interval
         if len(self.batch) >= BATCH_ENTRIES or (due and len(self.batch)):
             self.commit()
-            if self.writer.pending_batches >= self.merge_after and self.writer.compact():
-                self.reporter.merged()
+            if self.writer.pending_batches >= self.merge_after:
+                merged = self.writer.compact()
+                if merged:
+                    self.reporter.merged(merged)
 
     def commit(self) -> None:
         if len(self.batch):
@@ -66,5 +68,23 @@ class Committer:
 
     def finish(self) -> None:
         self.commit()
-        if self.writer.checkpoint():  # the journal folded into the main file once it is large enough
-            self.reporter.merged()
+        merged = self.writer.checkpoint()  # the journal folded into the main file once it is large enough
+        if merged:
+            self.reporter.merged(merged)
+
+
+class PartsCommitter(Committer):
+    """The sub-entries of ``build --parts``, committed to the parts store (``STORE/parts``):
+    a file's new sub-entries replace its old ones."""
+
+    def add(self, outcome: Outcome) -> None:
+        task = outcome.task
+        if not task.parts:
+            return
+        if outcome.parts is not None:
+            self.batch.removed.extend(p for p in task.old_parts if p not in {e.path for e in outcome.parts})
+            self.batch.entries.extend(outcome.parts)
+        elif outcome.parts_same:
+            self.batch.touched.extend((p, outcome.size, outcome.mtime_ns) for p in task.old_parts)
+        elif outcome.kind == "missing":
+            self.batch.removed.extend(task.old_parts)

@@ -51,7 +51,10 @@ def make_plan(walk: Walk, reader, options) -> Plan:
     same_stat = same_size & (known.mtime_ns[entry] == mtime) if len(known) else failed
     retry = options.retry_failed or reader.attrs.get("shapeidx_version") != __version__
     # failed entries retried unchanged (--retry-failed, --full, a new version): failing again is not news
-    failed_before = {files[k].path for k in np.flatnonzero(failed & same_stat).tolist()}
+    # a file that could not be read at all (permission, I/O error) is recorded without size or time
+    # (index.workers): it is tried again at every build, but its failing again is not news either
+    never_read = failed & (known.size[entry] == 0) & (known.mtime_ns[entry] == 0) if len(known) else failed
+    failed_before = {files[k].path for k in np.flatnonzero(failed & (same_stat | never_read)).tolist()}
     work = ~found | (failed & bool(retry)) | ~same_stat
     if options.full or options.rehash:
         work[:] = True
@@ -69,3 +72,37 @@ def make_plan(walk: Walk, reader, options) -> Plan:
 
 def _under_any(path: str, folders: list) -> bool:
     return any(folder in ("", ".", path) or path.startswith(folder.rstrip("/") + "/") for folder in folders)
+
+
+def plan_parts(plan: Plan, walk: Walk, reader, options) -> list:
+    """``build --parts``: mark the plan's tasks to also sign their files' sub-parts, add a task
+    for every file whose sub-entries are missing or stale though its own entry is up to date,
+    and return the sub-entries whose files are gone.
+
+    ``reader`` is the parts store's view (None: it has no entry yet). A file's sub-entries
+    (``FILE#n``, or one failed ``FILE``) carry its size, time and content hash: the same size
+    and time mean they are up to date, as for the whole-file entries.
+    """
+    import dataclasses
+
+    known: dict = {}  # parent -> [paths, size, mtime_ns, hash]
+    if reader is not None and len(reader):
+        paths, parents = reader.paths, reader.column("entries/parent")
+        size, mtime, hashes = reader.column("entries/size"), reader.column("entries/mtime_ns"), reader.column("entries/hash")
+        for i in range(len(paths)):
+            record = known.setdefault(str(parents[i]) or str(paths[i]), [[], int(size[i]), int(mtime[i]), hashes[i]])
+            record[0].append(str(paths[i]))
+    index = {task.path: k for k, task in enumerate(plan.tasks)}
+    for f in walk.files:
+        record = known.get(f.path)
+        old = tuple(record[0]) if record else ()
+        stored_hash = None if record is None or options.full else (record[3].decode() if isinstance(record[3], bytes) else str(record[3])) or None
+        if f.path in index:
+            k = index[f.path]
+            plan.tasks[k] = dataclasses.replace(plan.tasks[k], parts=True, parts_hash=stored_hash, old_parts=old)
+        elif options.full or options.rehash or record is None or (record[1], record[2]) != (f.size, f.mtime_ns):
+            plan.tasks.append(Task(f.path, f.absolute, whole=False, parts=True, parts_hash=stored_hash, old_parts=old,
+                                   in_store=True))
+    walked = {f.path for f in walk.files}
+    return sorted(p for parent, record in known.items() if parent not in walked and not _under_any(parent, walk.unlisted)
+                  for p in record[0])

@@ -58,6 +58,14 @@ class Task:
     absolute: str
     known_hash: str | None = None
     in_store: bool = False
+    #: Sign the whole file (False: only its sub-parts are wanted, its entry is up to date).
+    whole: bool = True
+    #: Also split the file into sub-parts and sign them (``build --parts``).
+    parts: bool = False
+    #: The content hash the file's stored sub-entries were made from (same content: they are kept).
+    parts_hash: str | None = None
+    #: The paths of the file's sub-entries now in the parts store (replaced by the new ones).
+    old_parts: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -72,6 +80,27 @@ class Outcome:
     seconds: float = 0.0
     #: The worker ran out of memory on this file: replace it before the next one.
     replace_worker: bool = False
+    #: With ``task.parts``: the file's sub-entries (``FILE#n``, or one failed entry ``FILE``);
+    #: None when they were not made (same content: ``parts_same``).
+    parts: list | None = None
+    parts_same: bool = False
+    #: CPU seconds of the worker by stage ("hash", "load", "solid", "signature", "facts",
+    #: "parts"), all its threads counted: where a build's time goes (``build --json``'s profile).
+    cpu: dict | None = None
+
+
+class StageClock:
+    """CPU seconds of this process (every thread) by stage: ``lap(name)`` charges the time
+    since the previous lap to ``name``."""
+
+    def __init__(self):
+        self.last = time.process_time()
+        self.seconds: dict[str, float] = {}
+
+    def lap(self, stage: str) -> None:
+        now = time.process_time()
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + now - self.last
+        self.last = now
 
 
 def one_line(text: str) -> str:
@@ -91,42 +120,126 @@ def reason_of(error: LoadError, absolute: str) -> str:
 
 
 def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
-    """Hash and, unless the content is known, sign one file. Never raises for a bad file."""
-    from ..signing.moments import shape_facts
-    from ..io import LoadLimits
-    from ..signing.pipeline import signature_of_solid, solid_of_file
+    """Hash and, unless the content is known, sign one file (and with ``task.parts`` its
+    sub-parts). Never raises for a bad file."""
+    from ..io import LoadLimits, load
+    from ..signing.solid import make_solid
 
     started = time.monotonic()
+    clock = StageClock()
     try:
         stat = os.stat(task.absolute)
         digest = file_hash(task.absolute)
+        clock.lap("hash")
     except FileNotFoundError:
         return Outcome(task, "missing")
     except OSError as exc:
         entry = Entry.failed(task.path, "", 0, 0, one_line(f"cannot read: {exc.strerror or exc}"))
-        return Outcome(task, "failed", entry)
+        return Outcome(task, "failed", entry, parts=_failed_parts(task, entry))
     size, mtime = stat.st_size, stat.st_mtime_ns
-    if task.known_hash is not None and digest == task.known_hash:
-        return Outcome(task, "same", size=size, mtime_ns=mtime)
+    whole = task.whole and not (task.known_hash is not None and digest == task.known_hash)
+    parts = task.parts and not (task.parts_hash is not None and digest == task.parts_hash)
+    same = {"parts_same": task.parts and not parts}
+    if not whole and not parts:
+        return Outcome(task, "same" if task.whole else "skipped", size=size, mtime_ns=mtime, cpu=clock.seconds, **same)
+    limits = LoadLimits(root=Path(root), faceting=params.faceting)
+    mesh = entry = None
     try:
-        solid = solid_of_file(task.absolute, LoadLimits(root=Path(root), faceting=params.faceting))
-        check_signature_headroom(task.absolute, len(solid.faces))
-        signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor)
-        entry = Entry.indexed(task.path, digest, size, mtime, signature, solid.describe(),
-                              shape_facts(solid.vertices, solid.faces))
+        mesh = load(task.absolute, limits)
+        clock.lap("load")
+        solid = make_solid(mesh, task.absolute)
+        clock.lap("solid")
+        entry = _signed(task.path, digest, size, mtime, solid, params, task.absolute, clock)
         kind = "indexed"
     except OutOfMemory as exc:
         entry = Entry.failed(task.path, digest, size, mtime, reason_of(exc, task.absolute))
-        return Outcome(task, "failed", entry, size, mtime, time.monotonic() - started, replace_worker=True)
+        return Outcome(task, "failed" if task.whole else "skipped", entry, size, mtime, time.monotonic() - started,
+                       replace_worker=True, parts=_failed_parts(task, entry))
     except LoadError as exc:
         entry, kind = Entry.failed(task.path, digest, size, mtime, reason_of(exc, task.absolute)), "failed"
     except MemoryError:
         entry = Entry.failed(task.path, digest, size, mtime, "out of memory")
-        return Outcome(task, "failed", entry, size, mtime, time.monotonic() - started, replace_worker=True)
+        return Outcome(task, "failed" if task.whole else "skipped", entry, size, mtime, time.monotonic() - started,
+                       replace_worker=True, parts=_failed_parts(task, entry))
     except Exception as exc:  # a bug in a later stage must cost one file, not the build
-        reason = one_line(f"internal error: {type(exc).__name__}: {exc}")
+        from ..errors import exception_in_words
+
+        reason = one_line(f"cannot be signed: it holds {exception_in_words(exc)}")
         entry, kind = Entry.failed(task.path, digest, size, mtime, reason), "failed"
-    return Outcome(task, kind, entry, size, mtime, time.monotonic() - started)
+    sub = None
+    if parts:
+        sub = _failed_parts(task, entry) if kind == "failed" else _part_entries(task, digest, size, mtime, mesh, entry,
+                                                                               params, limits)
+        clock.lap("parts")
+    if not whole:
+        kind = "same" if task.whole else "skipped"
+        entry = None
+    clock.lap("failed" if kind == "failed" else "other")
+    return Outcome(task, kind, entry, size, mtime, time.monotonic() - started, parts=sub, cpu=clock.seconds, **same)
+
+
+def _signed(path: str, digest: str, size: int, mtime: int, solid, params: StoreParams, absolute: str,
+            clock: StageClock | None = None) -> Entry:
+    """The ok entry of one solid (a file, or a sub-part ``FILE#n``); ``absolute`` names the file in errors."""
+    from ..signing.moments import shape_facts
+    from ..signing.pipeline import signature_of_solid
+
+    check_signature_headroom(absolute, len(solid.faces))
+    signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor)
+    if clock is not None:
+        clock.lap("signature")
+    entry = Entry.indexed(path, digest, size, mtime, signature, solid.describe(), shape_facts(solid.vertices, solid.faces))
+    if clock is not None:
+        clock.lap("facts")
+    return entry
+
+
+def part_path(path: str, number: int) -> str:
+    """The entry of the ``number``-th (1-based) sub-part of the file at ``path``."""
+    return f"{path}#{number}"
+
+
+def _failed_parts(task: Task, entry: Entry) -> list | None:
+    """A file that cannot be read has one failed sub-entry, ``FILE`` itself (so that it is not
+    tried again until it changes)."""
+    if not task.parts:
+        return None
+    failed = Entry.failed(task.path, entry.hash, entry.size, entry.mtime_ns, entry.reason)
+    failed.parent = task.path
+    return [failed]
+
+
+def _part_entries(task: Task, digest: str, size: int, mtime: int, mesh, whole: Entry, params: StoreParams,
+                  limits) -> list:
+    """The sub-entries of a file read and signed (``whole``): one per distinct sub-part, or
+    ``FILE#1`` with the whole file's signature when the file is one part."""
+    import dataclasses
+
+    from ..io.parts import split_parts
+    from ..signing.solid import make_solid
+
+    try:
+        parts = split_parts(task.absolute, limits, mesh=mesh)
+    except LoadError as exc:
+        parts = None  # the split failed where the whole file did not: the file is its own one part
+    if not parts:
+        if whole is None:  # only the parts were asked and the file is one part: sign it as a whole
+            whole = _signed(task.path, digest, size, mtime, make_solid(mesh, task.absolute), params, task.absolute)
+        one = dataclasses.replace(whole, path=part_path(task.path, 1), parent=task.path, count=1,
+                                  histograms=dict(whole.histograms))
+        return [one]
+    entries = []
+    for number, part in enumerate(parts, start=1):
+        path = part_path(task.path, number)
+        try:
+            entry = _signed(path, digest, size, mtime, make_solid(part.mesh, task.absolute), params, task.absolute)
+        except LoadError as exc:
+            entry = Entry.failed(path, digest, size, mtime, one_line(exc.reason))
+        entry.parent, entry.count = task.path, part.count
+        if part.name:
+            entry.title = part.name
+        entries.append(entry)
+    return entries
 
 
 #: What a signature allocates beyond the solid, mostly Embree's, which aborts the process
@@ -223,8 +336,10 @@ def limit_memory(limit: int | None) -> bool:
 
 
 def _worker_main(conn, params: StoreParams, root: str, parent: int, memory_limit: int | None = None) -> None:
+    from ..io.contained import run_here
     from ..system import keep_freed_memory
 
+    run_here()  # this process contains native crashes and hangs already: no child per file
     _die_with_parent()
     limit_memory(memory_limit)
     keep_freed_memory()
@@ -343,24 +458,32 @@ class WorkerPool:
         self.root = root
         self.timeout = timeout or None
         self.workers: list[_Worker] = []
+        #: Worker processes started (the first ones and every replacement): each pays the imports.
+        self.started = 0
 
     def run(self, tasks, wake_every: float = 1.0):
         """Yield an :class:`Outcome` per task (in completion order), or None at least every ``wake_every`` s.
 
         The None ticks let the caller commit on time while every worker is busy on slow files.
         """
+        try:
+            count = len(tasks)
+        except TypeError:
+            count = self.size
+        # as many workers as there are files, up to the pool's size, importing side by side;
+        # a build with nothing to do starts none
+        idle = [self._spawn() for _ in range(min(self.size, count))]
         pending = iter(tasks)
-        idle = [self._spawn() for _ in range(self.size)]
         busy: list[_Worker] = []
         exhausted = False
         try:
             while True:
-                while idle and not exhausted:
+                while (idle or len(busy) < self.size) and not exhausted:
                     task = next(pending, None)
                     if task is None:
                         exhausted = True
                         break
-                    worker = idle.pop()
+                    worker = idle.pop() if idle else self._spawn()
                     if not worker.process.is_alive():  # died while idle (killed from outside)
                         worker = self._replace(worker)
                     worker.give(task, self.timeout)
@@ -372,6 +495,7 @@ class WorkerPool:
             self.close()
 
     def _spawn(self) -> _Worker:
+        self.started += 1
         worker = _Worker(self.context, self.params, self.root, self.memory_limit)
         self.workers.append(worker)
         return worker
@@ -445,4 +569,5 @@ def _failure(task: Task, reason: str) -> Outcome:
         size, mtime = stat.st_size, stat.st_mtime_ns
     except OSError:
         size = mtime = 0
-    return Outcome(task, "failed", Entry.failed(task.path, "", size, mtime, reason), size, mtime)
+    entry = Entry.failed(task.path, "", size, mtime, reason)
+    return Outcome(task, "failed" if task.whole else "skipped", entry, size, mtime, parts=_failed_parts(task, entry))

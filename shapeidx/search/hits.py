@@ -30,6 +30,11 @@ class Hit:
         The entry: the path relative to the store's indexed folder.
     metadata : dict
         Key -> value of every metadata key with a value for this entry.
+    parent : str or None
+        A sub-entry's file (``query --parts``), relative to the indexed folder; ``path`` is then
+        that file, absolute, and ``relative_path`` the sub-entry (``FILE#n``). None for a whole file.
+    count : int or None
+        How many times ``parent`` holds the sub-part (None for a whole file).
     """
 
     rank: int
@@ -37,10 +42,15 @@ class Hit:
     path: str
     relative_path: str
     metadata: dict = field(default_factory=dict)
+    parent: str | None = None
+    count: int | None = None
 
     def to_dict(self) -> dict:
-        return {"rank": self.rank, "distance": self.distance, "path": self.path,
-                "relative_path": self.relative_path, "metadata": dict(self.metadata)}
+        out = {"rank": self.rank, "distance": self.distance, "path": self.path,
+               "relative_path": self.relative_path, "metadata": dict(self.metadata)}
+        if self.parent is not None:  # a sub-entry: the fields of a whole file's hit stay as they were
+            out.update(parent=self.parent, count=self.count)
+        return out
 
 
 @dataclass
@@ -83,6 +93,8 @@ class Answer:
     reason: str | None = None
     filters: list = field(default_factory=list)
     signature: object = None
+    #: With ``--max-distance`` and no hit: the nearest distance there was (merging shards' answers).
+    nearest: float | None = None
 
     def to_dict(self) -> dict:
         """The JSON object of one query (docs/cli.md documents every field)."""

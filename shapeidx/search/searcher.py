@@ -109,11 +109,20 @@ class Searcher:
         A file of the store (a journal segment included) fails its checks.
     """
 
-    def __init__(self, store: str | os.PathLike):
+    def __init__(self, store: str | os.PathLike, parts: bool = False):
         from ..store import open_store
+        from ..store.files import parts_store
         from ..store.ranked import ranked_view
 
         self.store = Path(store)
+        #: Whether this searcher ranks the store's sub-entries (``build --parts``) instead of its files.
+        self.parts = parts
+        if parts:
+            self.store = parts_store(store)
+            if not self.store.is_dir():
+                open_store(Path(store)).close()  # no store at all: that error first
+                raise StoreError(f"the store {store} has no sub-parts: build it with 'shapeidx build DIR --store {store}"
+                                 " --parts' (docs/assemblies.md)")
         self.reader = open_store(self.store)
         try:
             check_usable(self.reader)
@@ -125,6 +134,8 @@ class Searcher:
         self.root = self.reader.attrs.get("root") or ""
         self._columns: dict = {}  # metadata key -> its values for every ranked entry, once read
         self._cache: dict = {}  # the metadata table's row of every entry, the keys with a value
+        self._blocks = None  # the BlockIndex of a long-lived searcher (shapeidx.search.blocks)
+        self._searches = 0
 
     def __len__(self) -> int:
         return len(self.view)
@@ -157,7 +168,20 @@ class Searcher:
         return self.reader.signature(index)
 
     def close(self) -> None:
+        self._blocks = None
         self.reader.close()
+
+    def warm(self):
+        """Build the block index (:mod:`shapeidx.search.blocks`) now: what a long-lived process
+        (``serve``, a Python session) does once so that every later query of a big store prunes
+        in blocks instead of bounding every entry. A searcher of at least
+        :data:`~shapeidx.search.blocks.WARM_MIN` entries builds it by itself on its second query."""
+        from .blocks import BlockIndex
+
+        if self._blocks is None and len(self.view):
+            with self.view.checked(None):
+                self._blocks = BlockIndex(self.view)
+        return self._blocks
 
     def __enter__(self) -> "Searcher":
         return self
@@ -369,12 +393,21 @@ class Searcher:
         if answer.reason is not None:
             return answer
         own = query.own if keep is None or query.own is None or keep[query.own] else None
-        chosen, exact = nearest(self.view, query.signature, metric, top, keep, own, filters.max_distance, threads)
+        from .blocks import WARM_MIN
+
+        self._searches += 1
+        if self._blocks is None and self._searches > 1 and len(self.view) >= WARM_MIN:
+            self.warm()  # a second query: a long-lived searcher, whose next queries the blocks serve
+        if self._blocks is not None and self._blocks.serves(metric, query.signature):
+            chosen, exact = self._blocks.nearest(query.signature, metric, top, keep, filters.max_distance, threads)
+        else:
+            chosen, exact = nearest(self.view, query.signature, metric, top, keep, own, filters.max_distance, threads)
         valid = np.isfinite(exact)
         if filters.max_distance is not None:
             valid &= exact <= filters.max_distance
         if not valid.any():
             nearest_at = float(np.min(exact)) if len(exact) else float("nan")
+            answer.nearest = nearest_at if np.isfinite(nearest_at) else None
             answer.reason = (f"no hit within --max-distance {filters.max_distance:g}"
                              + (f" (the nearest is at {nearest_at:.6g})" if np.isfinite(nearest_at) else ""))
             return answer
@@ -394,9 +427,27 @@ class Searcher:
         hits = []
         for rank, k in enumerate(order, start=1):
             position, relative = int(positions[near[k]]), str(paths[k])
-            hits.append(Hit(rank, float(distances[near[k]]), absolute(self.root, relative), relative,
-                            self.metadata_at(position)))
+            parent, count = self.parent_at(position) if self.parts else (None, None)
+            hits.append(Hit(rank, float(distances[near[k]]), absolute(self.root, parent or relative), relative,
+                            self.metadata_at(position), parent, count))
         return hits
+
+    def parent_at(self, position: int) -> tuple[str, int]:
+        """The file (relative path) holding the sub-entry at ``position``, and how many times."""
+        from ..store.layout import COUNT_COLUMN, PARENT_COLUMN
+
+        i, row = self.view.locate(position)
+        source = self.view.sources[i]
+        return source.text_at(PARENT_COLUMN, row), int(source.value_at(COUNT_COLUMN, row))
+
+    def parents(self) -> tuple[np.ndarray, np.ndarray]:
+        """The file (relative path) and count of every ranked sub-entry (read once)."""
+        from ..store.layout import COUNT_COLUMN, PARENT_COLUMN
+
+        if "parents" not in self._cache:
+            count = self._file_column(COUNT_COLUMN, None)
+            self._cache["parents"] = (self._file_column(PARENT_COLUMN, None), count.astype(np.int64))
+        return self._cache["parents"]
 
     def empty_reason(self) -> str:
         """Why a store has nothing to rank: no entry yet (a build runs, stopped, or none ran), or none ok."""

@@ -12,6 +12,8 @@ A store is one directory, the unit a user copies, moves, archives or deletes (``
         build.json           the last build: running, finished or stopped (shapeidx stats)
         verified             which main file a build last verified (shapeidx.store.verified)
         thumbs/              rendered thumbnails and the similarity calibration (a cache)
+        parts/               the sub-parts of the files (``build --parts``): a store of its own,
+                             same layout, entries ``FILE#n`` with their parent file
 
 No file a reader may open is ever written in place: every file is written under a temporary
 name, flushed to disk, and renamed into place (atomic on POSIX).
@@ -27,6 +29,13 @@ from pathlib import Path
 import h5py
 
 _BATCH_NAME = re.compile(r"^batch-(\d{10})\.h5$")
+#: The folder of a store that holds its sub-parts' store (``build --parts``).
+PARTS = "parts"
+
+
+def parts_store(store) -> Path:
+    """The store of ``store``'s sub-parts (``STORE/parts``), which ``build --parts`` writes."""
+    return Path(store) / PARTS
 
 
 #: Bytes reserved beyond a write's estimate (HDF5's metadata, chunk indexes).

@@ -66,8 +66,14 @@ ENTRY_COLUMNS.update({name: (np.float64, np.float64) for name in OPTIONAL_COLUMN
 #: id, a VRML WorldInfo title), one string column per key; absent from older files (read as "").
 TEXT_COLUMNS = tuple(f"entries/{key}" for key in FILE_KEYS)
 ENTRY_COLUMNS.update({name: (object, _STR) for name in TEXT_COLUMNS})
+#: Sub-entries (``build --parts``, :mod:`shapeidx.io.parts`), in the same layout: the file an
+#: entry is a sub-part of ("" for a whole file) and how many times that file holds it (1 for a
+#: whole file). Absent from older files: read as "" and 1.
+PARENT_COLUMN, COUNT_COLUMN = "entries/parent", "entries/count"
+ENTRY_COLUMNS[PARENT_COLUMN] = (object, _STR)
+ENTRY_COLUMNS[COUNT_COLUMN] = (np.int64, np.int64)
 #: Every column a file may lack.
-MAY_BE_ABSENT = frozenset(OPTIONAL_COLUMNS) | frozenset(TEXT_COLUMNS)
+MAY_BE_ABSENT = frozenset(OPTIONAL_COLUMNS) | frozenset(TEXT_COLUMNS) | {PARENT_COLUMN, COUNT_COLUMN}
 for _name in HISTOGRAMS:
     ENTRY_COLUMNS[f"histograms/{_name}/mean"] = (np.float64, np.float64)
     ENTRY_COLUMNS[f"histograms/{_name}/bin_width"] = (np.float64, np.float64)
@@ -185,6 +191,10 @@ class Entry:
     angles: tuple = (float("nan"),) * (len(ANGLE_HISTOGRAMS) * ANGLE_BINS)
     title: str = ""
     product_id: str = ""
+    #: A sub-entry's file (its path relative to the root), "" for a whole file.
+    parent: str = ""
+    #: How many times ``parent`` holds this sub-part.
+    count: int = 1
 
     @classmethod
     def indexed(cls, path, hash, size, mtime_ns, signature: Signature, facts: dict, shape: dict | None = None) -> "Entry":
@@ -232,6 +242,8 @@ def entries_to_columns(entries: list[Entry]) -> tuple[dict, dict]:
         columns[name] = np.array([getattr(e, key) for e in entries], dtype=np.float64).reshape(n, width)
     for name in TEXT_COLUMNS:
         columns[name] = object_array([getattr(e, name.split("/")[1]) for e in entries])
+    columns[PARENT_COLUMN] = object_array([e.parent for e in entries])
+    columns[COUNT_COLUMN] = np.array([e.count for e in entries], dtype=np.int64)
     counts = {}
     for name in HISTOGRAMS:
         hists = [e.histograms.get(name, empty) for e in entries]
@@ -275,8 +287,10 @@ TEXT_PRESENT = "any_value"
 
 def missing_column(name: str, rows: int) -> np.ndarray:
     """A column an older file lacks: NaN (rows, width), or "" for a text column."""
-    if name in TEXT_COLUMNS:
+    if name in TEXT_COLUMNS or name == PARENT_COLUMN:
         return object_array([""] * rows)
+    if name == COUNT_COLUMN:
+        return np.ones(rows, dtype=np.int64)
     return np.full((rows, OPTIONAL_COLUMNS[name]), np.nan)
 
 

@@ -1,0 +1,181 @@
+"""Does a pin or a body taken out of a KiCad STEP file find the files that use it? (docs/assemblies.md)
+
+    python scripts/parts_recall.py STORE [--tree ../shared/data/kicad6-step] [--metric weighted ...]
+
+STORE must be built from the tree with ``shapeidx build TREE --store STORE --parts``.
+
+The truth comes from the files' own solid structure, read with OpenCASCADE independently of
+shapeidx's splitting: every solid of every file (plain ``STEPControl_Reader``, ``TopExp`` over
+solids), described by exact B-rep invariants (volume, area, principal moments of inertia,
+from ``BRepGProp``). Two solids are the same part when these agree within 1e-4. For each
+file with several solids, each distinct solid is written out as a STEP file of its own
+(moved by a random rigid motion) and asked ``where-used`` (the library's road,
+shapeidx.search.where_used); the files relevant to it are those holding a solid with its
+invariants, and the count each holds is the truth for the reported ``count``.
+
+Reported per metric: R-precision (of the R files that hold the part, how many are in the
+top R), recall in the top 10, and precision and recall with ``--max-distance`` at a few
+thresholds; and how often the reported count of a relevant file found is right.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import DATA, machine  # noqa: E402
+
+TOLERANCE = 1e-4
+
+
+def solids_of(path: Path) -> list:
+    from OCP.STEPControl import STEPControl_Reader
+    from OCP.TopAbs import TopAbs_SOLID
+    from OCP.TopExp import TopExp_Explorer
+
+    reader = STEPControl_Reader()
+    if str(reader.ReadFile(str(path))).rsplit(".", 1)[-1] != "IFSelect_RetDone":
+        return []
+    reader.TransferRoots()
+    shape = reader.OneShape()
+    out, explorer = [], TopExp_Explorer(shape, TopAbs_SOLID)
+    while explorer.More():
+        out.append(explorer.Current())
+        explorer.Next()
+    return out
+
+
+def invariants(solid) -> np.ndarray:
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+
+    volume, area = GProp_GProps(), GProp_GProps()
+    BRepGProp.VolumeProperties_s(solid, volume)
+    BRepGProp.SurfaceProperties_s(solid, area)
+    m = volume.MatrixOfInertia()
+    inertia = np.linalg.eigvalsh(np.array([[m.Value(i, j) for j in (1, 2, 3)] for i in (1, 2, 3)]))
+    return np.concatenate([[abs(volume.Mass()), area.Mass()], np.sort(inertia)])
+
+
+def same(a: np.ndarray, b: np.ndarray) -> bool:
+    scale = np.maximum(np.abs(a), np.abs(b))
+    return bool(np.all(np.abs(a - b) <= TOLERANCE * scale + 1e-9 * np.max(scale)))
+
+
+def random_rigid(rng):
+    from OCP.gp import gp_Quaternion, gp_Trsf, gp_Vec
+
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    rotation, translation = gp_Trsf(), gp_Trsf()
+    rotation.SetRotation(gp_Quaternion(*q))
+    translation.SetTranslation(gp_Vec(*rng.uniform(-50, 50, 3)))
+    return translation.Multiplied(rotation)
+
+
+def write_solid(solid, trsf, path: Path) -> None:
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_Transform
+    from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
+
+    from shapeidx.io.step import _quiet_opencascade
+
+    _quiet_opencascade()
+    writer = STEPControl_Writer()
+    writer.Transfer(BRepBuilderAPI_Transform(solid, trsf, True).Shape(), STEPControl_AsIs)
+    writer.Write(str(path))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("store")
+    parser.add_argument("--tree", default=str(DATA / "kicad6-step"))
+    parser.add_argument("--metric", action="append", dest="metrics")
+    parser.add_argument("--thresholds", default="0.002,0.005,0.01,0.02")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", dest="json_out")
+    args = parser.parse_args()
+    metrics = args.metrics or ["weighted", "combined-angle", "all-angle", "all"]
+    thresholds = [float(t) for t in args.thresholds.split(",")]
+    tree = Path(args.tree).resolve()
+    rng = np.random.default_rng(args.seed)
+
+    started = time.monotonic()
+    files = sorted(p for p in tree.rglob("*") if p.suffix.lower() in (".step", ".stp"))
+    truth = {}  # relative path -> list of (invariants, solid)
+    for path in files:
+        truth[path.relative_to(tree).as_posix()] = [(invariants(s), s) for s in solids_of(path)]
+    print(f"read {len(files)} files' solids in {time.monotonic() - started:.0f} s", file=sys.stderr)
+
+    queries = []  # (file, solid, invariants, {file: count})
+    for name, solids in truth.items():
+        if len(solids) < 2:
+            continue
+        distinct: list = []
+        for inv, solid in solids:
+            if not any(same(inv, d[0]) for d in distinct):
+                distinct.append((inv, solid))
+        for inv, solid in distinct:
+            holders = {}
+            for other, their in truth.items():
+                n = sum(same(inv, i) for i, _ in their)
+                if n:
+                    holders[other] = n
+            queries.append((name, solid, inv, holders))
+    multi = sum(len(s) >= 2 for s in truth.values())
+    print(f"{multi} files with several solids, {len(queries)} distinct solids asked", file=sys.stderr)
+
+    from shapeidx.search import Searcher
+    from shapeidx.search.where_used import where_used
+
+    results = {m: {"r_precision": [], "recall_10": [], "count_right": [], "count_asked": 0,
+                   "at": {t: [0, 0, 0] for t in thresholds}} for m in metrics}
+    with tempfile.TemporaryDirectory() as folder, Searcher(args.store, parts=True) as searcher:
+        for k, (name, solid, inv, holders) in enumerate(queries):
+            path = Path(folder) / f"q{k}.step"
+            write_solid(solid, random_rigid(rng), path)
+            question = searcher.query_of_part(str(path))
+            for metric in metrics:
+                answer = where_used(searcher, question, top=max(10, len(holders)), metric=metric)
+                ranked = [u.relative_path for u in answer.uses]
+                r = len(holders)
+                res = results[metric]
+                res["r_precision"].append(len(set(ranked[:r]) & set(holders)) / r)
+                res["recall_10"].append(len(set(ranked[:10]) & set(holders)) / r)
+                for use in answer.uses[:r]:
+                    if use.relative_path in holders:
+                        res["count_asked"] += 1
+                        res["count_right"].append(use.count == holders[use.relative_path])
+                for t in thresholds:
+                    within = {u.relative_path for u in answer.uses if u.distance <= t}
+                    if len(answer.uses) and answer.uses[-1].distance <= t:  # the list may go further
+                        within = {u.relative_path for u in where_used(searcher, question, top=10**6, metric=metric,
+                                                                       max_distance=t).uses}
+                    found = len(within & set(holders))
+                    res["at"][t][0] += found
+                    res["at"][t][1] += len(within)
+                    res["at"][t][2] += r
+    summary = {"machine": machine(), "tree": str(tree), "files": len(files), "multi_solid_files": multi,
+               "queries": len(queries), "relevant_files": int(sum(len(q[3]) for q in queries)), "metrics": {}}
+    for metric, res in results.items():
+        summary["metrics"][metric] = {
+            "r_precision": float(np.mean(res["r_precision"])),
+            "recall_top10": float(np.mean(res["recall_10"])),
+            "count_right": f"{sum(res['count_right'])}/{len(res['count_right'])}",
+            "thresholds": {str(t): {"precision": (f / w if w else float("nan")), "recall": f / r}
+                           for t, (f, w, r) in res["at"].items()},
+        }
+    text = json.dumps(summary, indent=1)
+    print(text)
+    if args.json_out:
+        Path(args.json_out).write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,139 @@
+"""Where is a part used? The files that hold a sub-part like it, nearest first.
+
+    with Searcher("library.shapeidx", parts=True) as searcher:   # built with --parts
+        query = searcher.query_of_part("pin.step")               # or query_of_entry("a.step#3")
+        answer = where_used(searcher, query, top=10, metric="weighted")
+        for use in answer.uses:
+            print(use.rank, use.distance, use.path, use.count, use.part)
+
+Every sub-entry of the store (``FILE#n``, :mod:`shapeidx.io.parts`; a file that is one part
+is its own ``FILE#1``) is ranked by its distance to the query, through the same distances as
+``query`` (:func:`shapeidx.search.distances.nearest`); the files are then ranked by their
+nearest sub-part. A file's ``count`` is how many times it holds that nearest sub-part; with
+``max_distance`` it is how many times it holds any sub-part within that distance, and
+``parts`` lists them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .distances import RANK_THREADS, nearest
+from .hits import absolute
+
+
+@dataclass
+class Use:
+    """One file that holds a sub-part like the query.
+
+    Attributes
+    ----------
+    rank : int
+    distance : float
+        Of its nearest sub-part.
+    path : str
+        The file, absolute.
+    relative_path : str
+        The file, relative to the indexed folder (its whole-file entry).
+    part : str
+        Its nearest sub-part's entry (``FILE#n``, what ``--id`` takes).
+    title : str
+        That sub-part's name in the file ("" when it has none).
+    count : int
+        How many times the file holds the nearest sub-part (with ``max_distance``: any
+        sub-part within it).
+    parts : list of str
+        With ``max_distance``: every sub-part of the file within it; else the nearest alone.
+    """
+
+    rank: int
+    distance: float
+    path: str
+    relative_path: str
+    part: str
+    title: str
+    count: int
+    parts: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {"rank": self.rank, "distance": self.distance, "path": self.path, "relative_path": self.relative_path,
+                "part": self.part, "title": self.title, "count": self.count, "parts": list(self.parts)}
+
+
+@dataclass
+class WhereUsed:
+    """The answer of :func:`where_used`: the files, nearest first, and what was asked."""
+
+    query: str
+    entry: str | None
+    metric: str
+    store: str
+    root: str
+    sub_entries: int
+    files: int
+    uses: list
+    max_distance: float | None = None
+    reason: str | None = None
+
+    def to_dict(self) -> dict:
+        return {"query": self.query, "entry": self.entry, "metric": self.metric, "store": self.store,
+                "root": self.root, "sub_entries": self.sub_entries, "files": self.files,
+                "max_distance": self.max_distance, "uses": [use.to_dict() for use in self.uses]}
+
+
+def where_used(searcher, query, top: int = 10, metric: str = "weighted", max_distance: float | None = None,
+               threads: int = RANK_THREADS) -> WhereUsed:
+    """The ``top`` files holding a sub-part nearest to ``query`` (see the module docstring).
+
+    ``searcher`` is a :class:`~shapeidx.search.searcher.Searcher` opened with ``parts=True``;
+    ``query`` one of its :class:`~shapeidx.search.searcher.Query`.
+    """
+    from ..distance.metrics import metric as metric_record
+
+    metric_record(metric)
+    if top < 1:
+        raise ValueError(f"top must be at least 1, not {top}")
+    n = len(searcher.view)
+    answer = WhereUsed(query.label, query.entry, metric, str(searcher.store.resolve()), searcher.root, n, 0, [],
+                       max_distance)
+    if n == 0:
+        answer.reason = searcher.empty_reason()
+        return answer
+    parents, counts = searcher.parents()
+    parents = np.array([p or searcher.view.path_at(i) for i, p in enumerate(parents)], dtype=object) if (
+        parents == "").any() else parents
+    answer.files = len(set(parents.tolist()))
+    positions, distances = nearest(searcher.view, query.signature, metric, n, None, query.own, max_distance, threads)
+    valid = np.isfinite(distances)
+    positions, distances = positions[valid], distances[valid]
+    order = np.lexsort((positions, distances))
+    positions, distances = positions[order], distances[order]
+    uses: dict = {}
+    for position, distance in zip(positions.tolist(), distances.tolist()):
+        parent = parents[position]
+        within = max_distance is not None and distance <= max_distance
+        use = uses.get(parent)
+        if use is None:
+            if max_distance is not None and not within:
+                continue
+            if len(uses) >= top:
+                if max_distance is None:
+                    break
+                continue
+            part = searcher.view.path_at(position)
+            title = searcher.metadata_at(position).get("title", "")
+            uses[parent] = Use(0, float(distance), absolute(searcher.root, parent), parent, part, title,
+                               int(counts[position]), [part])
+        elif within:
+            use.count += int(counts[position])
+            use.parts.append(searcher.view.path_at(position))
+    answer.uses = sorted(uses.values(), key=lambda u: (u.distance, u.relative_path))
+    for rank, use in enumerate(answer.uses, start=1):
+        use.rank = rank
+    if not answer.uses:
+        nearest_at = float(distances[0]) if len(distances) else float("nan")
+        answer.reason = (f"no sub-part within --max-distance {max_distance:g} (the nearest is at {nearest_at:.6g})"
+                         if max_distance is not None and np.isfinite(nearest_at) else "no sub-part could be ranked")
+    return answer

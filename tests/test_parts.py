@@ -1,0 +1,305 @@
+"""Sub-parts (``build --parts``, ``where-used``, ``query --parts``): files split into their
+solids and bodies, identical ones counted once, each signed in its own frame.
+
+Assemblies are made here by OpenCASCADE (a pin placed at random rigid motions, as XCAF
+components or as transformed copies of its geometry) and written by its own STEP writers;
+the counts are checked against the placements made, and against the solids a real KiCad
+file declares (its MANIFOLD_SOLID_BREP entities, counted in its text).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+import shapeidx
+from shapeidx.io.parts import own_frame, split_parts
+from shapeidx.signing.pipeline import signature_of_file, signature_of_solid
+from shapeidx.signing.solid import make_solid
+from shapeidx.store import open_store
+from shapeidx.store.files import main_file, parts_store
+
+from clitools import assert_one_line_error, cli
+from test_step import write_assembly, write_step
+
+pytest.importorskip("OCP")
+
+
+def _pin(length: float = 8.0):
+    """An L-shaped pin (no symmetry that would leave its frame undefined)."""
+    from OCP.BRepAlgoAPI import BRepAlgoAPI_Fuse
+    from OCP.BRepPrimAPI import BRepPrimAPI_MakeBox
+    from OCP.gp import gp_Pnt
+
+    leg = BRepPrimAPI_MakeBox(0.6, 0.6, length).Shape()
+    foot = BRepPrimAPI_MakeBox(gp_Pnt(0, 0, length - 0.6), 0.6, 3.0, 0.6).Shape()
+    return BRepAlgoAPI_Fuse(leg, foot).Shape()
+
+
+def _body(dx=20.0, dy=10.0, dz=5.0):
+    from OCP.BRepPrimAPI import BRepPrimAPI_MakeBox
+
+    return BRepPrimAPI_MakeBox(dx, dy, dz).Shape()
+
+
+def _rigid(rng):
+    """A random rotation (uniform quaternion) then a random translation."""
+    from OCP.gp import gp_Quaternion, gp_Trsf, gp_Vec
+
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    rotation, translation = gp_Trsf(), gp_Trsf()
+    rotation.SetRotation(gp_Quaternion(*q))
+    translation.SetTranslation(gp_Vec(*rng.uniform(-30, 30, 3)))
+    return translation.Multiplied(rotation)
+
+
+def _located(shape, trsf):
+    from OCP.TopLoc import TopLoc_Location
+
+    return shape, TopLoc_Location(trsf)
+
+
+def _moved_copy(shape, trsf):
+    """The geometry itself transformed (a new solid, as KiCad's generators write pins)."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_Transform
+
+    return BRepBuilderAPI_Transform(shape, trsf, True).Shape()
+
+
+def _compound(shapes):
+    from OCP.BRep import BRep_Builder
+    from OCP.TopoDS import TopoDS_Compound
+
+    compound, builder = TopoDS_Compound(), BRep_Builder()
+    builder.MakeCompound(compound)
+    for shape in shapes:
+        builder.Add(compound, shape)
+    return compound
+
+
+def _xcaf_assembly(path: Path, body, pin, pins: int, seed: int) -> Path:
+    from OCP.TopLoc import TopLoc_Location
+
+    rng = np.random.default_rng(seed)
+    return write_assembly(path, [(body, TopLoc_Location())] + [_located(pin, _rigid(rng)) for _ in range(pins)])
+
+
+def _baked_assembly(path: Path, body, pin, pins: int, seed: int) -> Path:
+    rng = np.random.default_rng(seed)
+    return write_step(_compound([body] + [_moved_copy(pin, _rigid(rng)) for _ in range(pins)]), path)
+
+
+def _solids_declared(path: Path) -> int:
+    return len(re.findall(rb"MANIFOLD_SOLID_BREP\s*\(", Path(path).read_bytes()))
+
+
+def _distance(a, b, metric="weighted") -> float:
+    return shapeidx.compare(a, b)[metric]
+
+
+class TestSplit:
+    def test_xcaf_assembly_counts_the_placed_pins(self, tmp_path):
+        path = _xcaf_assembly(tmp_path / "a.step", _body(), _pin(), 6, seed=1)
+        parts = split_parts(path)
+        assert sorted(p.count for p in parts) == [1, 6]
+
+    def test_transformed_copies_are_found_identical(self, tmp_path):
+        """Five separate solids (no instancing in the file) that are the same pin moved."""
+        path = _baked_assembly(tmp_path / "b.step", _body(), _pin(), 5, seed=2)
+        assert _solids_declared(path) == 6
+        parts = split_parts(path)
+        assert sorted(p.count for p in parts) == [1, 5]
+
+    def test_a_different_pin_is_not_counted_with_the_others(self, tmp_path):
+        rng = np.random.default_rng(3)
+        shapes = [_body()] + [_moved_copy(_pin(), _rigid(rng)) for _ in range(3)] + [_moved_copy(_pin(8.4), _rigid(rng))]
+        parts = split_parts(write_step(_compound(shapes), tmp_path / "c.step"))
+        assert sorted(p.count for p in parts) == [1, 1, 3]
+
+    def test_one_solid_is_one_part(self, tmp_path):
+        assert split_parts(write_step(_pin(), tmp_path / "pin.step")) is None
+
+    def test_real_kicad_file_matches_its_declared_solids(self, data_dir):
+        path = data_dir / "kicad6-step" / "Transformer_THT" / "Transformer_CHK_EI54-12VA_Neutral.step"
+        parts = split_parts(path)
+        assert sum(p.count for p in parts) == _solids_declared(path) == 15
+        assert all(p.name.startswith("Transformer_CHK_EI54_12VA_Neutral") for p in parts)  # its products' names
+        assert max(p.count for p in parts) > 1  # the pins, counted
+        single = data_dir / "kicad6-step" / "Battery" / "BatteryHolder_Keystone_500.step"
+        assert _solids_declared(single) == 1 and split_parts(single) is None
+
+    def test_kicad_vrml_bodies_are_the_solids_of_its_step_twin(self, data_dir):
+        """Mesh connectivity of the VRML export against OpenCASCADE's solids of the STEP file."""
+        name = "Transformer_THT/Transformer_CHK_EI54-12VA_Neutral"
+        vrml, step = split_parts(data_dir / "kicad6" / f"{name}.wrl"), split_parts(data_dir / "kicad6-step" / f"{name}.step")
+        assert sum(p.count for p in vrml) == sum(p.count for p in step) == 15
+        assert sorted(p.count for p in vrml) != [1] * len(vrml)  # its pins found identical in the mesh too
+
+    def test_mesh_bodies(self, tmp_path):
+        trimesh = pytest.importorskip("trimesh")
+        rng = np.random.default_rng(4)
+        pieces = [trimesh.creation.box((1, 2, 5)), trimesh.creation.icosphere(2, radius=3)]
+        moved = trimesh.creation.box((1, 2, 5))
+        q = rng.normal(size=4)
+        moved.apply_transform(trimesh.transformations.quaternion_matrix(q / np.linalg.norm(q)))
+        moved.apply_translation((20, -5, 7))
+        pieces.append(moved)
+        path = tmp_path / "three.stl"
+        trimesh.util.concatenate(pieces).export(path)
+        parts = split_parts(path)
+        assert sorted(p.count for p in parts) == [1, 2]
+        single = tmp_path / "one.stl"
+        trimesh.creation.box((1, 2, 5)).export(single)
+        assert split_parts(single) is None
+
+
+class TestOwnFrame:
+    def test_own_frame_undoes_a_rigid_motion(self):
+        trimesh = pytest.importorskip("trimesh")
+        mesh = trimesh.creation.cylinder(radius=1, height=4, sections=24)
+        mesh = trimesh.util.concatenate([mesh, trimesh.creation.box((3, 1, 0.5))])  # not symmetric
+        mesh.apply_translation((0.3, 2.0, 1.1))
+        rng = np.random.default_rng(5)
+        q = rng.normal(size=4)
+        matrix = trimesh.transformations.quaternion_matrix(q / np.linalg.norm(q))
+        matrix[:3, 3] = (10, -4, 2)
+        moved = trimesh.transformations.transform_points(mesh.vertices, matrix)
+        a = own_frame(mesh.vertices, mesh.faces)
+        b = own_frame(moved, mesh.faces)
+        np.testing.assert_allclose(a, b, atol=1e-9)
+
+    def test_the_same_pin_signs_the_same_anywhere(self, tmp_path):
+        """The pin taken out of two assemblies (placed at random, instanced and copied) and
+        the pin written alone: all within rounding of each other, farther from a 5% longer
+        pin and far from the body."""
+        body, pin = _body(), _pin()
+        signatures = {}
+        for name, make in (("xcaf", _xcaf_assembly), ("baked", _baked_assembly)):
+            parts = split_parts(make(tmp_path / f"{name}.step", body, pin, 4, seed=len(name)))
+            (pin_part,) = [p for p in parts if p.count == 4]
+            (body_part,) = [p for p in parts if p.count == 1]
+            signatures[name] = signature_of_solid(make_solid(pin_part.mesh))
+            signatures[f"{name} body"] = signature_of_solid(make_solid(body_part.mesh))
+        signatures["alone"] = signature_of_file(write_step(pin, tmp_path / "pin.step"))
+        signatures["longer"] = signature_of_file(write_step(_pin(8.4), tmp_path / "longer.step"))
+        same = [_distance(signatures[a], signatures[b]) for a, b in (("xcaf", "baked"), ("xcaf", "alone"), ("baked", "alone"))]
+        other = min(_distance(signatures[a], signatures["longer"]) for a in ("xcaf", "baked", "alone"))
+        body = min(_distance(signatures[a], signatures[f"{b} body"]) for a in ("xcaf", "baked", "alone") for b in ("xcaf", "baked"))
+        assert max(same) < other < body
+        assert max(same) < 0.2 * body
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory):
+    """Two assemblies using the same pin (4 and 6 times), one using another pin, and a part
+    without pins; the pin alone as a query from outside the tree."""
+    root = tmp_path_factory.mktemp("library")
+    (root / "boards").mkdir()
+    pin, other_pin = _pin(), _pin(14.0)
+    _baked_assembly(root / "boards" / "four.step", _body(), pin, 4, seed=11)
+    _xcaf_assembly(root / "boards" / "six.step", _body(30, 8, 6), pin, 6, seed=12)
+    _baked_assembly(root / "boards" / "other.step", _body(16, 16, 4), other_pin, 3, seed=13)
+    write_step(_body(12, 12, 12), root / "cube.step")
+    query = write_step(_moved_copy(pin, _rigid(np.random.default_rng(14))), root.parent / "pin-query.step")
+    return root, query
+
+
+def _build(root, store, *more):
+    result = cli("build", root, "--store", store, "--workers", "1", "-q", *more)
+    assert result.exit_code == 0, result.output + result.stderr
+    return result
+
+
+class TestBuildAndWhereUsed:
+    def test_where_used_finds_the_assemblies_of_the_pin(self, library, tmp_path):
+        root, query = library
+        store = tmp_path / "s.shapeidx"
+        _build(root, store, "--parts")
+        result = cli("where-used", query, "--store", store, "--top", "2", "--json")
+        assert result.exit_code == 0, result.output
+        answer = json.loads(result.stdout)
+        uses = {u["relative_path"]: u["count"] for u in answer["uses"]}
+        assert uses == {"boards/four.step": 4, "boards/six.step": 6}
+        assert all(u["part"].startswith(u["relative_path"] + "#") for u in answer["uses"])
+        # by an entry: the pin of six.step finds four.step at once
+        part = [u["part"] for u in answer["uses"] if u["relative_path"] == "boards/six.step"][0]
+        csv = cli("where-used", "--id", part, "--store", store, "--top", "2", "--format", "csv")
+        assert csv.exit_code == 0, csv.output
+        assert {line.split(",")[4] for line in csv.stdout.splitlines()[1:]} == {"boards/four.step", "boards/six.step"}
+
+    def test_query_ranks_files_by_default_and_sub_parts_with_parts(self, library, tmp_path):
+        root, query = library
+        store = tmp_path / "s.shapeidx"
+        _build(root, store, "--parts")
+        whole = json.loads(cli("query", query, "--store", store, "--top", "10", "--json").stdout)
+        assert {h["relative_path"] for h in whole["hits"]} == {"boards/four.step", "boards/six.step",
+                                                               "boards/other.step", "cube.step"}
+        assert all("parent" not in h for h in whole["hits"])
+        parts = json.loads(cli("query", query, "--store", store, "--top", "2", "--parts", "--json").stdout)
+        assert {h["parent"] for h in parts["hits"]} == {"boards/four.step", "boards/six.step"}
+        for hit in parts["hits"]:
+            assert hit["relative_path"].startswith(hit["parent"] + "#")
+            assert hit["path"] == str(root / hit["parent"])
+            assert hit["count"] == {"boards/four.step": 4, "boards/six.step": 6}[hit["parent"]]
+        with open_store(parts_store(store)) as reader:  # a file that is one part is its own FILE#1
+            assert "cube.step#1" in set(reader.paths)
+
+    def test_whole_file_entries_do_not_change_with_parts(self, library, tmp_path):
+        root, _ = library
+        plain, with_parts = tmp_path / "plain.shapeidx", tmp_path / "parts.shapeidx"
+        _build(root, plain)
+        _build(root, with_parts, "--parts")
+        with open_store(plain) as a, open_store(with_parts) as b:
+            assert list(a.paths) == list(b.paths)
+            for i in range(len(a)):
+                for name in ("all", "in", "out", "mixed"):
+                    assert np.array_equal(a.signature(i).histograms[name].counts, b.signature(i).histograms[name].counts)
+
+    def test_incremental(self, library, tmp_path):
+        root, _ = tmp_path / "tree", None
+        shutil.copytree(library[0], root)
+        store = tmp_path / "s.shapeidx"
+        _build(root, store)  # without parts first: a later --parts signs only the sub-parts
+        with open_store(store) as reader:
+            before = reader.column("entries/mtime_ns").copy(), reader.column("entries/hash").copy()
+        summary = json.loads(_build(root, store, "--parts", "--json").stdout)
+        assert summary["indexed"] == 0 and summary["parts"]["entries"] >= 4 + 3
+        with open_store(store) as reader:
+            assert np.array_equal(reader.column("entries/hash"), before[1])
+        again = json.loads(_build(root, store, "--parts", "--json").stdout)
+        assert again["indexed"] == 0 and again["parts"]["indexed"] == 0
+        (root / "boards" / "six.step").unlink()
+        _build(root, store, "--parts")
+        with open_store(parts_store(store)) as reader:
+            assert not [p for p in reader.paths if p.startswith("boards/six.step")]
+            assert [p for p in reader.paths if p.startswith("boards/four.step#")]
+
+    def test_store_without_parts(self, library, tmp_path):
+        root, query = library
+        store = tmp_path / "s.shapeidx"
+        _build(root, store)
+        for args in (("where-used", query), ("query", query, "--parts")):
+            result = cli(*args, "--store", store)
+            assert_one_line_error(result, store)
+            assert "--parts" in result.stderr
+
+    def test_a_main_file_without_the_new_columns_still_opens(self, library, tmp_path):
+        """A store written before sub-parts lacks entries/parent and entries/count: read as "" and 1."""
+        root, query = library
+        store = tmp_path / "s.shapeidx"
+        _build(root, store)
+        with h5py.File(main_file(store), "r+") as f:
+            del f["entries/parent"], f["entries/count"]
+        with open_store(store) as reader:
+            assert set(reader.column("entries/parent")) == {""}
+            assert set(reader.column("entries/count")) == {1}
+        result = cli("query", query, "--store", store, "--top", "1")
+        assert result.exit_code == 0, result.output
+        assert "boards/" in result.stdout
