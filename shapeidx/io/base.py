@@ -123,6 +123,18 @@ def open_regular(path: str | os.PathLike):
         raise
 
 
+def read_regular(path: str | os.PathLike, limit: int | None = None) -> bytes:
+    """A small file's bytes through :func:`open_regular` (never blocks on a FIFO); more than
+    ``limit`` bytes raise :class:`OSError` (a record of a few bytes grown to gigabytes)."""
+    import errno
+
+    with open_regular(path) as f:
+        data = f.read(-1 if limit is None else limit + 1)
+    if limit is not None and len(data) > limit:
+        raise OSError(errno.EFBIG, f"larger than {limit:,} bytes", os.fspath(path))
+    return data
+
+
 def file_hash(path: str | os.PathLike) -> str:
     """SHA-256 of a file's bytes, as 64 hex digits (what a store entry records)."""
     import hashlib
