@@ -185,3 +185,26 @@ def test_a_fifo_in_place_of_a_store_file_never_blocks(store, name):
             assert result.returncode == 5
         if name == "lock" and args[0] == "build":
             assert result.returncode == 1 and "not a regular file" in result.stderr
+
+
+def test_a_damaged_metadata_table_is_found_by_check_and_written_again(data_dir, tmp_path):
+    """metadata.h5 cut in half: every command that reads it said damaged (5) but check passed
+    it (0), and build --metadata, the one way to mend it, refused too."""
+    import os
+
+    tree = small_kicad(data_dir, tmp_path, ("LED_SMD",))
+    table = tmp_path / "meta.csv"
+    table.write_text("path,material\n" + "".join(f"LED_SMD/{p.name},steel\n" for p in sorted((tree / "LED_SMD").iterdir())))
+    store = tmp_path / "s.shapeidx"
+    assert build(tree, store, "--metadata", table).exit_code == 0
+    meta = store / "metadata.h5"
+    os.truncate(meta, meta.stat().st_size // 2)
+    check = run_shapeidx("check", "--store", store, timeout=TIMEOUT)
+    assert check.returncode == 5 and "metadata.h5" in check.stdout + check.stderr, check.stdout + check.stderr
+    assert run_shapeidx("stats", "--store", store, timeout=TIMEOUT).returncode == 5
+    again = run_shapeidx("build", tree, "--store", store, "--metadata", table, "--points", "128", "--workers", "1",
+                         timeout=4 * TIMEOUT)
+    assert again.returncode == 0 and "metadata table was damaged" in again.stderr, again.stderr
+    assert run_shapeidx("check", "--store", store, timeout=TIMEOUT).returncode == 0
+    stats = run_shapeidx("stats", "--store", store, timeout=TIMEOUT)
+    assert stats.returncode == 0 and "material" in stats.stdout
