@@ -82,3 +82,18 @@ def test_unforeseen_exceptions_are_said_in_words():
     assert caught[5].startswith("a value of the wrong kind")
     for text in caught:
         assert not RAW.search(text) and text.endswith(f"{UNFORESEEN} (please report the file)")
+
+
+def test_an_opencascade_exception_is_said_in_words(tmp_path):
+    """A real exception of OpenCASCADE's (a zero vector made a direction raises
+    ``Standard_ConstructionError``) in one of the reader's steps: its class and message
+    stay out of the line, which says which step failed and why in words."""
+    from OCP.gp import gp_Dir
+
+    from shapeidx.io.step import _occt
+
+    with pytest.raises(LoadError) as caught:
+        _occt(tmp_path / "part.igs", "mesh its faces", gp_Dir, 0.0, 0.0, 0.0)
+    message = str(caught.value)
+    assert message.startswith(f"{tmp_path / 'part.igs'}: OpenCASCADE could not mesh its faces: ")
+    assert not RAW.search(message) and "zero norm" not in message, message

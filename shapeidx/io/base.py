@@ -88,6 +88,17 @@ class LoadLimits:
             )
 
 
+    def check_reading(self, path, need: int, what: str) -> None:
+        """Raise LoadError when reading a file would take ``need`` bytes, more than
+        ``max_bytes``; ``what`` says for what ("to split its 75,000,000 coordIndex values")."""
+        if need > self.max_bytes:
+            raise LoadError(
+                path,
+                f"would need about {_binary_size(need)} of memory {what}, more than the limit of "
+                f"{_binary_size(self.max_bytes)} (refused as a possible bomb)",
+            )
+
+
 class NotRegularFile(OSError):
     """A name that is a FIFO, socket or device, not a file: ``str()`` says which."""
 
@@ -182,6 +193,12 @@ class Format:
     weak : bool
         The sniff test is a last resort (binary STL has no magic number): tried after
         every other format's.
+    declared : callable or None
+        ``declared(data) -> (triangles, vertices)``: at least how many triangles and
+        vertices the file says it holds (header counts, ``f`` lines, ``endfacet``), found
+        without reading it (a header, or a count of bytes in C), and never more than its
+        bytes can hold. :func:`shapeidx.io.load` checks the memory they need
+        (:meth:`LoadLimits.check_memory`) before the reader spends it.
     """
 
     name: str
@@ -190,6 +207,7 @@ class Format:
     read: Callable
     sniff: Callable | None = None
     weak: bool = False
+    declared: Callable | None = None
 
 
 @dataclass
@@ -278,6 +296,13 @@ def read_bytes(path: str | os.PathLike, limits: LoadLimits | None = None) -> tup
 def gunzip_bounded(source, path: Path, max_bytes: int) -> bytes:
     """Decompress gzip data from ``source`` (a path, an open file or the compressed bytes), refusing to
     expand beyond ``max_bytes``; ``path`` names the file in errors."""
+    declared = _gzip_declared_size(source)
+    if declared is not None and declared > max_bytes:
+        raise LoadError(
+            path,
+            f"gzip data expands beyond the limit of {max_bytes:,} bytes (it declares {declared:,};"
+            f" refused as a possible bomb)",
+        )
     if isinstance(source, (bytes, bytearray, memoryview)):
         source = io.BytesIO(source)
     chunks = []
@@ -300,6 +325,30 @@ def gunzip_bounded(source, path: Path, max_bytes: int) -> bytes:
     except (OSError, EOFError, zlib.error) as exc:
         raise LoadError(path, f"corrupt gzip data ({exc})") from None
     return b"".join(chunks)
+
+
+def _gzip_declared_size(source) -> int | None:
+    """The uncompressed size a gzip stream's last member declares (ISIZE, its last four
+    bytes: the size modulo 2^32), or None when it cannot be read. A lie can only make the
+    streaming limit the one that refuses."""
+    try:
+        if isinstance(source, (bytes, bytearray, memoryview)):
+            tail = bytes(source[-4:]) if len(source) >= 18 else b""
+        elif hasattr(source, "seek"):  # an open file: read its end, then go back
+            at = source.tell()
+            try:
+                source.seek(0, os.SEEK_END)
+                if source.tell() < 18:
+                    return None
+                source.seek(-4, os.SEEK_END)
+                tail = source.read(4)
+            finally:
+                source.seek(at)
+        else:
+            return None
+    except (OSError, ValueError):
+        return None
+    return int.from_bytes(tail, "little") if len(tail) == 4 else None
 
 
 #: Largest coordinate magnitude, and largest extent, that cleaning computes with: areas grow

@@ -257,12 +257,15 @@ def _check_iges_sections(path: Path, data: bytes) -> None:
     delimiters, or whose Hollerith string (``nH...``) claims more characters than are left.
     """
     letters, global_body = [], []
+    directory = []  # the Directory section's sequence numbers (columns 74-80)
     for line in data.splitlines():
         if len(line) < 73 or line[72:73] not in _IGES_ORDER:
             continue
         letter = line[72:73]
         if letter == b"G":
             global_body.append(line[:72])
+        elif letter == b"D":
+            directory.append(line[73:80].strip())
         if not letters or letters[-1] != letter:
             letters.append(letter)
     order = [_IGES_ORDER[x] for x in letters]
@@ -273,6 +276,25 @@ def _check_iges_sections(path: Path, data: bytes) -> None:
     problem = _global_section_problem(b"".join(global_body))
     if problem:
         raise LoadError(path, f"not a valid IGES file (Global section: {problem})")
+    problem = _directory_problem(directory)
+    if problem:
+        raise LoadError(path, f"not a valid IGES file (Directory section: {problem})")
+
+
+def _directory_problem(numbers: list) -> str | None:
+    """What is wrong with the Directory section's line numbering, or None.
+
+    Each entry is two lines, numbered D1, D2, ... without a gap. OpenCASCADE pairs the lines
+    by position: with one line missing (or one too many) every later entry is read from two
+    halves of different entries, and OpenCASCADE 7 dies with a segmentation fault.
+    """
+    for expected, number in enumerate(numbers, start=1):
+        if not number.isdigit() or int(number) != expected:
+            shown = str(int(number)) if number.isdigit() else repr(number.decode("ascii", "replace"))
+            return f"line {expected} is numbered {shown} (a line missing or out of place)"
+    if len(numbers) % 2:
+        return f"{len(numbers)} lines, an odd number (each entry has two: a line is missing)"
+    return None
 
 
 _HOLLERITH = re.compile(rb"\s*(\d+)H")

@@ -60,4 +60,15 @@ def _from_corners(path, corners: np.ndarray, fmt: str) -> PolygonMesh:
     return PolygonMesh.from_triangles(vertices, np.arange(len(vertices)).reshape(-1, 3), fmt)
 
 
-FORMATS = [Format("stl", "STL", SUFFIXES["stl"], read_stl, sniff=lambda data: head_of(data)[:5].lower() == b"solid" or len(data) >= 84, weak=True)]
+def declared_stl(data: bytes) -> tuple[int, int]:
+    """Triangles: the binary header's count when the length agrees with it, else ASCII
+    ``endfacet`` records (counted in C); three vertices each."""
+    if len(data) >= 84:
+        count = int(np.frombuffer(data, dtype="<u4", count=1, offset=80)[0])
+        if len(data) == 84 + 50 * count:
+            return count, 3 * count
+    count = data.count(b"endfacet") + data.count(b"ENDFACET")
+    return count, 3 * count
+
+
+FORMATS = [Format("stl", "STL", SUFFIXES["stl"], read_stl, declared=declared_stl, sniff=lambda data: head_of(data)[:5].lower() == b"solid" or len(data) >= 84, weak=True)]
