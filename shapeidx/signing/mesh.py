@@ -345,8 +345,8 @@ def _far_corners(vertices, triangles, used, inverse):
         found = False
         for axis in range(3):
             keep = np.flatnonzero(~far)
-            if len(keep) < 8:
-                return None, 0.0, 0.0
+            if len(keep) < 5:  # a far point and at least a tetrahedron
+                break
             order = keep[np.argsort(points[keep, axis], kind="stable")]
             coords = points[order, axis]
             k = int(np.argmax(np.diff(coords)))
