@@ -109,7 +109,9 @@ def open_store(path):
     Use it as a context manager, or close it. It is a :class:`~shapeidx.search.Searcher`:
     pass it to :func:`query`; ``paths``, ``column(name)``, ``counts(name, rows)``,
     ``signature(i)``, ``params`` and ``attrs`` read the store's entries
-    (:class:`~shapeidx.store.StoreReader`).
+    (:class:`~shapeidx.store.StoreReader`). Held open, a store of at least 50,000 entries
+    builds its block index on its second query (``warm()`` builds it at once), after which
+    every query prunes in blocks (docs/performance.md, *A warm searcher*).
     """
     from .search import Searcher
 

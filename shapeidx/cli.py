@@ -867,32 +867,36 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
         emit_json({"collection": directory, "store": str(store_path), **result})
         return
     scores = ("nn", "ft", "st", "e", "dcg")
+    family = ("knn", "nmi", "ari")  # classification and clustering agreement: the whole collection's only
     if fmt != "table":
         rows = []
         for name, figures in result["metrics"].items():
             rows.append({"metric": name, "class": "", **{s: figures[s] for s in scores},
-                         "in_sample": bool(figures.get("in_sample", False))})
+                         **{s: figures.get(s, "") for s in family}, "in_sample": bool(figures.get("in_sample", False))})
             for cls, per in figures.get("per_class", {}).items():
-                rows.append({"metric": name, "class": cls, **{s: per[s] for s in scores},
+                rows.append({"metric": name, "class": cls, **{s: per[s] for s in scores}, **{s: "" for s in family},
                              "in_sample": bool(figures.get("in_sample", False))})
-        emit_rows(fmt, ["metric", "class", *scores, "in_sample"], rows)
+        emit_rows(fmt, ["metric", "class", *scores, *family, "in_sample"], rows)
         return
     click.echo(
         f"{directory}: {result['models']} models in {result['classes']} classes, {result['points']} points"
         + (f" ({result['unlabelled']} files outside class folders left out)" if result["unlabelled"] else "")
     )
-    click.echo(f"{'distance':30s} {'NN':>6s} {'FT':>6s} {'ST':>6s} {'E':>6s} {'DCG':>6s}   {'kNN':>6s} {'NMI':>6s} {'ARI':>6s}")
+    labels = {name: metric_label(name) + (" (in-sample)" if figures.get("in_sample") else "")
+              for name, figures in result["metrics"].items()}
+    width = max([30, *map(len, labels.values())] + [len(c) + 2 for f in result["metrics"].values() for c in f.get("per_class", {})])
+    click.echo(f"{'distance':{width}s} {'NN':>6s} {'FT':>6s} {'ST':>6s} {'E':>6s} {'DCG':>6s}   {'kNN':>6s} {'NMI':>6s} {'ARI':>6s}")
     for name, figures in result["metrics"].items():
-        label = metric_label(name) + (" (in-sample)" if figures.get("in_sample") else "")
-        family = "   " + " ".join(f"{figures[s]:6.3f}" for s in ("knn", "nmi", "ari")) if "knn" in figures else ""
-        click.echo(f"{label:30s} " + " ".join(f"{figures[s]:6.3f}" for s in scores) + family)
+        agreement = "   " + " ".join(f"{figures[s]:6.3f}" for s in family) if "knn" in figures else ""
+        click.echo(f"{labels[name]:{width}s} " + " ".join(f"{figures[s]:6.3f}" for s in scores) + agreement)
         for cls, per in figures.get("per_class", {}).items():
-            click.echo(f"  {cls[:28]:28s} " + " ".join(f"{per[s]:6.3f}" for s in scores))
+            click.echo(f"  {printable(cls):{width - 2}s} " + " ".join(f"{per[s]:6.3f}" for s in scores))
     for name, figures in result["metrics"].items():
         if figures.get("in_sample"):
             click.echo(f"note: {metric_label(name)}'s weights were learned on this collection"
                        f" ({figures['learned_on']}): its figures are in-sample and flatter it;"
-                       " --cross-validate gives out-of-sample ones")
+                       + (" its (cross-validated) row gives out-of-sample ones" if cross_validate
+                          else " --cross-validate gives out-of-sample ones"))
 
 
 # --------------------------------------------------------------------------- families (classify, cluster, duplicates)
@@ -990,11 +994,14 @@ def classify(parts, store, k, metric, label_depth, labels_file, where, scale, ou
     if fmt != "table":
         emit_rows(fmt, ["path", "label", "confidence"], results)
         return
+    width = max([5] + [len(printable(nb["label"])) for r in results for nb in r["neighbours"]])
     for r in results:
         label = r["label"] if r["label"] is not None else "(no voter)"
         click.echo(f"{printable(r['path'])}: {printable(label)} (confidence {r['confidence']:.2f})")
+        if r["neighbours"]:
+            click.echo(f"    {'distance':<11s} {'label':{width}s}  voter")
         for nb in r["neighbours"]:
-            click.echo(f"    {nb['distance']:<11.6g} {printable(nb['label']):24s} {printable(nb['path'])}")
+            click.echo(f"    {nb['distance']:<11.6g} {printable(nb['label']):{width}s}  {printable(nb['path'])}")
 
 
 @main.command(context_settings=CONTEXT)
@@ -1104,14 +1111,20 @@ def duplicates(store, metric, with_near, where, scale, as_csv, output_format, as
     members = sum(len(g["members"]) for g in groups)
     click.echo(f"{len(groups)} group(s) of duplicates, {members} entries, among {len(table)} entries"
                f" ({metric}; tiers {', '.join(tiers)}; most confident first)")
+    def size_of(p):
+        ratio = "?" if p["size_ratio"] is None else f"x{p['size_ratio']:.4g}"
+        return ratio + (f" (unit factor {p['unit']:.4g})" if p.get("unit") else "")
+
+    pairs = [p for group in groups for p in group["pairs"]]
+    tier_width = max([4] + [len(p["tier"]) for p in pairs])
+    size_width = max([4] + [len(size_of(p)) for p in pairs])
     for g, group in enumerate(groups, start=1):
         click.echo(f"group {g}: {len(group['members'])} parts, {group['tier']}, confidence {group['confidence']:.2f}:"
                    f" {printable(group['representative'])}")
+        click.echo(f"  {'tier':{tier_width}s}  {'distance':<10s} {'size':{size_width}s}  {'mirrored':8s}  part")
         for p in group["pairs"]:
-            ratio = "size ?" if p["size_ratio"] is None else f"size x{p['size_ratio']:.4g}"
-            unit = f" (unit factor {p['unit']:.4g})" if p.get("unit") else ""
-            mirror = ", mirrored" if p["mirrored"] else ""
-            click.echo(f"  {p['tier']:9s} {p['distance']:<10.4g} {ratio}{unit}{mirror}  {printable(p['b'])}")
+            click.echo(f"  {p['tier']:{tier_width}s}  {p['distance']:<10.4g} {size_of(p):{size_width}s}"
+                       f"  {'yes' if p['mirrored'] else '':8s}  {printable(p['b'])}")
 
 
 if __name__ == "__main__":  # pragma: no cover

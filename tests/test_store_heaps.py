@@ -124,3 +124,41 @@ def test_a_sound_store_passes_and_a_stray_signature_is_not_a_collection(store, t
     odd = tmp_path / "odd.bin"
     odd.write_bytes(b"GCOL" * 10 + b"GCOL\x02\x00\x00\x00" + b"\xff" * 64 + b"GCOL")  # not collection headers
     check_global_heaps(odd)
+
+
+@pytest.mark.parametrize("offset", [48, 56])
+def test_a_damaged_object_header_is_damage_not_a_bug(store, offset):
+    """A bit flipped in the root group's object header (h5py raises KeyError, not OSError,
+    when it reads the attributes): check and build say damaged (5), --repair rebuilds."""
+    tree, store = store
+    main = store / "main.h5"
+    data = bytearray(main.read_bytes())
+    data[offset] ^= 1
+    main.write_bytes(bytes(data))
+    check = run_shapeidx("check", "--store", store, timeout=TIMEOUT)
+    assert check.returncode == 5 and "internal error" not in check.stderr, check.stderr
+    built = run_shapeidx("build", tree, "--store", store, "--points", "128", "--workers", "1", timeout=4 * TIMEOUT)
+    assert built.returncode == 5 and len(built.stderr.strip().splitlines()) == 1, built.stderr
+    repaired = run_shapeidx("build", tree, "--store", store, "--repair", "--points", "128", "--workers", "1",
+                            timeout=4 * TIMEOUT)
+    assert repaired.returncode == 0, repaired.stderr
+    assert run_shapeidx("check", "--store", store, timeout=TIMEOUT).returncode == 0
+
+
+def test_a_forged_verified_record_does_not_skip_the_heap_walk_of_a_small_store(store):
+    """STORE/verified rewritten to match the damaged main file (as a build that read it whole
+    would): a store below TRUST_VERIFIED_ABOVE is walked all the same."""
+    import json
+    import os
+
+    _, store = store
+    main = store / "main.h5"
+    damage(main, "free space of size 0")
+    stat = os.stat(main)
+    (store / "verified").write_text(json.dumps({k: int(getattr(stat, k)) for k in
+                                                ("st_dev", "st_ino", "st_size", "st_mtime_ns", "st_ctime_ns")}))
+    try:
+        result = run_shapeidx("stats", "--store", store, timeout=TIMEOUT)
+    except subprocess.TimeoutExpired:
+        pytest.fail("a forged STORE/verified makes stats hang")
+    assert result.returncode == 5 and "global heap" in result.stderr

@@ -59,6 +59,8 @@ ANGLE_FEATURES = tuple(f"angle_{h}" for h in ANGLE_HISTOGRAMS) + tuple(f"helling
 #: The learned metrics: their features, in the order of their weights, and their weights' file
 #: (from the registry, :mod:`shapeidx.distance.metrics`).
 LEARNED = {name: (m.features, m.learned) for name, m in REGISTRY.items() if m.learned}
+#: Metrics made on a learned one, by the learned metric whose weights they use.
+LEARNED_FROM = {"unified": "combined-angle"}
 #: Angle distances a metric reads: ``"hellinger"`` (``hellinger_angle_*``), ``"l1"`` (``angle_*``).
 ANGLE_KINDS = {name: tuple(kind for kind, prefix in (("hellinger", "hellinger_angle_"), ("l1", "angle_"))
                            if any(f.startswith(prefix) for f in m.features)) for name, m in REGISTRY.items()}
@@ -145,8 +147,14 @@ def all_angle(features: dict):
 def unified(features: dict):
     """**unified**: combined-angle ``x min(1,`` all-angle ``/`` :data:`UNIFIED_TWIN_DISTANCE` ``) **``
     :data:`UNIFIED_POWER`."""
-    discount = np.minimum(1.0, all_angle(features) / UNIFIED_TWIN_DISTANCE) ** UNIFIED_POWER
-    return combined_angle(features) * discount
+    return unified_of(combined_angle(features), all_angle(features))
+
+
+def unified_of(combined_angle_distance, all_angle_distance):
+    """unified from its two parts (also with combined-angle's weights learned elsewhere: the
+    cross-validated figures of :mod:`shapeidx.evaluation`)."""
+    discount = np.minimum(1.0, np.asarray(all_angle_distance) / UNIFIED_TWIN_DISTANCE) ** UNIFIED_POWER
+    return combined_angle_distance * discount
 
 
 @lru_cache(maxsize=None)

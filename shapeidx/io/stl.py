@@ -39,8 +39,9 @@ def _read_ascii(path, data: bytes) -> PolygonMesh:
         corners = np.array(found, dtype=np.float64).reshape(-1, 3, 3)
     except ValueError:
         bad = next(f for v in found for f in v if not _is_number(f))
-        text = bad[:40].decode("latin-1")
-        raise LoadError(path, f"ASCII STL has a vertex coordinate that is not a number: {text!r}") from None
+        from ..errors import quoted_bytes
+
+        raise LoadError(path, f"ASCII STL has a vertex coordinate that is not a number: {quoted_bytes(bad[:40])}") from None
     return _from_corners(path, corners, "stl")
 
 

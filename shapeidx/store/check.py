@@ -326,8 +326,8 @@ def _store_files(store: Path) -> tuple[list, int | None, dict]:
     try:
         with open_hdf5(main_file(store)) as f:
             attrs = {k: (as_text(v) if isinstance(v, (bytes, str)) else v) for k, v in f.attrs.items()}
-    except OSError:
-        pass
+    except (OSError, KeyError, RuntimeError, ValueError):  # h5py says KeyError for a damaged object header
+        pass  # the main file's own scan reports it
     merged = int(attrs.get("journal_seq", 0))
     points = int(attrs["points"]) if "points" in attrs else None
     return [(0, main_file(store))] + [(seq, p) for seq, p in batch_files(store) if seq > merged], points, attrs

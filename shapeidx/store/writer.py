@@ -310,7 +310,7 @@ class StoreWriter:
             try:
                 with open_hdf5(main_file(self.path)) as f:
                     merged = int(f.attrs["journal_seq"]) if "journal_seq" in f.attrs else 0
-            except OSError:
+            except (OSError, KeyError, RuntimeError, ValueError):  # KeyError: h5py's word for a damaged header
                 return  # a damaged main file: open_store says so next, in one line
             for seq, batch in batch_files(self.path):
                 if seq <= merged:
