@@ -441,7 +441,9 @@ def _reset_peak() -> None:
 
 #: A reason quoting an exception or a library's own text: a class name (``OverflowError``,
 #: ``Transfer_TransferFailure``) or zlib's "Error -3 while decompressing": counted as wrapped.
-RAW_REASON = re.compile(r"\b[A-Z]\w*(Error|Exception|Failure)\b|\b[A-Z][A-Za-z]+_[A-Z]\w+|\bError -?\d|Traceback")
+RAW_REASON = re.compile(r"\b[A-Z]\w*(Error|Exception|Failure)\b|\b[A-Z][a-z]+[A-Za-z]*_[A-Z][a-z]\w*|\bError -?\d|Traceback")
+#: Text a reason quotes from the file (a token, a node type): not the reason's own words.
+QUOTED = re.compile(r"'[^']*'")
 
 #: The time limit of OpenCASCADE's contained child (LoadLimits.max_seconds) in the cases: below
 #: the case's own --timeout, so that a STEP/IGES file OpenCASCADE hangs on is refused as the
@@ -476,7 +478,7 @@ def run_case(path: str, root: str, signature: bool) -> dict:
             }
         except LoadError as exc:
             message = str(exc)
-            reason = message[len(printable(path)):]
+            reason = QUOTED.sub("''", message[len(printable(path)):])
             clean = ("\n" not in message and message.startswith(printable(path)) and "cannot read (" not in message
                      and UNFORESEEN not in message and not RAW_REASON.search(reason))
             result = {"outcome": "load_error" if clean else "wrapped", "error": message}
