@@ -288,8 +288,8 @@ def gunzip_bounded(source, path: Path, max_bytes: int) -> bytes:
     if declared is not None and declared > max_bytes:
         raise LoadError(
             path,
-            f"gzip data expands beyond the limit of {max_bytes:,} bytes (it declares {declared:,};"
-            f" refused as a possible bomb)",
+            f"gzip data expands beyond the limit of {max_bytes:,} bytes (it declares {declared:,}: a bomb,"
+            f" or its last bytes are damaged; refused)",
         )
     if isinstance(source, (bytes, bytearray, memoryview)):
         source = io.BytesIO(source)
