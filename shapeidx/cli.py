@@ -899,6 +899,20 @@ def _family_table(store, metric=None):
     return table
 
 
+def _parts_store_of(store):
+    """The parts store of ``store`` (``build --parts``), or a one-line error naming how to make it."""
+    from .errors import StoreError
+    from .store import open_store
+    from .store.files import parts_store
+
+    path = parts_store(_store_path(store))
+    if not path.is_dir():
+        open_store(_store_path(store)).close()  # no store at all: that error first
+        raise StoreError(f"the store {_store_path(store)} has no sub-parts: build it with 'shapeidx build DIR --store"
+                         f" {_store_path(store)} --parts' (docs/assemblies.md)")
+    return path
+
+
 def _table_keep(store, table, where):
     """``--where`` as a keep-mask over the table's entries (None: no condition)."""
     if not where:
@@ -1047,9 +1061,12 @@ def _no_entry_kept(where):
               help="Also report near duplicates (tier near: measured less precise, docs/duplicates.md).")
 @where_option
 @scale_option
+@click.option("--parts", is_flag=True,
+              help="Groups of sub-parts (a store built with build --parts) shared by several files: the same pin in"
+                   " two connectors; each group names its files.")
 @click.option("--csv", "as_csv", is_flag=True, help="One row per member (same as --format csv).")
 @format_options
-def duplicates(store, metric, with_near, where, scale, as_csv, output_format, as_json):
+def duplicates(store, metric, with_near, where, scale, parts, as_csv, output_format, as_json):
     """Groups of entries that are one part: identical files, or the same geometry at one size (or
     in other units, which each member's row names), most confident groups first.
 
@@ -1062,15 +1079,25 @@ def duplicates(store, metric, with_near, where, scale, as_csv, output_format, as
       shapeidx duplicates --store parts.shapeidx --near --csv > duplicates.csv
       shapeidx duplicates --store parts.shapeidx --scale sensitive --where 'path~Resistor*'
     """
-    from .families.duplicates import DEFAULT_TIERS, find_duplicates
+    from .families.duplicates import DEFAULT_TIERS, find_duplicates, shared_sub_parts
     from .system import available_cores
 
+    if parts:
+        store = str(_parts_store_of(store))
     table = _family_table(store, metric)
     keep = _table_keep(store, table, where)
     if len(table) == 0 or (keep is not None and not keep.any()):
         raise _empty_store_error(store) if len(table) == 0 else _no_entry_kept(where)
     tiers = DEFAULT_TIERS + (("near",) if with_near else ())
-    groups = find_duplicates(table, metric, scale, threads=available_cores(), tiers=tiers, keep=keep)
+    if parts:
+        from .store import open_store
+
+        with open_store(store) as reader:
+            parent_of = dict(zip(reader.paths.tolist(), reader.column("entries/parent").tolist()))
+        groups = shared_sub_parts(table, [parent_of[p] for p in table.paths], metric, scale, threads=available_cores(),
+                                  tiers=tiers, keep=keep)
+    else:
+        groups = find_duplicates(table, metric, scale, threads=available_cores(), tiers=tiers, keep=keep)
     fmt = "csv" if as_csv and output_format is None else chosen_format(output_format, as_json)
     if fmt == "json":
         emit_json(groups)
@@ -1085,7 +1112,8 @@ def duplicates(store, metric, with_near, where, scale, as_csv, output_format, as
                f" ({metric}; tiers {', '.join(tiers)}; most confident first)")
     for g, group in enumerate(groups, start=1):
         click.echo(f"group {g}: {len(group['members'])} parts, {group['tier']}, confidence {group['confidence']:.2f}:"
-                   f" {printable(group['representative'])}")
+                   f" {printable(group['representative'])}"
+                   + (f" (in {len(group['files'])} files)" if "files" in group else ""))
         for p in group["pairs"]:
             ratio = "size ?" if p["size_ratio"] is None else f"size x{p['size_ratio']:.4g}"
             unit = f" (unit factor {p['unit']:.4g})" if p.get("unit") else ""

@@ -303,3 +303,16 @@ class TestBuildAndWhereUsed:
         result = cli("query", query, "--store", store, "--top", "1")
         assert result.exit_code == 0, result.output
         assert "boards/" in result.stdout
+
+    def test_duplicates_parts_reports_the_pin_shared_by_two_files(self, library, tmp_path):
+        root, _ = library
+        store = tmp_path / "s.shapeidx"
+        _build(root, store, "--parts")
+        result = cli("duplicates", "--parts", "--store", store, "--json")
+        assert result.exit_code == 0, result.output
+        groups = json.loads(result.stdout)
+        shared = [g for g in groups if g["files"] == ["boards/four.step", "boards/six.step"]]
+        assert len(shared) == 1 and len(shared[0]["members"]) == 2  # the pin, once per file
+        assert all(len(g["files"]) > 1 for g in groups)
+        # the whole-file duplicates are not changed by the sub-parts
+        assert json.loads(cli("duplicates", "--store", store, "--json").stdout) == []
