@@ -537,8 +537,10 @@ def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bo
 @metric_option("weighted")
 @click.option("--max-distance", type=FiniteFloat(0), metavar="D",
               help="Only sub-parts within D; each file's count is then of all its sub-parts within D.")
+@click.option("--scale", type=click.Choice(("sensitive", "invariant")), default="sensitive", show_default=True,
+              help="sensitive: leave out sub-parts more than twice or less than half PART's size; invariant: any size.")
 @format_options
-def where_used(part, store, entry, top, metric, max_distance, output_format, as_json):
+def where_used(part, store, entry, top, metric, max_distance, scale, output_format, as_json):
     """The files that hold a sub-part like PART (or --id PATH), nearest first: how far their
     nearest sub-part is, which it is, and how many times the file holds it. The store must be
     built with --parts (docs/assemblies.md).
@@ -564,7 +566,7 @@ def where_used(part, store, entry, top, metric, max_distance, output_format, as_
             question = searcher.query_of_entry(searcher.resolve_entry(_part_entry(searcher, entry)))
         else:
             question = searcher.query_of_part(part, label=part, threads=available_cores())
-        answer = rank_uses(searcher, question, top, metric, max_distance)
+        answer = rank_uses(searcher, question, top, metric, max_distance, scale)
     if answer.reason is not None:
         raise NoAnswer(f"no answer for {answer.query}: {answer.reason}")
     if fmt == "json":
