@@ -109,7 +109,9 @@ def open_store(path):
     Use it as a context manager, or close it. It is a :class:`~shapeidx.search.Searcher`:
     pass it to :func:`query`; ``paths``, ``column(name)``, ``counts(name, rows)``,
     ``signature(i)``, ``params`` and ``attrs`` read the store's entries
-    (:class:`~shapeidx.store.StoreReader`).
+    (:class:`~shapeidx.store.StoreReader`). Held open, a store of at least 50,000 entries
+    builds its block index on its second query (``warm()`` builds it at once), after which
+    every query prunes in blocks (docs/performance.md, *A warm searcher*).
     """
     from .search import Searcher
 
@@ -131,9 +133,8 @@ def query(store, part=None, top: int = 10, metric: str = "weighted", entry: str 
     top : int
         How many hits.
     metric : str
-        A name of :data:`shapeidx.distance.METRICS`: ``"weighted"`` (the paper's, the
-        default), ``"all"``, ``"avg3"``, ``"avg4"``, ``"combined"``, ``"combined-angle"``,
-        ``"all-angle"``.
+        A name of the metric registry, :data:`shapeidx.distance.METRICS` (one record
+        each in :mod:`shapeidx.distance.metrics`); ``"weighted"``, the paper's, by default.
     entry : str, optional
         Instead of ``part``, an entry of the store (its path relative to the root).
     file_type : str, optional

@@ -333,11 +333,15 @@ def _store_path(store):
 @click.option("--scheduler", envvar="SHAPEIDX_SCHEDULER", metavar="ADDRESS",
               help="Index the files on this dask.distributed cluster (env SHAPEIDX_SCHEDULER) [default: locally].")
 @click.option("--worker-root", metavar="PATH", help="Where the cluster's workers see DIRECTORY [default: the same path].")
+@click.option("--shards", type=click.IntRange(1), metavar="N",
+              help="Shard the store by path key into N ordinary stores (STORE/shards/K); with --scheduler each"
+                   " shard is built on a worker of the cluster. A sharded store is queried as one (docs/scaling.md).")
 @click.option("--merge-after", type=click.IntRange(1), default=MERGE_AFTER, hidden=True)
 @click.pass_context
 def build(ctx, directory, store, points, seed, linear_deflection, angular_deflection, workers, full, rehash,
           retry_failed, timeout, worker_memory, commit_interval, wait, wait_timeout, strict, repair,
-          follow_outside_links, metadata, parts, quiet, verbose, dry_run, as_json, scheduler, worker_root, merge_after):
+          follow_outside_links, metadata, parts, quiet, verbose, dry_run, as_json, scheduler, worker_root, shards,
+          merge_after):
     """Index every part file under DIRECTORY into the store (incremental).
 
     \b
@@ -359,7 +363,16 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
     reporter = BuildReporter(quiet=quiet, verbose=verbose)
     store_path = _store_path(store)
     try:
-        summary = run_build(directory, store_path, options, reporter)
+        from .store.shards import is_sharded
+
+        if shards or is_sharded(store_path):
+            from .index.shards import run_sharded_build
+            from .store.shards import shard_count
+
+            summary = run_sharded_build(directory, store_path, options, reporter,
+                                        shards or shard_count(store_path))
+        else:
+            summary = run_build(directory, store_path, options, reporter)
     finally:
         reporter.close()
     if as_json:
@@ -419,8 +432,11 @@ where_option = click.option(
               help="Also write the answer as one self-contained HTML file (thumbnails, histograms, words).")
 @click.option("--thumbnails", default=200, show_default=True, type=click.IntRange(0),
               help="With --sheet: thumbnails for the first N hits (each new one is rendered and cached).")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="A sharded store (build --shards): rank each shard on a worker of this dask.distributed"
+                   " cluster and merge their exact top k [default: here, shard by shard].")
 def query(files, store, top, metric, entries, file_type, where, exclude_self, max_distance, scale, relative,
-          parts, output_format, as_json, sheet, thumbnails):
+          parts, output_format, as_json, sheet, thumbnails, scheduler):
     """The store's parts nearest to each FILE (or every part of DIR, or '-': a part on
     standard input; or --id PATH), nearest first: one result block per query.
 
@@ -436,7 +452,8 @@ def query(files, store, top, metric, entries, file_type, where, exclude_self, ma
     """
     from .console.queries import query_inputs
     from .errors import LoadError, NoAnswer, ShapeidxError, StoreDamagedError
-    from .search import Filters, Searcher, parse_where
+    from .search import Filters, open_searcher, parse_where
+    from .store.shards import is_sharded
     from .system import available_cores
 
     fmt = chosen_format(output_format, as_json)
@@ -453,9 +470,11 @@ def query(files, store, top, metric, entries, file_type, where, exclude_self, ma
         raise ShapeidxError(f"{sheet}: no folder {os.path.dirname(os.path.abspath(sheet))} to write the sheet in")
     filters = Filters(exclude_self, max_distance, scale, parse_where(where))
     store_path = _store_path(store)
+    if sheet and is_sharded(store_path):
+        raise click.UsageError("--sheet draws from one store: give a shard (STORE/shards/K) or leave --sheet out")
     failures = empty = 0
     blocks = []
-    with Searcher(store_path, parts=parts) as searcher:
+    with open_searcher(store_path, scheduler or None, parts=parts) as searcher:
         inputs = query_inputs(files, [searcher.resolve_entry(e) for e in entries], file_type)
         keys = searcher.present_metadata_keys() if fmt in ("csv", "tsv") else ()
         for number, item in enumerate(inputs):
@@ -726,10 +745,12 @@ def serve(store, host, port, max_upload):
     except ImportError as exc:
         raise ShapeidxError(f"shapeidx serve needs the web extra ({exc.name} is missing): pip install 'shapeidx[web]'") from None
     service = StoreService(_store_path(store))
-    app = create_app(service, max_upload * 1024 * 1024)
+    from .web.guard import header_timeout_protocol
+
+    app = create_app(service, max_upload * 1024 * 1024, host=host)
     click.echo(f"shapeidx serve: {len(service.searcher):,} parts of {service.store} on http://{host}:{port}/ (Ctrl-C stops)")
     try:
-        uvicorn.run(app, host=host, port=port, log_level="warning", access_log=False)
+        uvicorn.run(app, host=host, port=port, log_level="warning", access_log=False, http=header_timeout_protocol())
     finally:
         service.close()
 
@@ -848,32 +869,36 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
         emit_json({"collection": directory, "store": str(store_path), **result})
         return
     scores = ("nn", "ft", "st", "e", "dcg")
+    family = ("knn", "nmi", "ari")  # classification and clustering agreement: the whole collection's only
     if fmt != "table":
         rows = []
         for name, figures in result["metrics"].items():
             rows.append({"metric": name, "class": "", **{s: figures[s] for s in scores},
-                         "in_sample": bool(figures.get("in_sample", False))})
+                         **{s: figures.get(s, "") for s in family}, "in_sample": bool(figures.get("in_sample", False))})
             for cls, per in figures.get("per_class", {}).items():
-                rows.append({"metric": name, "class": cls, **{s: per[s] for s in scores},
+                rows.append({"metric": name, "class": cls, **{s: per[s] for s in scores}, **{s: "" for s in family},
                              "in_sample": bool(figures.get("in_sample", False))})
-        emit_rows(fmt, ["metric", "class", *scores, "in_sample"], rows)
+        emit_rows(fmt, ["metric", "class", *scores, *family, "in_sample"], rows)
         return
     click.echo(
         f"{directory}: {result['models']} models in {result['classes']} classes, {result['points']} points"
         + (f" ({result['unlabelled']} files outside class folders left out)" if result["unlabelled"] else "")
     )
-    click.echo(f"{'distance':30s} {'NN':>6s} {'FT':>6s} {'ST':>6s} {'E':>6s} {'DCG':>6s}   {'kNN':>6s} {'NMI':>6s} {'ARI':>6s}")
+    labels = {name: metric_label(name) + (" (in-sample)" if figures.get("in_sample") else "")
+              for name, figures in result["metrics"].items()}
+    width = max([30, *map(len, labels.values())] + [len(c) + 2 for f in result["metrics"].values() for c in f.get("per_class", {})])
+    click.echo(f"{'distance':{width}s} {'NN':>6s} {'FT':>6s} {'ST':>6s} {'E':>6s} {'DCG':>6s}   {'kNN':>6s} {'NMI':>6s} {'ARI':>6s}")
     for name, figures in result["metrics"].items():
-        label = metric_label(name) + (" (in-sample)" if figures.get("in_sample") else "")
-        family = "   " + " ".join(f"{figures[s]:6.3f}" for s in ("knn", "nmi", "ari")) if "knn" in figures else ""
-        click.echo(f"{label:30s} " + " ".join(f"{figures[s]:6.3f}" for s in scores) + family)
+        agreement = "   " + " ".join(f"{figures[s]:6.3f}" for s in family) if "knn" in figures else ""
+        click.echo(f"{labels[name]:{width}s} " + " ".join(f"{figures[s]:6.3f}" for s in scores) + agreement)
         for cls, per in figures.get("per_class", {}).items():
-            click.echo(f"  {cls[:28]:28s} " + " ".join(f"{per[s]:6.3f}" for s in scores))
+            click.echo(f"  {printable(cls):{width - 2}s} " + " ".join(f"{per[s]:6.3f}" for s in scores))
     for name, figures in result["metrics"].items():
         if figures.get("in_sample"):
             click.echo(f"note: {metric_label(name)}'s weights were learned on this collection"
                        f" ({figures['learned_on']}): its figures are in-sample and flatter it;"
-                       " --cross-validate gives out-of-sample ones")
+                       + (" its (cross-validated) row gives out-of-sample ones" if cross_validate
+                          else " --cross-validate gives out-of-sample ones"))
 
 
 # --------------------------------------------------------------------------- families (classify, cluster, duplicates)
@@ -985,11 +1010,14 @@ def classify(parts, store, k, metric, label_depth, labels_file, where, scale, ou
     if fmt != "table":
         emit_rows(fmt, ["path", "label", "confidence"], results)
         return
+    width = max([5] + [len(printable(nb["label"])) for r in results for nb in r["neighbours"]])
     for r in results:
         label = r["label"] if r["label"] is not None else "(no voter)"
         click.echo(f"{printable(r['path'])}: {printable(label)} (confidence {r['confidence']:.2f})")
+        if r["neighbours"]:
+            click.echo(f"    {'distance':<11s} {'label':{width}s}  voter")
         for nb in r["neighbours"]:
-            click.echo(f"    {nb['distance']:<11.6g} {printable(nb['label']):24s} {printable(nb['path'])}")
+            click.echo(f"    {nb['distance']:<11.6g} {printable(nb['label']):{width}s}  {printable(nb['path'])}")
 
 
 @main.command(context_settings=CONTEXT)
@@ -1112,15 +1140,21 @@ def duplicates(store, metric, with_near, where, scale, parts, as_csv, output_for
     members = sum(len(g["members"]) for g in groups)
     click.echo(f"{len(groups)} group(s) of duplicates, {members} entries, among {len(table)} entries"
                f" ({metric}; tiers {', '.join(tiers)}; most confident first)")
+    def size_of(p):
+        ratio = "?" if p["size_ratio"] is None else f"x{p['size_ratio']:.4g}"
+        return ratio + (f" (unit factor {p['unit']:.4g})" if p.get("unit") else "")
+
+    pairs = [p for group in groups for p in group["pairs"]]
+    tier_width = max([4] + [len(p["tier"]) for p in pairs])
+    size_width = max([4] + [len(size_of(p)) for p in pairs])
     for g, group in enumerate(groups, start=1):
         click.echo(f"group {g}: {len(group['members'])} parts, {group['tier']}, confidence {group['confidence']:.2f}:"
                    f" {printable(group['representative'])}"
                    + (f" (in {len(group['files'])} files)" if "files" in group else ""))
+        click.echo(f"  {'tier':{tier_width}s}  {'distance':<10s} {'size':{size_width}s}  {'mirrored':8s}  part")
         for p in group["pairs"]:
-            ratio = "size ?" if p["size_ratio"] is None else f"size x{p['size_ratio']:.4g}"
-            unit = f" (unit factor {p['unit']:.4g})" if p.get("unit") else ""
-            mirror = ", mirrored" if p["mirrored"] else ""
-            click.echo(f"  {p['tier']:9s} {p['distance']:<10.4g} {ratio}{unit}{mirror}  {printable(p['b'])}")
+            click.echo(f"  {p['tier']:{tier_width}s}  {p['distance']:<10.4g} {size_of(p):{size_width}s}"
+                       f"  {'yes' if p['mirrored'] else '':8s}  {printable(p['b'])}")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -157,9 +157,9 @@ def test_store_ranking_equals_pairwise_compare(small_store):
     _, store = small_store
     with Searcher(store) as searcher:
         signatures = [searcher.signature_at(i) for i in range(len(searcher))]
-        ranked = {m: distances(searcher.view, signatures[3], m) for m in ("combined-angle", "all-angle")}
+        ranked = {m: distances(searcher.view, signatures[3], m) for m in ("combined-angle", "all-angle", "unified")}
     assert all(s.angles is not None and s.angles.sum(axis=1)[0] == s.histograms["all"].total for s in signatures)
-    for metric in ("combined-angle", "all-angle"):
+    for metric in ("combined-angle", "all-angle", "unified"):
         pairwise = [compare(signatures[3], s)[metric] for s in signatures]
         np.testing.assert_array_equal(ranked[metric], pairwise)
     # all-angle is ALL's D plus the weighted angle term, computed here from the histograms
@@ -168,6 +168,35 @@ def test_store_ranking_equals_pairwise_compare(small_store):
     a, b = signatures[0], signatures[5]
     by_hand = compare(a, b)["all"] + ALL_ANGLE_WEIGHT * np.abs(angle_probabilities(a.angles)[ALL] - angle_probabilities(b.angles)[ALL]).sum()
     assert compare(a, b)["all-angle"] == pytest.approx(by_hand, rel=1e-12)
+    # unified: combined-angle, discounted below the twin distance of all-angle; a part's own
+    # entry is 0 apart, and a pair beyond the twin distance keeps its combined-angle distance
+    from shapeidx.distance.combined import UNIFIED_POWER, UNIFIED_TWIN_DISTANCE
+
+    for x in signatures:
+        d = compare(signatures[3], x)
+        expected = d["combined-angle"] * min(1.0, d["all-angle"] / UNIFIED_TWIN_DISTANCE) ** UNIFIED_POWER
+        assert d["unified"] == pytest.approx(expected, rel=1e-12)
+        assert d["unified"] <= d["combined-angle"]
+    assert compare(signatures[3], signatures[3])["unified"] == 0
+
+
+def test_unified_candidate_step_finds_the_exact_nearest(small_store):
+    """unified is bounded (its record says so): the coarse lower bounds must never exceed the
+    exact distance, and the nearest entries found through them are those of a full ranking."""
+    from shapeidx.distance.metrics import metric
+    from shapeidx.search import Searcher
+    from shapeidx.search.distances import distances, lower_bounds, nearest
+
+    assert metric("unified").bounded
+    _, store = small_store
+    with Searcher(store) as searcher:
+        for k in range(0, len(searcher), 3):
+            signature = searcher.signature_at(k)
+            exact = distances(searcher.view, signature, "unified")
+            assert np.all(lower_bounds(searcher.view, signature, "unified") <= exact)
+            positions, found = nearest(searcher.view, signature, "unified", top=5)
+            assert np.array_equal(np.sort(found)[:5], np.sort(exact)[:5])
+            np.testing.assert_array_equal(found, exact[positions])
 
 
 def test_a_store_without_angles_refuses_only_the_angle_metrics(small_store, tmp_path):
@@ -193,7 +222,7 @@ def test_a_store_without_angles_refuses_only_the_angle_metrics(small_store, tmp_
     assert ok.exit_code == 0, ok.stderr
     check = cli("check", "--store", old)
     assert check.exit_code == 0, check.output + check.stderr
-    for metric in ("combined-angle", "all-angle"):
+    for metric in ("combined-angle", "all-angle", "unified"):
         refused = cli("query", part, "--store", old, "--metric", metric)
         assert refused.exit_code == 1
         lines = refused.stderr.strip().splitlines()

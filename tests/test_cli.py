@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -138,7 +139,15 @@ class TestBadInput:
                 raise PermissionError(13, "Permission denied", str(file))
             return real_open(file, *args, **kwargs)
 
+        real_os_open = os.open
+
+        def guarded_os_open(file, *args, **kwargs):  # readers open with O_NONBLOCK (io.base.open_regular)
+            if str(file) == str(path):
+                raise PermissionError(13, "Permission denied", str(file))
+            return real_os_open(file, *args, **kwargs)
+
         monkeypatch.setattr(builtins, "open", guarded_open)
+        monkeypatch.setattr(os, "open", guarded_os_open)
         result = cli("inspect", path)
         assert_one_line_error(result, path)
         assert "permission denied" in result.stderr

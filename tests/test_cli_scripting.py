@@ -18,6 +18,7 @@ from storetools import build, small_kicad
 
 from shapeidx.cli import main
 from shapeidx.console import exits
+from shapeidx.distance.metrics import METRICS
 
 REPO = Path(__file__).resolve().parents[1]
 CUBE = "mesh-wild/trimesh-models/unit_cube.STL"
@@ -146,7 +147,7 @@ class TestFormatsOfOtherCommands:
         tree, path = store
         cube = data_dir / CUBE
         rows = list(csv.DictReader(io.StringIO(cli("compare", cube, cube, "--points", 64, "--format", "csv").stdout)))
-        assert {r["metric"] for r in rows} == {"all", "avg3", "avg4", "weighted", "combined", "combined-angle", "all-angle"}
+        assert {r["metric"] for r in rows} == set(METRICS)
         assert all(float(r["distance"]) == 0 for r in rows)
         stats = cli("stats", "--store", path, "--format", "tsv")
         assert stats.exit_code == 0 and stats.stdout.splitlines()[0] == "count\treason"
@@ -167,7 +168,7 @@ class TestExitStatuses:
         def bug(*args, **kwargs):
             raise ZeroDivisionError("a bug")
 
-        monkeypatch.setattr(shapeidx.search, "Searcher", _FakeSearcher)
+        monkeypatch.setattr(shapeidx.search, "open_searcher", lambda store, *args, **kwargs: _FakeSearcher(store))
         _FakeSearcher.search = bug
         result = cli("query", "--id", "a", "--store", tmp_path / "x")
         assert result.exit_code == exits.INTERNAL and "internal error: ZeroDivisionError" in result.stderr

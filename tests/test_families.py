@@ -367,7 +367,7 @@ def test_cluster_plot_beyond_the_matrix_is_an_embedding_whose_plane_keeps_planar
 def test_cluster_plot_refuses_an_unknown_picture_format_before_the_work(dup_store, tmp_path):
     _, store = dup_store
     result = cli("cluster", "--store", store, "--plot", tmp_path / "c.gif")
-    assert result.exit_code == 1 and result.stdout == ""
+    assert result.exit_code == 2 and result.stdout == ""  # a bad option value: a usage error
     assert "unknown picture format '.gif'" in result.stderr and len(result.stderr.strip().splitlines()) == 1
 
 

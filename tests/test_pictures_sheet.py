@@ -95,13 +95,14 @@ class TestPlot:
 
     def test_bad_arguments_are_one_line_errors(self, store, tmp_path):
         _, path = store
-        for args, message in (
-            (["-o", tmp_path / "x.gif", "--id", "a", "--store", path], "unknown picture format"),
-            (["--id", "no/such.wrl", "--store", path, "-o", tmp_path / "x.png"], "no entry 'no/such.wrl'"),
-            ([tmp_path / "missing.stl", "-o", tmp_path / "x.png"], "missing.stl"),
+        for args, message, status in (
+            (["-o", tmp_path / "x.gif", "--id", "a", "--store", path], "unknown picture format", 2),  # usage
+            (["-o", tmp_path / "x.jpg", "--id", "a", "--store", path], "unknown picture format", 2),
+            (["--id", "no/such.wrl", "--store", path, "-o", tmp_path / "x.png"], "no entry 'no/such.wrl'", 1),
+            ([tmp_path / "missing.stl", "-o", tmp_path / "x.png"], "missing.stl", 1),
         ):
             result = cli("plot", *args)
-            assert result.exit_code == 1 and message in result.stderr and "Traceback" not in result.output
+            assert result.exit_code == status and message in result.stderr and "Traceback" not in result.output
 
 
 class TestSimilarity:

@@ -101,7 +101,7 @@ def web(store):
     from shapeidx.web.app import StoreService, create_app
 
     service = StoreService(store[1])
-    yield TestClient(create_app(service))
+    yield TestClient(create_app(service), base_url="http://127.0.0.1:8765")
     service.close()
 
 

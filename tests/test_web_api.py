@@ -50,7 +50,7 @@ def served(data_dir, tmp_path_factory):
     result = cli("build", tree, "--store", store, "--points", FAST_POINTS, "--follow-outside-links")
     assert result.exit_code == 0, result.output
     service = StoreService(store)
-    client = TestClient(create_app(service, LIMIT))
+    client = TestClient(create_app(service, LIMIT), base_url="http://127.0.0.1:8765")
     yield tree, store, client
     service.close()
 

@@ -23,6 +23,14 @@ unknown).
 IN / OUT / MIXED class, which differs between exports of one part (open against closed
 meshes), and no learned weight.
 
+**unified**: one metric for both questions (issue 24): combined-angle, discounted where
+all-angle says the two are the same part from another exporter:
+``combined-angle x min(1, all-angle / UNIFIED_TWIN_DISTANCE) ** UNIFIED_POWER``. Pairs whose
+all-angle distance is below :data:`UNIFIED_TWIN_DISTANCE` (about that of a KiCad 2017 export
+and its KiCad 6 twin) move ahead of the parts of the same kind; every other pair keeps its
+combined-angle distance, so the ranking of kinds is combined-angle's. Both factors never
+decrease as ``D(ALL)`` grows, so a coarse lower bound serves its query's candidate step.
+
 :func:`metric_values` turns features into every metric, the paper's four included, so one
 function serves a pair (:func:`compare`) and a whole store (:mod:`.bank`).
 """
@@ -51,9 +59,20 @@ ANGLE_FEATURES = tuple(f"angle_{h}" for h in ANGLE_HISTOGRAMS) + tuple(f"helling
 #: The learned metrics: their features, in the order of their weights, and their weights' file
 #: (from the registry, :mod:`shapeidx.distance.metrics`).
 LEARNED = {name: (m.features, m.learned) for name, m in REGISTRY.items() if m.learned}
+#: Metrics made on a learned one, by the learned metric whose weights they use.
+LEARNED_FROM = {"unified": "combined-angle"}
+#: Angle distances a metric reads: ``"hellinger"`` (``hellinger_angle_*``), ``"l1"`` (``angle_*``).
+ANGLE_KINDS = {name: tuple(kind for kind, prefix in (("hellinger", "hellinger_angle_"), ("l1", "angle_"))
+                           if any(f.startswith(prefix) for f in m.features)) for name, m in REGISTRY.items()}
 #: all-angle = D(ALL) + this times the L1 distance of the ALL angle histograms. Chosen on half A
 #: of the KiCad 2017 / KiCad 6 twin pairs (scripts/twin_study.py; docs/twins.md gives half B).
 ALL_ANGLE_WEIGHT = 5e-4
+#: unified = combined-angle x min(1, all-angle / this) ** UNIFIED_POWER: below this all-angle
+#: distance a pair counts as the same part. Both chosen on half A of the twin pairs
+#: (scripts/twin_study.py) and on kicad6 with combined-angle's weights cross-validated by class
+#: folds (scripts/unified_study.py); half B and the other collections are the check.
+UNIFIED_TWIN_DISTANCE = 4e-4
+UNIFIED_POWER = 1.5
 #: A class with no pairs counts, in the scale features, as a mean this share of the ALL mean.
 EMPTY_CLASS_SCALE = 1e-3
 
@@ -106,7 +125,7 @@ def metric_values(features: dict, metrics=METRICS) -> dict:
 
 def _learned(name: str, features: dict):
     weights = learned_weights(name)["weights"]
-    return sum(weights[f] * features[f] for f in REGISTRY[name].features)
+    return sum(weights[f] * features[f] for f in LEARNED[name][0])
 
 
 def combined(features: dict):
@@ -123,6 +142,19 @@ def combined_angle(features: dict):
 def all_angle(features: dict):
     """**all-angle**: ``D(ALL) +`` :data:`ALL_ANGLE_WEIGHT` ``x`` the L1 distance of the ALL angle histograms."""
     return features["d_all"] + ALL_ANGLE_WEIGHT * features["angle_all"]
+
+
+def unified(features: dict):
+    """**unified**: combined-angle ``x min(1,`` all-angle ``/`` :data:`UNIFIED_TWIN_DISTANCE` ``) **``
+    :data:`UNIFIED_POWER`."""
+    return unified_of(combined_angle(features), all_angle(features))
+
+
+def unified_of(combined_angle_distance, all_angle_distance):
+    """unified from its two parts (also with combined-angle's weights learned elsewhere: the
+    cross-validated figures of :mod:`shapeidx.evaluation`)."""
+    discount = np.minimum(1.0, np.asarray(all_angle_distance) / UNIFIED_TWIN_DISTANCE) ** UNIFIED_POWER
+    return combined_angle_distance * discount
 
 
 @lru_cache(maxsize=None)
@@ -172,8 +204,8 @@ def features_between(a: Signature, b: Signature) -> dict:
 
 
 def compare(a: Signature, b: Signature) -> dict:
-    """Every metric between two signatures: ``{"all", "avg3", "avg4", "weighted", "combined", "combined-angle",
-    "all-angle"}`` (the last two only when both carry normal-angle histograms)."""
+    """Every metric of the registry (:data:`~shapeidx.distance.metrics.METRICS`) between two signatures,
+    by name; the metrics that read normal-angle histograms only when both carry them."""
     features = features_between(a, b)
     metrics = [m for m in METRICS if m not in ANGLE_METRICS or ANGLE_FEATURES[0] in features]
     return {name: float(value) for name, value in metric_values(features, metrics).items()}

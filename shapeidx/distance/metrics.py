@@ -123,6 +123,10 @@ REGISTRY: dict[str, Metric] = {
         Metric("all-angle", "all-angle",
                "plain D2 plus the ALL normal-angle histogram: for the same part from another exporter",
                histograms=("all",), features=_d("all") + _angle("", ("all",)), formula=".combined:all_angle", angles=True),
+        Metric("unified", "unified",
+               "combined-angle, with pairs all-angle finds to be the same part (another exporter) moved first: one metric for kinds and twins",
+               histograms=("all",), features=_d("all") + _angle("", ("all",)) + _gaps() + _scales() + _angle("hellinger"),
+               formula=".combined:unified", angles=True, embedding="angles"),
     )
 }
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..distance import ANGLE_FEATURES, ANGLE_METRICS, FEATURES, LEARNED, METRICS, metric_values
+from ..distance.combined import LEARNED_FROM
 from ..errors import ShapeidxError
 from ..search.distances import entry_features
 from ..signing.parameters import HISTOGRAMS
@@ -134,6 +135,16 @@ def distance_matrices(data: LabelledFeatures, metrics=METRICS) -> dict:
     return metric_values(data.named(), metrics)
 
 
+def cross_validate_unified(data: LabelledFeatures, folds: int = 4, repeats: int = 3) -> dict:
+    """unified's scores with combined-angle's weights never trained on the query's class (its
+    twin discount, all-angle, learns nothing)."""
+    from ..distance.combined import unified_of
+
+    all_angle = distance_matrices(data, ("all-angle",))["all-angle"]
+    return cross_validate(data.learned_features("combined-angle"), data.labels, folds, repeats,
+                          then=lambda distance: unified_of(distance, all_angle))
+
+
 def per_class_scores(scores: dict, labels: np.ndarray) -> dict:
     """Class -> mean of each score over that class's queries."""
     per = scores["per_query"]
@@ -191,9 +202,9 @@ def evaluate(reader, metrics=METRICS, per_class: bool = False, cross_validated: 
 
         entry.update(family_scores(matrices[name], data.labels))
         result["metrics"][name] = entry
-    for metric in LEARNED:
+    for metric in list(LEARNED) + list(LEARNED_FROM):
         if metric in result["metrics"]:
-            learned = in_sample(reader, result["models"], result["classes"], metric)
+            learned = in_sample(reader, result["models"], result["classes"], LEARNED_FROM.get(metric, metric))
             result["metrics"][metric]["in_sample"] = learned is not None
             if learned:
                 result["metrics"][metric].update(learned)
@@ -202,5 +213,7 @@ def evaluate(reader, metrics=METRICS, per_class: bool = False, cross_validated: 
         if data.angle_features is not None and "combined-angle" in metrics:
             result["metrics"]["combined-angle (cross-validated)"] = cross_validate(data.learned_features("combined-angle"),
                                                                                  data.labels)
+        if data.angle_features is not None and "unified" in metrics:
+            result["metrics"]["unified (cross-validated)"] = cross_validate_unified(data)
     result["queries"] = int(retrieval_scores(matrices[metrics[0]], data.labels)["queries"]) if metrics else 0
     return result

@@ -64,22 +64,30 @@ def class_folds(labels, folds: int, seed: int) -> list[np.ndarray]:
     return [fold for fold in np.array_split(classes, folds) if len(fold)]
 
 
-def cross_validate(features: np.ndarray, labels, folds: int = 4, repeats: int = 3, seed: int = 0) -> dict:
+def cross_validated_distances(features: np.ndarray, labels, folds: int = 4, seed: int = 0) -> np.ndarray:
+    """(n, n) learned distances in which every query's row comes from weights learned without
+    its class (one deal of the classes into ``folds`` folds, by ``seed``)."""
+    labels = np.asarray(labels)
+    distance = np.zeros(features.shape[1:])
+    for fold in class_folds(labels, folds, seed):
+        held_out = np.isin(labels, fold)
+        weights = fit_weights(features, labels, np.flatnonzero(~held_out))
+        distance[held_out] = np.tensordot(weights, features[:, held_out], axes=1)
+    return distance
+
+
+def cross_validate(features: np.ndarray, labels, folds: int = 4, repeats: int = 3, seed: int = 0, then=None) -> dict:
     """Retrieval scores of the combined metric with weights never trained on the query's class.
 
     For each of ``repeats`` random deals of the classes into ``folds`` folds, every query is
     ranked with the weights learned on the other folds; the scores are averaged over the
-    repeats (``"std"`` gives their spread).
+    repeats (``"std"`` gives their spread). ``then``: a function of the (n, n) cross-validated
+    distances giving the distances ranked (a metric built on a learned one: unified).
     """
+    then = then or (lambda distance: distance)
     labels = np.asarray(labels)
-    runs = []
-    for r in range(repeats):
-        distance = np.zeros(features.shape[1:])
-        for fold in class_folds(labels, folds, seed + r):
-            held_out = np.isin(labels, fold)
-            weights = fit_weights(features, labels, np.flatnonzero(~held_out))
-            distance[held_out] = np.tensordot(weights, features[:, held_out], axes=1)
-        runs.append(retrieval_scores(distance, labels))
+    runs = [retrieval_scores(then(cross_validated_distances(features, labels, folds, seed + r)), labels)
+            for r in range(repeats)]
     result = {s: float(np.mean([run[s] for run in runs])) for s in SCORES}
     result["std"] = {s: float(np.std([run[s] for run in runs])) for s in SCORES}
     result.update(folds=folds, repeats=repeats, queries=runs[0]["queries"])

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..distance import ANGLE_FEATURES, ANGLE_METRICS, FEATURES, METRIC_HISTOGRAMS, METRICS, metric_values
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
-from ..distance.combined import class_scales
+from ..distance.combined import ANGLE_KINDS, class_scales
 from ..errors import StoreError
 from ..ragged import offsets_of
 from ..signing.parameters import HISTOGRAMS, SIGNATURE_VERSION
@@ -281,7 +281,7 @@ class FamilyTable:
             raise StoreError(f"metric {metric} needs the normal-angle histograms, which entries of this store lack"
                              " (built before them): rebuild it with 'shapeidx build DIR --full'")
         a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
-        angles = {"combined-angle": ("hellinger",), "all-angle": ("l1",)}.get(metric, ())
+        angles = ANGLE_KINDS[metric]
         out = np.empty(len(a))
         step = PAIR_BLOCK_VALUES // 64  # bounds the (pairs, 4, bins) copies of the angle road
         for lo in range(0, len(a), step):

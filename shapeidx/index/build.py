@@ -59,6 +59,8 @@ class BuildOptions:
     worker_root: str | None = None
     #: A CSV of metadata (a path column and any others) joined to the entries (shapeidx.store.metadata).
     metadata: str | None = None
+    #: (k, N): build only the files of shard k of N (by path key; shapeidx.store.shards) into the store.
+    shard: tuple | None = None
     #: Also sign each file's sub-parts into the parts store ``STORE/parts`` (shapeidx.io.parts).
     parts: bool = False
 
@@ -85,6 +87,8 @@ class BuildSummary:
     #: With ``--parts``: sub-entries written by this build, and the parts store's ok sub-entries after it.
     parts_indexed: int | None = None
     parts_entries: int | None = None
+    #: Where the build's CPU went (:class:`BuildProfile`); None for a dry run.
+    profile: "BuildProfile | None" = None
 
     def line(self) -> str:
         return f"{self.indexed} indexed, {self.unchanged} unchanged, {self.removed} removed, {self.failed} failed"
@@ -108,7 +112,48 @@ class BuildSummary:
                                                                   "changed": self.metadata_changed},
             "parts": None if self.parts_indexed is None else {"indexed": self.parts_indexed,
                                                               "entries": self.parts_entries},
+            "profile": None if self.profile is None else self.profile.to_dict(),
         }
+
+
+@dataclass
+class BuildProfile:
+    """CPU seconds of one build, by process and by stage (``build --json``'s ``profile``).
+
+    The parent: ``start`` (the interpreter and its imports, before the build begins),
+    ``setup`` (walk, plan, opening the store: before the first file is handed
+    out), ``commit`` (entries written, journal merges), ``progress`` (log and progress
+    lines), ``other`` (handing files to workers, waiting for them, the closing counts).
+    The workers: what each file cost by stage, summed (:class:`~shapeidx.index.workers.StageClock`),
+    and ``other``: the rest of the worker processes' CPU (imports at start, receiving tasks,
+    sending results), local workers only (a Dask cluster's workers are not this machine's).
+    """
+
+    parent: dict = field(default_factory=dict)
+    workers: dict = field(default_factory=dict)
+    workers_total: float | None = None
+    workers_started: int | None = None
+
+    def charge(self, stages: dict | None) -> None:
+        for stage, seconds in (stages or {}).items():
+            self.workers[stage] = self.workers.get(stage, 0.0) + seconds
+
+    def to_dict(self) -> dict:
+        workers = {k: round(v, 3) for k, v in sorted(self.workers.items())}
+        if self.workers_total is not None:
+            workers["other"] = round(max(0.0, self.workers_total - sum(self.workers.values())) + self.workers.get("other", 0.0), 3)
+        return {"cpu_seconds": {"parent": {k: round(v, 3) for k, v in self.parent.items()},
+                                "parent_total": round(sum(self.parent.values()), 3),
+                                "workers": workers,
+                                "workers_total": None if self.workers_total is None else round(self.workers_total, 3)},
+                "workers_started": self.workers_started}
+
+
+def _cpu(who) -> float:
+    import resource
+
+    usage = resource.getrusage(who)
+    return usage.ru_utime + usage.ru_stime
 
 
 def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
@@ -139,13 +184,12 @@ def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
 def _params_of_damaged(store: Path) -> StoreParams | None:
     """The parameters a damaged store was built with, if the attributes of its main file or
     of one of its segments can still be read."""
-    import h5py
-
     from ..store.files import batch_files, main_file
+    from ..store.heaps import open_hdf5
 
     for path in [main_file(store)] + [p for _, p in reversed(batch_files(store))]:
         try:
-            with h5py.File(path, "r") as f:
+            with open_hdf5(path) as f:
                 return StoreParams.from_attrs(f.attrs)
         except (OSError, KeyError, ValueError):
             continue
@@ -163,7 +207,10 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     KeyboardInterrupt
         On Ctrl-C or SIGTERM, after committing what was done.
     """
+    import resource
+
     started = time.monotonic()
+    cpu_started, children_started = _cpu(resource.RUSAGE_SELF), _cpu(resource.RUSAGE_CHILDREN)
     given = root
     root = Path(root).resolve()
     check_tree(given, root)
@@ -184,10 +231,11 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     walk = walk_parts(root, options.follow_outside_links)
     _refuse_empty(given, walk)
     table = _metadata_table(options, root, walk, reporter)  # a bad table is refused before the store changes
+    walk = _shard_walk(walk, options)
     with _sigterm_as_interrupt(), StoreWriter(store, params, root, options.wait, reporter.waiting,
                                               options.wait_timeout, options.repair, reporter.warning) as writer:
         if options.wait:  # walk again: the tree may have changed while another build held the lock
-            walk = walk_parts(root, options.follow_outside_links)
+            walk = _shard_walk(walk_parts(root, options.follow_outside_links), options)
         for warning in walk.warnings:
             reporter.warning(warning)
         if table is not None:
@@ -203,16 +251,27 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         summary.removed = len(plan.removed)
         committers = [committer] + ([parts] if parts else [])
         pool = _pool(options, params, root)
+        profile = summary.profile = BuildProfile()
+        profile.parent = {"start": cpu_started, "setup": _cpu(resource.RUSAGE_SELF) - cpu_started, "commit": 0.0,
+                          "progress": 0.0}
+        clock = time.process_time
         try:
             for outcome in pool.run(plan.tasks):
                 if outcome is not None:
                     _redact_outside(outcome, root)
                     _count(summary, outcome)
+                    profile.charge(outcome.cpu)
+                    at = clock()
                     for one in committers:
                         one.add(outcome)
+                    committed = clock()
                     reporter.outcome(outcome)
+                    profile.parent["progress"] += clock() - committed
+                    profile.parent["commit"] += committed - at
+                at = clock()
                 for one in committers:
                     one.tick()
+                profile.parent["commit"] += clock() - at
         except (KeyboardInterrupt, ShapeidxError):  # e.g. a lost Dask scheduler: keep what came back
             for one in committers:
                 one.commit()
@@ -221,14 +280,20 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
             raise
         finally:
             pool.close()
+        if isinstance(pool, WorkerPool):
+            profile.workers_total = _cpu(resource.RUSAGE_CHILDREN) - children_started
+            profile.workers_started = pool.started
+        at = clock()
         for one in committers:
             one.finish()
+        profile.parent["commit"] += clock() - at
         if parts:
             parts.writer.close("finished")
         writer.facts = {"indexed": summary.indexed, "failed": summary.failed, "removed": summary.removed,
                         "unchanged": summary.unchanged}
     summary.seconds = time.monotonic() - started
     _store_counts(store, summary)
+    profile.parent["other"] = max(0.0, _cpu(resource.RUSAGE_SELF) - sum(profile.parent.values()))
     if options.parts:
         from ..store.files import parts_store
 
@@ -238,6 +303,20 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
 
             summary.parts_entries = known_files(reader).status_counts()[0]
     return summary
+
+
+def _shard_walk(walk, options: BuildOptions):
+    """The walk narrowed to the files of ``options.shard`` (the whole walk without one)."""
+    if options.shard is None:
+        return walk
+    from ..store.shards import shard_of_paths
+
+    k, count = options.shard
+    mine = shard_of_paths([f.path for f in walk.files], count) == k
+    walk.files = [f for f, keep in zip(walk.files, mine.tolist()) if keep]
+    if k:
+        walk.warnings = []  # the first shard's build says them
+    return walk
 
 
 def _parts_committer(store: Path, params, root: Path, options: BuildOptions, reporter, plan, walk):
@@ -272,7 +351,7 @@ def _metadata_table(options: BuildOptions, root: Path, walk, reporter):
         reporter.warning(warning)
     known = {f.path for f in walk.files}
     strays = [p for p in table.paths if p not in known]
-    if strays:
+    if strays and (options.shard is None or options.shard[0] == 0):  # a sharded build says it once
         reporter.warning(f"--metadata {options.metadata}: {len(strays)} of its {len(table)} rows name no part file of"
                          f" {root} (first: {strays[0]}); they are kept and match no entry")
     return table
@@ -324,9 +403,10 @@ def _pool(options: BuildOptions, params: StoreParams, root: Path):
 def _dry_run(root: Path, store: Path, params: StoreParams, options, reporter, summary: BuildSummary) -> BuildSummary:
     """What a build would do, without the lock and without writing anything."""
     walk = walk_parts(root, options.follow_outside_links)
+    table = _metadata_table(options, root, walk, reporter)
+    walk = _shard_walk(walk, options)
     for warning in walk.warnings:
         reporter.warning(warning)
-    table = _metadata_table(options, root, walk, reporter)
     if table is not None:
         summary.metadata_rows = len(table)
     if store.exists() or store.with_name(store.name + ".converting").exists():

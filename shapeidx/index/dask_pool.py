@@ -52,6 +52,25 @@ def _distributed():
     return distributed
 
 
+def dask_client(address: str):
+    """A client of the scheduler at ``address`` once a worker has joined (ShapeidxError, in one
+    line, when it cannot be reached or no worker joins)."""
+    distributed = _distributed()
+    # the client's own reconnection and shutdown chatter is not the user's business
+    logging.getLogger("distributed").setLevel(logging.ERROR)
+    try:
+        # how long to try: Dask's own distributed.comm.timeouts.connect (30 s unless configured)
+        client = distributed.Client(address, set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise ShapeidxError(f"cannot reach the dask scheduler at {address}: {one_line(exc)}") from None
+    try:
+        client.wait_for_workers(1, timeout=START_TIMEOUT)
+    except TimeoutError:
+        client.close()
+        raise ShapeidxError(f"no dask worker joined the scheduler at {address} within {START_TIMEOUT:g} s") from None
+    return client
+
+
 class DaskPool:
     """Tasks indexed on a Dask cluster; the interface of :class:`.workers.WorkerPool`.
 
@@ -81,21 +100,7 @@ class DaskPool:
         self.running: dict = {}  # future -> the local Task
 
     def _connect(self):
-        distributed = _distributed()
-        # the client's own reconnection and shutdown chatter is not the user's business
-        logging.getLogger("distributed").setLevel(logging.ERROR)
-        try:
-            # how long to try: Dask's own distributed.comm.timeouts.connect (30 s unless configured)
-            client = distributed.Client(self.address, set_as_default=False)
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise ShapeidxError(f"cannot reach the dask scheduler at {self.address}: {one_line(exc)}") from None
-        try:
-            client.wait_for_workers(1, timeout=START_TIMEOUT)
-        except TimeoutError:
-            client.close()
-            raise ShapeidxError(f"no dask worker joined the scheduler at {self.address}"
-                                f" within {START_TIMEOUT:g} s") from None
-        return client
+        return dask_client(self.address)
 
     def _on_worker(self, task: Task) -> Task:
         """The task as the workers see it (under ``worker_root``)."""

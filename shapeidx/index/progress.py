@@ -125,9 +125,11 @@ class BuildReporter:
         if self.verbose:
             self._say(f"committed batch {seq} ({records} records)")
 
-    def merged(self) -> None:
+    def merged(self, what: str = "main") -> None:
+        """A merge happened: ``what`` is :meth:`~shapeidx.store.StoreWriter.compact`'s answer."""
         if self.verbose:
-            self._say("merged the journal into the store")
+            self._say("merged the journal into the main file" if what == "main"
+                      else "merged the journal's newest segments into one")
 
     def close(self) -> None:
         if self.bar is not None:

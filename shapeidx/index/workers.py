@@ -84,6 +84,23 @@ class Outcome:
     #: None when they were not made (same content: ``parts_same``).
     parts: list | None = None
     parts_same: bool = False
+    #: CPU seconds of the worker by stage ("hash", "load", "solid", "signature", "facts",
+    #: "parts"), all its threads counted: where a build's time goes (``build --json``'s profile).
+    cpu: dict | None = None
+
+
+class StageClock:
+    """CPU seconds of this process (every thread) by stage: ``lap(name)`` charges the time
+    since the previous lap to ``name``."""
+
+    def __init__(self):
+        self.last = time.process_time()
+        self.seconds: dict[str, float] = {}
+
+    def lap(self, stage: str) -> None:
+        now = time.process_time()
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + now - self.last
+        self.last = now
 
 
 def one_line(text: str) -> str:
@@ -109,9 +126,11 @@ def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
     from ..signing.solid import make_solid
 
     started = time.monotonic()
+    clock = StageClock()
     try:
         stat = os.stat(task.absolute)
         digest = file_hash(task.absolute)
+        clock.lap("hash")
     except FileNotFoundError:
         return Outcome(task, "missing")
     except OSError as exc:
@@ -122,13 +141,15 @@ def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
     parts = task.parts and not (task.parts_hash is not None and digest == task.parts_hash)
     same = {"parts_same": task.parts and not parts}
     if not whole and not parts:
-        return Outcome(task, "same" if task.whole else "skipped", size=size, mtime_ns=mtime, **same)
+        return Outcome(task, "same" if task.whole else "skipped", size=size, mtime_ns=mtime, cpu=clock.seconds, **same)
     limits = LoadLimits(root=Path(root), faceting=params.faceting)
     mesh = entry = None
     try:
         mesh = load(task.absolute, limits)
+        clock.lap("load")
         solid = make_solid(mesh, task.absolute)
-        entry = _signed(task.path, digest, size, mtime, solid, params, task.absolute)
+        clock.lap("solid")
+        entry = _signed(task.path, digest, size, mtime, solid, params, task.absolute, clock)
         kind = "indexed"
     except OutOfMemory as exc:
         entry = Entry.failed(task.path, digest, size, mtime, reason_of(exc, task.absolute))
@@ -141,26 +162,36 @@ def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
         return Outcome(task, "failed" if task.whole else "skipped", entry, size, mtime, time.monotonic() - started,
                        replace_worker=True, parts=_failed_parts(task, entry))
     except Exception as exc:  # a bug in a later stage must cost one file, not the build
-        reason = one_line(f"internal error: {type(exc).__name__}: {exc}")
+        from ..errors import exception_in_words
+
+        reason = one_line(f"cannot be signed: it holds {exception_in_words(exc)}")
         entry, kind = Entry.failed(task.path, digest, size, mtime, reason), "failed"
     sub = None
     if parts:
         sub = _failed_parts(task, entry) if kind == "failed" else _part_entries(task, digest, size, mtime, mesh, entry,
                                                                                params, limits)
+        clock.lap("parts")
     if not whole:
         kind = "same" if task.whole else "skipped"
         entry = None
-    return Outcome(task, kind, entry, size, mtime, time.monotonic() - started, parts=sub, **same)
+    clock.lap("failed" if kind == "failed" else "other")
+    return Outcome(task, kind, entry, size, mtime, time.monotonic() - started, parts=sub, cpu=clock.seconds, **same)
 
 
-def _signed(path: str, digest: str, size: int, mtime: int, solid, params: StoreParams, absolute: str) -> Entry:
+def _signed(path: str, digest: str, size: int, mtime: int, solid, params: StoreParams, absolute: str,
+            clock: StageClock | None = None) -> Entry:
     """The ok entry of one solid (a file, or a sub-part ``FILE#n``); ``absolute`` names the file in errors."""
     from ..signing.moments import shape_facts
     from ..signing.pipeline import signature_of_solid
 
     check_signature_headroom(absolute, len(solid.faces))
     signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor)
-    return Entry.indexed(path, digest, size, mtime, signature, solid.describe(), shape_facts(solid.vertices, solid.faces))
+    if clock is not None:
+        clock.lap("signature")
+    entry = Entry.indexed(path, digest, size, mtime, signature, solid.describe(), shape_facts(solid.vertices, solid.faces))
+    if clock is not None:
+        clock.lap("facts")
+    return entry
 
 
 def part_path(path: str, number: int) -> str:
@@ -305,8 +336,10 @@ def limit_memory(limit: int | None) -> bool:
 
 
 def _worker_main(conn, params: StoreParams, root: str, parent: int, memory_limit: int | None = None) -> None:
+    from ..io.contained import run_here
     from ..system import keep_freed_memory
 
+    run_here()  # this process contains native crashes and hangs already: no child per file
     _die_with_parent()
     limit_memory(memory_limit)
     keep_freed_memory()
@@ -425,24 +458,32 @@ class WorkerPool:
         self.root = root
         self.timeout = timeout or None
         self.workers: list[_Worker] = []
+        #: Worker processes started (the first ones and every replacement): each pays the imports.
+        self.started = 0
 
     def run(self, tasks, wake_every: float = 1.0):
         """Yield an :class:`Outcome` per task (in completion order), or None at least every ``wake_every`` s.
 
         The None ticks let the caller commit on time while every worker is busy on slow files.
         """
+        try:
+            count = len(tasks)
+        except TypeError:
+            count = self.size
+        # as many workers as there are files, up to the pool's size, importing side by side;
+        # a build with nothing to do starts none
+        idle = [self._spawn() for _ in range(min(self.size, count))]
         pending = iter(tasks)
-        idle = [self._spawn() for _ in range(self.size)]
         busy: list[_Worker] = []
         exhausted = False
         try:
             while True:
-                while idle and not exhausted:
+                while (idle or len(busy) < self.size) and not exhausted:
                     task = next(pending, None)
                     if task is None:
                         exhausted = True
                         break
-                    worker = idle.pop()
+                    worker = idle.pop() if idle else self._spawn()
                     if not worker.process.is_alive():  # died while idle (killed from outside)
                         worker = self._replace(worker)
                     worker.give(task, self.timeout)
@@ -454,6 +495,7 @@ class WorkerPool:
             self.close()
 
     def _spawn(self) -> _Worker:
+        self.started += 1
         worker = _Worker(self.context, self.params, self.root, self.memory_limit)
         self.workers.append(worker)
         return worker

@@ -50,6 +50,12 @@ class LoadLimits:
         other formats once the file is read. The default, 4 GiB, admits some 5 million
         triangles. What no count foresees (Python objects of a huge text file) is bounded
         by the build workers' memory limit instead (:mod:`shapeidx.index.workers`).
+        Also the memory limit of the child process OpenCASCADE reads STEP and IGES in
+        (:mod:`shapeidx.io.contained`), beyond what that process holds when it starts.
+    max_seconds : float or None
+        Seconds OpenCASCADE may take to read and facet one STEP or IGES file in its child
+        process (:mod:`shapeidx.io.contained`) before it is stopped and the file refused;
+        None for no limit. Inside a build's workers the build's ``--timeout`` applies instead.
     """
 
     max_triangles: int = 50_000_000
@@ -59,6 +65,7 @@ class LoadLimits:
     faceting: Faceting | None = None
     max_bytes: int = 4 << 30
     max_polygon_corners: int = 20_000
+    max_seconds: float | None = 120.0
 
     def estimated_bytes(self, triangles: int, vertices: int = 0) -> int:
         """Peak memory of cleaning a part of ``triangles`` triangles over ``vertices`` points.
@@ -81,12 +88,58 @@ class LoadLimits:
             )
 
 
+    def check_reading(self, path, need: int, what: str) -> None:
+        """Raise LoadError when reading a file would take ``need`` bytes, more than
+        ``max_bytes``; ``what`` says for what ("to split its 75,000,000 coordIndex values")."""
+        if need > self.max_bytes:
+            raise LoadError(
+                path,
+                f"would need about {_binary_size(need)} of memory {what}, more than the limit of "
+                f"{_binary_size(self.max_bytes)} (refused as a possible bomb)",
+            )
+
+
+class NotRegularFile(OSError):
+    """A name that is a FIFO, socket or device, not a file: ``str()`` says which."""
+
+    def __str__(self) -> str:
+        return self.strerror
+
+
+def open_regular(path: str | os.PathLike):
+    """Open a file for reading in binary, refusing anything but a regular file.
+
+    The file is opened with ``O_NONBLOCK`` and checked on its descriptor (``fstat``), so a
+    FIFO, socket or device under the name (put there after a build, say) is refused at once
+    instead of blocking the reading thread forever (a FIFO without a writer blocks ``open``);
+    the check and the read are of the same file. Raises :class:`IsADirectoryError` for a
+    directory, :class:`NotRegularFile` for the rest, as ``open`` raises for a missing file.
+    """
+    import errno
+    import stat
+
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    try:
+        mode = os.fstat(fd).st_mode
+        if stat.S_ISDIR(mode):
+            raise IsADirectoryError(errno.EISDIR, "is a directory, not a file", os.fspath(path))
+        if not stat.S_ISREG(mode):
+            kind = ("a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
+                    else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a special file")
+            raise NotRegularFile(errno.EINVAL, f"is {kind}, not a regular file", os.fspath(path))
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
 def file_hash(path: str | os.PathLike) -> str:
     """SHA-256 of a file's bytes, as 64 hex digits (what a store entry records)."""
     import hashlib
 
     digest = hashlib.sha256()
-    with open(path, "rb") as f:
+    with open_regular(path) as f:
         while chunk := f.read(1 << 20):
             digest.update(chunk)
     return digest.hexdigest()
@@ -128,6 +181,12 @@ class Format:
     weak : bool
         The sniff test is a last resort (binary STL has no magic number): tried after
         every other format's.
+    declared : callable or None
+        ``declared(data) -> (triangles, vertices)``: at least how many triangles and
+        vertices the file says it holds (header counts, ``f`` lines, ``endfacet``), found
+        without reading it (a header, or a count of bytes in C), and never more than its
+        bytes can hold. :func:`shapeidx.io.load` checks the memory they need
+        (:meth:`LoadLimits.check_memory`) before the reader spends it.
     """
 
     name: str
@@ -136,6 +195,7 @@ class Format:
     read: Callable
     sniff: Callable | None = None
     weak: bool = False
+    declared: Callable | None = None
 
 
 @dataclass
@@ -201,24 +261,36 @@ def read_bytes(path: str | os.PathLike, limits: LoadLimits | None = None) -> tup
     limits = limits or LoadLimits()
     path = Path(path)
     try:
-        with open(path, "rb") as f:
+        with open_regular(path) as f:
             head = f.read(2)
             if head != GZIP_MAGIC:
                 return head + f.read(), False
+            f.seek(0)
+            return gunzip_bounded(f, path, limits.max_uncompressed_bytes), True
+    except LoadError:
+        raise
     except FileNotFoundError:
         raise LoadError(path, "no such file") from None
     except IsADirectoryError:
         raise LoadError(path, "is a directory, not a file") from None
+    except NotRegularFile as exc:
+        raise LoadError(path, str(exc)) from None
     except PermissionError:
         raise LoadError(path, "permission denied") from None
     except OSError as exc:
         raise LoadError(path, f"cannot read: {exc.strerror or exc}") from None
-    return gunzip_bounded(path, path, limits.max_uncompressed_bytes), True
 
 
 def gunzip_bounded(source, path: Path, max_bytes: int) -> bytes:
-    """Decompress gzip data from ``source`` (a path, or the compressed bytes), refusing to
+    """Decompress gzip data from ``source`` (a path, an open file or the compressed bytes), refusing to
     expand beyond ``max_bytes``; ``path`` names the file in errors."""
+    declared = _gzip_declared_size(source)
+    if declared is not None and declared > max_bytes:
+        raise LoadError(
+            path,
+            f"gzip data expands beyond the limit of {max_bytes:,} bytes (it declares {declared:,};"
+            f" refused as a possible bomb)",
+        )
     if isinstance(source, (bytes, bytearray, memoryview)):
         source = io.BytesIO(source)
     chunks = []
@@ -241,6 +313,30 @@ def gunzip_bounded(source, path: Path, max_bytes: int) -> bytes:
     except (OSError, EOFError, zlib.error) as exc:
         raise LoadError(path, f"corrupt gzip data ({exc})") from None
     return b"".join(chunks)
+
+
+def _gzip_declared_size(source) -> int | None:
+    """The uncompressed size a gzip stream's last member declares (ISIZE, its last four
+    bytes: the size modulo 2^32), or None when it cannot be read. A lie can only make the
+    streaming limit the one that refuses."""
+    try:
+        if isinstance(source, (bytes, bytearray, memoryview)):
+            tail = bytes(source[-4:]) if len(source) >= 18 else b""
+        elif hasattr(source, "seek"):  # an open file: read its end, then go back
+            at = source.tell()
+            try:
+                source.seek(0, os.SEEK_END)
+                if source.tell() < 18:
+                    return None
+                source.seek(-4, os.SEEK_END)
+                tail = source.read(4)
+            finally:
+                source.seek(at)
+        else:
+            return None
+    except (OSError, ValueError):
+        return None
+    return int.from_bytes(tail, "little") if len(tail) == 4 else None
 
 
 #: Largest coordinate magnitude, and largest extent, that cleaning computes with: areas grow

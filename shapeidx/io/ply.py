@@ -164,13 +164,31 @@ def _read_ascii(path, text: str, elements: list[_Element]):
                         pos += 1 + n
             except (ValueError, IndexError):
                 raise LoadError(path, f"bad PLY {element.name} row {' '.join(r)[:60]!r}") from None
-        values[element.name] = {
-            p.name: (np.array(columns[p.name][0], dtype=np.int64), np.array(columns[p.name][1], dtype=np.int64))
-            if p.count_dtype
-            else np.array(columns[p.name][1])
-            for p in element.properties
-        }
+        try:
+            values[element.name] = {
+                p.name: (np.array(columns[p.name][0], dtype=np.int64), np.array(columns[p.name][1], dtype=np.int64))
+                if p.count_dtype
+                else np.array(columns[p.name][1])
+                for p in element.properties
+            }
+        except OverflowError:
+            raise LoadError(path, f"PLY {element.name} list holds a number too large to be an index (past 2^63)") from None
     return values
+
+
+def declared_ply(data: bytes) -> tuple[int, int]:
+    """Faces and vertices the PLY header announces, bounded by what the bytes after it can
+    hold (a face takes 4 bytes at least, a vertex 3); (0, 0) when the header cannot be read."""
+    end = data.find(b"end_header")
+    if data[:3].lower() != b"ply" or end < 0:
+        return 0, 0
+    counts = {}
+    for line in data[:end].split(b"\n"):
+        fields = line.split()
+        if len(fields) == 3 and fields[0] == b"element" and fields[2].isdigit():
+            counts[fields[1]] = int(fields[2])
+    body = len(data) - end
+    return min(counts.get(b"face", 0), body // 4), min(counts.get(b"vertex", 0), body // 3)
 
 
 def _read_binary(path, data: bytes, offset: int, elements: list[_Element], order: str):
@@ -261,4 +279,4 @@ def _need(path, data: bytes, offset: int, size: int, element: _Element) -> int:
     return offset + size
 
 
-FORMATS = [Format("ply", "PLY", SUFFIXES["ply"], read_ply, sniff=lambda data: head_of(data)[:3].lower() == b"ply")]
+FORMATS = [Format("ply", "PLY", SUFFIXES["ply"], read_ply, declared=declared_ply, sniff=lambda data: head_of(data)[:3].lower() == b"ply")]

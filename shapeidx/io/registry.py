@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import LoadError, OutOfMemory
+from ..errors import LoadError, OutOfMemory, exception_in_words
 from . import obj, off, ply, step, stl, vrml
 from .formats import FORMAT_NAMES
 from .base import GZIP_MAGIC, Format, LoadLimits, PolygonMesh, gunzip_bounded, read_bytes, without_float_warnings
@@ -103,8 +103,11 @@ def load_bytes(
 def _read(data: bytes, path: Path, file_type: str | None, limits: LoadLimits) -> PolygonMesh:
     if file_type is not None and file_type not in FORMATS:
         raise LoadError(path, f"unknown file type {file_type!r} (known: {', '.join(FORMATS)})")
+    fmt = None
     try:
         fmt = FORMATS[file_type] if file_type else _sniff(path, data)
+        if fmt.declared is not None:  # refused from what the file declares, before it is read
+            limits.check_memory(path, *fmt.declared(data))
         mesh = fmt.read(path, data, limits)
     except LoadError:
         raise
@@ -112,8 +115,9 @@ def _read(data: bytes, path: Path, file_type: str | None, limits: LoadLimits) ->
         raise OutOfMemory(path, "out of memory while reading") from None
     except RecursionError:
         raise LoadError(path, "nesting too deep to read") from None
-    except Exception as exc:  # a reader bug must still end as one line, never a traceback
-        raise LoadError(path, f"cannot read ({type(exc).__name__}: {exc})") from None
+    except Exception as exc:  # a reader bug must still end as one line in words, never a traceback
+        label = f"as {fmt.label}" if fmt else ""
+        raise LoadError(path, f"cannot be read {label}: it holds {exception_in_words(exc)}") from None
     check_polygon_mesh(path, mesh, limits)
     if not mesh.metadata:
         from .metadata import file_metadata

@@ -101,10 +101,10 @@ def _common_reach(named: list, name: str, divisor: int) -> float:
 def check_format(output: str | os.PathLike) -> Path:
     """``output`` as a Path when its suffix is a format we write (ShapeidxError otherwise)."""
     output = Path(output)
-    if output.suffix.lower() not in FORMATS:
-        from ..errors import ShapeidxError
+    if output.suffix.lower() not in FORMATS:  # a bad option value: a usage error (status 2)
+        from ..errors import UsageError
 
-        raise ShapeidxError(f"{output}: unknown picture format {output.suffix!r}; use one of {', '.join(FORMATS)}")
+        raise UsageError(f"{output}: unknown picture format {output.suffix!r}; use one of {', '.join(FORMATS)}")
     if not output.parent.is_dir():
         from ..errors import ShapeidxError
 

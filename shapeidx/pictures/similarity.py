@@ -150,8 +150,12 @@ class SimilarityScale:
 
 
 def closer_than(share: float) -> str:
-    """``"closer than 97.2% of the store's pairs"``; a share above 0 never reads "100.0%"."""
+    """``"closer than 97.2% of the store's pairs"``; never "100.0%": the share is measured on a
+    sample of the store's pairs, so a hit closer than every pair sampled is "among the store's
+    closest pairs", and one rounded up to 100.0 reads "99.9%"."""
+    if share <= 0:
+        return "among the store's closest pairs (closer than every pair sampled)"
     text = f"{100 * (1 - share):.1f}"
-    if text == "100.0" and share > 0:
-        text = "99.9+"
+    if text == "100.0":
+        text = "99.9"
     return f"closer than {text}% of the store's pairs"

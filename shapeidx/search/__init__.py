@@ -6,6 +6,7 @@
     distances.py  the distances from a query to the store's entries: the one place they are
                   computed (lower bounds, exact distances, the candidate step)
     hits.py       Hit and Answer: the same fields on every surface
+    sharded.py    a sharded store: every shard's exact top k (here or on Dask workers), merged
 
 Names load on first use.
 """
@@ -16,6 +17,7 @@ _NAMES = {
     **dict.fromkeys(["Searcher", "Filters", "Query", "check_usable"], ".searcher"),
     **dict.fromkeys(["Condition", "parse_where", "parse_condition"], ".where"),
     **dict.fromkeys(["Hit", "Answer"], ".hits"),
+    **dict.fromkeys(["ShardedSearcher", "open_searcher"], ".sharded"),
     **dict.fromkeys(["distances", "nearest", "entry_features"], ".distances"),
 }
 __all__ = sorted(_NAMES)

@@ -93,6 +93,8 @@ class Answer:
     reason: str | None = None
     filters: list = field(default_factory=list)
     signature: object = None
+    #: With ``--max-distance`` and no hit: the nearest distance there was (merging shards' answers).
+    nearest: float | None = None
 
     def to_dict(self) -> dict:
         """The JSON object of one query (docs/cli.md documents every field)."""

@@ -136,6 +136,8 @@ def embedding_weights(metric: str) -> dict:
     docs/performance-families.md.)
     """
     d2 = 2.0 / (FINE_PER_COARSE * REFERENCE_BINS)
+    if metric == "unified":  # combined-angle's distance but where all-angle finds a twin: its neighbours
+        return embedding_weights("combined-angle")
     if metric in ("combined", "combined-angle"):
         w = learned_weights(metric)["weights"]
         weights = {"fractions": np.array([w[f"gap_{c}"] for c in CLASS_NAMES]),

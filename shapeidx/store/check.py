@@ -32,6 +32,7 @@ import numpy as np
 
 from ..errors import StoreError
 from ..io.base import file_hash
+from .heaps import open_hdf5
 from ..signing.parameters import HISTOGRAMS
 from .files import batch_files, main_file, write_atomically
 from .layout import (
@@ -143,7 +144,7 @@ def scan_file(path: Path, seq: int, points: int | None, derived: bool = True) ->
     also rebuild the ranking arrays in memory and compare (else only their checksums)."""
     scan = FileScan(path, seq)
     try:
-        f = h5py.File(path, "r")
+        f = open_hdf5(path)
     except OSError as exc:
         scan.problem("file", f"not readable as HDF5 ({_first_line(exc)})", fatal=True)
         return scan
@@ -323,10 +324,10 @@ def _store_files(store: Path) -> tuple[list, int | None, dict]:
     """(seq, path) of the main file and the batches it does not hold, its points, its attributes."""
     attrs = {}
     try:
-        with h5py.File(main_file(store), "r") as f:
+        with open_hdf5(main_file(store)) as f:
             attrs = {k: (as_text(v) if isinstance(v, (bytes, str)) else v) for k, v in f.attrs.items()}
-    except OSError:
-        pass
+    except (OSError, KeyError, RuntimeError, ValueError):  # h5py says KeyError for a damaged object header
+        pass  # the main file's own scan reports it
     merged = int(attrs.get("journal_seq", 0))
     points = int(attrs["points"]) if "points" in attrs else None
     return [(0, main_file(store))] + [(seq, p) for seq, p in batch_files(store) if seq > merged], points, attrs
@@ -488,7 +489,7 @@ def _rewrite_ranking(scan: FileScan) -> None:
     counts = {name: (flat, np.diff(offsets)) for name, (flat, offsets) in scan.counts.items()}
 
     def fill(f):
-        with h5py.File(scan.path, "r") as old:
+        with open_hdf5(scan.path) as old:
             f.attrs.update(dict(old.attrs))
             for name in old:
                 if name != RANK:

@@ -196,7 +196,9 @@ def load_table(store: Path) -> MetadataTable | None:
     if not path.exists():
         return None
     try:
-        with h5py.File(path, "r") as f:
+        from .heaps import open_hdf5
+
+        with open_hdf5(path) as f:
             paths = _read_strings(f["path"])
             keys = np.asarray(f["path_key"][()], dtype=np.uint64).reshape(-1, 2)
             columns = {}

@@ -238,14 +238,17 @@ class RankSection:
         self.coarse = int(group.attrs["coarse"])
         self._map = None
         self._arrays: dict = {}
+        self._verified: set = set()  # arrays whose CRC-32 was checked (each on its first use, once)
         n = int(file["entries/size"].shape[0])
         self.rows = self.array("rows")
         m = len(self.rows)
-        if self.array("path_key").shape != (n, 2) or self.array("fractions").shape != (m, 3):
+        # shapes only: an array's CRC is checked when a query first reads it (a Weighted query
+        # never reads the 544 bytes an entry of the angles, nor the ALL histogram's order)
+        if self.array("path_key", verify=False).shape != (n, 2) or self.array("fractions", verify=False).shape != (m, 3):
             raise ValueError("ranking arrays of the wrong shape")
-        if self.array("means").shape != (m, len(self.histograms)):
+        if self.array("means", verify=False).shape != (m, len(self.histograms)):
             raise ValueError("ranking means of the wrong shape")
-        if self.array("angles").shape != (m, ANGLE_WIDTH):
+        if self.array("angles", verify=False).shape != (m, ANGLE_WIDTH):
             raise ValueError("ranking angles of the wrong shape")
         if m and (self.rows[0] < 0 or self.rows[-1] >= n):
             raise ValueError("ranking rows out of bounds")
@@ -255,7 +258,8 @@ class RankSection:
             total = int(np.sum(groups[:, 0] * groups[:, 1]))
             coarse_total = int(np.sum(-(-groups[:, 0] // self.coarse) * groups[:, 1]))
             if (int(groups[:, 1].sum()) != m or np.any(groups < 0) or total != self.array(f"{h}/counts").shape[0]
-                    or self.array(f"{h}/order").shape != (m,) or self.array(f"{h}/totals").shape != (m,)
+                    or self.array(f"{h}/order", verify=False).shape != (m,)
+                    or self.array(f"{h}/totals", verify=False).shape != (m,)
                     or self.array(f"{h}/coarse", verify=False).shape != (coarse_total,)):
                 raise ValueError(f"ranking groups of {h} disagree with its arrays")
             self.groups[h] = groups
@@ -278,11 +282,12 @@ class RankSection:
                     self._map = _map_file(self.file, self.path)
                 values = np.frombuffer(self._map, dtype=dataset.dtype, count=dataset.size, offset=offset)
                 values = values.reshape(dataset.shape)
-            if verify and name.rsplit("/", 1)[-1] in CRC_ON_MAP:
-                expected = dataset.attrs.get(CHECKSUM)
-                if expected is None or bytes_crc32(values) != int(expected):
-                    raise ValueError(f"{RANK}/{name} fails its checksum")
             self._arrays[name] = values
+        if verify and name not in self._verified and name.rsplit("/", 1)[-1] in CRC_ON_MAP:
+            expected = self.file[f"{RANK}/{name}"].attrs.get(CHECKSUM)
+            if expected is None or bytes_crc32(self._arrays[name]) != int(expected):
+                raise ValueError(f"{RANK}/{name} fails its checksum")
+            self._verified.add(name)
         return self._arrays[name]
 
     def stored(self, name: str) -> bool:
@@ -349,6 +354,7 @@ class RankSection:
 
     def close(self) -> None:
         self._arrays.clear()
+        self._verified.clear()
         if self._map is not None:
             try:
                 self._map.close()

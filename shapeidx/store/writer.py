@@ -54,6 +54,7 @@ from .layout import (
 )
 from .rank import write_rank, write_rank_entries, write_rank_histogram
 from .reader import StoreReader, check_params, check_root, open_store
+from .heaps import open_hdf5
 from .verified import mark_verified
 
 #: A run of the newest segments is merged into the segment before it while that one holds at
@@ -307,9 +308,9 @@ class StoreWriter:
                     tmp.unlink(missing_ok=True)
         if main_file(self.path).exists():
             try:
-                with h5py.File(main_file(self.path), "r") as f:
+                with open_hdf5(main_file(self.path)) as f:
                     merged = int(f.attrs["journal_seq"]) if "journal_seq" in f.attrs else 0
-            except OSError:
+            except (OSError, KeyError, RuntimeError, ValueError):  # KeyError: h5py's word for a damaged header
                 return  # a damaged main file: open_store says so next, in one line
             for seq, batch in batch_files(self.path):
                 if seq <= merged:
@@ -500,7 +501,7 @@ def _remove_covered(store: Path) -> None:
     ranges = []
     for seq, batch in batch_files(store):
         try:
-            with h5py.File(batch, "r") as f:
+            with open_hdf5(batch) as f:
                 ranges.append((int(f.attrs.get("first_seq", seq)), seq))
         except (OSError, KeyError, ValueError):
             continue  # a damaged batch: open_store reports it, repair drops it

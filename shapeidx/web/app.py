@@ -50,6 +50,13 @@ MAX_TOP = 5000
 #: can change without uploading again.
 UPLOADS_KEPT = 64
 UPLOAD_PREFIX = "upload:"
+#: Uploads read and signed at the same time; one more is answered 503 at once (each may take
+#: a core and, for a large part, a few GB while it is read).
+MAX_UPLOADS_AT_ONCE = 2
+#: Threads that read part files for thumbnails; the rest of the server never waits for them.
+FILE_THREADS = 4
+#: Longest wait for a thumbnail, seconds (queueing included): 503 beyond, the server goes on.
+FILE_WAIT = 60.0
 
 
 class RequestError(Exception):
@@ -117,6 +124,10 @@ class StoreService:
         self._listing = None
         self.max_upload = MAX_UPLOAD
         self.scale("weighted")  # the default metric's calibration before the first query
+        from ..search.blocks import WARM_MIN
+
+        if len(self.searcher) >= WARM_MIN:  # a big store: every query prunes in blocks from the first
+            self.searcher.warm()
 
     def close(self) -> None:
         self.searcher.close()
@@ -206,6 +217,19 @@ class StoreService:
         real = Path(os.path.realpath(self.root / entry))
         if not real.is_relative_to(self.real_root):
             raise RequestError(403, f"entry {entry!r} resolves outside the store's root; not served")
+        return real
+
+    def regular_file_of(self, entry: str) -> Path:
+        """:meth:`file_of`, and the file must be a regular file: a FIFO, socket or device put
+        under the entry's name is refused (404) without ever blocking on it."""
+        from ..io.base import open_regular
+
+        real = self.file_of(entry)
+        try:
+            with open_regular(real):
+                pass
+        except OSError as exc:
+            raise RequestError(404, f"no picture of {entry!r}: {exc.strerror or exc}") from None
         return real
 
     def query_of(self, query_id: str):
@@ -298,7 +322,7 @@ class StoreService:
             if png is None:
                 raise RequestError(404, "no picture of this upload")
             return png
-        self.file_of(query_id)  # a known entry inside the root, or an error
+        self.regular_file_of(query_id)  # a known entry inside the root, a regular file, or an error
         try:
             return self.thumbs.png(query_id)
         except LoadError as exc:
@@ -360,24 +384,51 @@ def _id(params, name: str = "id") -> str:
     return str(value)
 
 
-def create_app(service: StoreService, max_upload: int = MAX_UPLOAD):
-    """The Starlette application serving ``service``'s store."""
+def create_app(service: StoreService, max_upload: int = MAX_UPLOAD, host: str = "127.0.0.1",
+               uploads_at_once: int = MAX_UPLOADS_AT_ONCE, file_threads: int = FILE_THREADS,
+               file_wait: float = FILE_WAIT, body_idle: float | None = None, body_total: float | None = None):
+    """The Starlette application serving ``service``'s store.
+
+    ``host`` is the address the server is bound to: the ``Host`` header must name it (or
+    localhost); see :mod:`shapeidx.web.guard`. ``uploads_at_once`` uploads are read at the same
+    time (503 beyond); thumbnails are read by ``file_threads`` threads of their own, and a
+    request waits at most ``file_wait`` seconds for one (503). ``body_idle`` and ``body_total``
+    bound a request body's arrival (408).
+    """
+    import anyio
     from starlette.applications import Starlette
     from starlette.middleware import Middleware
     from starlette.concurrency import run_in_threadpool
+    from starlette.requests import Request
     from starlette.responses import FileResponse, JSONResponse, Response
     from starlette.routing import Mount, Route
     from starlette.staticfiles import StaticFiles
 
+    from .guard import BODY_IDLE_TIMEOUT, BODY_TIMEOUT, BodyTimedOut, BodyTimeout, HostOriginGuard, allowed_hosts
+
     static = Path(str(resources.files("shapeidx.web").joinpath("static")))
     service.max_upload = max_upload
+    uploads = anyio.CapacityLimiter(uploads_at_once)
+    file_readers = anyio.CapacityLimiter(file_threads)
+
+    async def in_file_thread(function, *args):
+        """Run a call that reads part files on the thumbnail threads, waiting at most ``file_wait``."""
+        try:
+            with anyio.fail_after(file_wait):
+                return await anyio.to_thread.run_sync(function, *args, limiter=file_readers, abandon_on_cancel=True)
+        except TimeoutError:
+            raise RequestError(503, f"reading the part took more than {file_wait:g} s (the server is busy"
+                                    " or the file is slow to read); try again later") from None
 
     def guarded(handler):
         async def endpoint(request):
             try:
                 return await handler(request)
             except RequestError as exc:
-                return JSONResponse({"error": exc.message}, status_code=exc.status)
+                headers = {"Retry-After": "5"} if exc.status == 503 else None
+                return JSONResponse({"error": exc.message}, status_code=exc.status, headers=headers)
+            except BodyTimedOut as exc:
+                return JSONResponse({"error": str(exc)}, status_code=408, headers={"Connection": "close"})
             except UsageError as exc:
                 return JSONResponse({"error": str(exc)}, status_code=400)
             except ShapeidxError as exc:
@@ -420,30 +471,44 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD):
             raise RequestError(400, "bad Content-Length") from None
         if length > max_upload:
             raise RequestError(413, f"upload of {length:,} bytes is over the limit of {max_upload:,} bytes")
-        if "multipart/form-data" not in request.headers.get("content-type", ""):
-            raise RequestError(415, "send the part as multipart/form-data with the field 'file'")
+        boundary = _multipart_boundary(request.headers.get("content-type", ""))
         try:
-            form = await request.form(max_files=1, max_fields=10, max_part_size=max_upload)
-        except Exception as exc:  # malformed multipart
-            raise RequestError(400, f"cannot read the upload ({exc})") from None
+            uploads.acquire_nowait()
+        except anyio.WouldBlock:
+            raise RequestError(503, f"the server is already reading {uploads_at_once} uploads; try again shortly") from None
         try:
-            upload = form.get("file")
-            if upload is None or isinstance(upload, str):
-                raise RequestError(400, "no file in the upload (multipart field 'file')")
-            data = await upload.read()
-            if len(data) > max_upload:
-                raise RequestError(413, f"upload is over the limit of {max_upload:,} bytes")
-            if not data:
-                raise RequestError(422, f"{upload.filename or 'upload'}: the file is empty")
-            top, metric = _int(form, "top", 10, 1, MAX_TOP), _metric(form)
-            result = await run_in_threadpool(service.query_upload, upload.filename or "upload", data, top, metric,
-                                             _where(form))
+            body = await _read_body(request, max_upload)
+            if not _multipart_is_whole(body, boundary):
+                raise RequestError(400, "the upload is cut short (the multipart body does not end with its closing"
+                                        " boundary); send it again")
+
+            async def replay():
+                return {"type": "http.request", "body": body, "more_body": False}
+
+            try:
+                form = await Request(request.scope, replay).form(max_files=1, max_fields=10, max_part_size=max_upload)
+            except Exception as exc:  # malformed multipart
+                raise RequestError(400, f"cannot read the upload ({getattr(exc, 'detail', None) or exc})") from None
+            try:
+                upload = form.get("file")
+                if upload is None or isinstance(upload, str):
+                    raise RequestError(400, "no file in the upload (multipart field 'file')")
+                data = await upload.read()
+                if len(data) > max_upload:
+                    raise RequestError(413, f"upload is over the limit of {max_upload:,} bytes")
+                if not data:
+                    raise RequestError(422, f"{upload.filename or 'upload'}: the file is empty")
+                top, metric = _int(form, "top", 10, 1, MAX_TOP), _metric(form)
+                result = await anyio.to_thread.run_sync(service.query_upload, upload.filename or "upload", data, top,
+                                                        metric, _where(form))
+            finally:
+                await form.close()
         finally:
-            await form.close()
+            uploads.release()
         return JSONResponse(result)
 
     async def thumbnail(request):
-        png = await run_in_threadpool(service.thumbnail, _id(request.query_params))
+        png = await in_file_thread(service.thumbnail, _id(request.query_params))
         return Response(png, media_type="image/png", headers={"Cache-Control": "max-age=3600"})
 
     async def compare_view(request):
@@ -467,7 +532,52 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD):
         Mount("/static", StaticFiles(directory=static), name="static"),
     ]
 
-    return Starlette(routes=routes, middleware=[Middleware(SecurityHeaders)])
+    body_limits = dict(idle=BODY_IDLE_TIMEOUT if body_idle is None else body_idle,
+                       total=BODY_TIMEOUT if body_total is None else body_total)
+    return Starlette(routes=routes, middleware=[Middleware(SecurityHeaders),
+                                                Middleware(HostOriginGuard, hosts=allowed_hosts(host)),
+                                                Middleware(BodyTimeout, **body_limits)])
+
+
+def _multipart_boundary(content_type: str) -> bytes:
+    """The boundary of a ``multipart/form-data`` Content-Type (415 or 400 otherwise)."""
+    from email.message import Message
+
+    message = Message()
+    message["content-type"] = content_type
+    if message.get_content_type() != "multipart/form-data":
+        raise RequestError(415, "send the part as multipart/form-data with the field 'file'")
+    boundary = message.get_param("boundary")
+    if not isinstance(boundary, str) or not 0 < len(boundary) <= 200:
+        raise RequestError(400, "the multipart Content-Type has no boundary")
+    try:
+        return boundary.encode("ascii")
+    except UnicodeEncodeError:
+        raise RequestError(400, "the multipart boundary is not ASCII") from None
+
+
+async def _read_body(request, limit: int) -> bytes:
+    """The whole request body, refused (413) as soon as it passes ``limit`` bytes."""
+    from starlette.requests import ClientDisconnect
+
+    chunks, total = [], 0
+    try:
+        async for chunk in request.stream():
+            total += len(chunk)
+            if total > limit:
+                raise RequestError(413, f"upload is over the limit of {limit:,} bytes")
+            chunks.append(chunk)
+    except ClientDisconnect:
+        raise RequestError(400, "the client went away before the upload was whole") from None
+    return b"".join(chunks)
+
+
+def _multipart_is_whole(body: bytes, boundary: bytes) -> bool:
+    """Whether a multipart body ends with its closing boundary (``--B--``, then at most line ends).
+
+    python-multipart reads a body cut short as if it were whole (the last part simply ends),
+    which would rank a truncated part file; such an upload is refused instead."""
+    return body.rstrip(b"\r\n").endswith(b"--" + boundary + b"--")
 
 
 class SecurityHeaders:

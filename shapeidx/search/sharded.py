@@ -1,0 +1,247 @@
+"""Searching a sharded store (:mod:`shapeidx.store.shards`): every shard's exact top k, merged.
+
+    with open_searcher("parts.shapeidx", scheduler="tcp://10.0.0.5:8786") as searcher:
+        query = searcher.query_of_part("bracket.stl")
+        answer = searcher.search(query, top=5, metric="weighted")
+
+The query is signed once, here, with the shards' parameters; its signature (a few KB) goes
+to every shard, which ranks its own entries by the one search road (:class:`Searcher`:
+the same filters, metrics, bounds and tie rules) and returns its ``top`` nearest, ties broken
+as a store breaks them: by distance, then the query's own entry first, then by path. The
+client merges the lists by the same key and keeps the first ``top``. Every hit of the global
+top ``top`` is among its shard's top ``top`` under that one total order, so the merged answer
+is exactly that of one store holding every entry: the same hits in the same order, with the
+same distances (tests/test_shards.py compares them on a real Dask cluster).
+
+Without a scheduler the shards are ranked here, one after the other. With one
+(``--scheduler``), shard ``k`` is ranked on the cluster's worker ``k mod W`` (workers sorted
+by address), which keeps the shard open between queries, so a long-lived cluster answers
+from mapped, resident arrays; the shard's store must be visible to that worker at the same
+path. The query's own entry (``--id``, or a file of the tree) is looked up in the one shard
+its path key names.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import StoreError
+from ..store.shards import shard_of_paths, shard_paths
+from .hits import Answer, Hit, absolute
+from .searcher import Filters, Query, Searcher
+
+
+def open_searcher(store, scheduler: str | None = None, parts: bool = False):
+    """A :class:`Searcher` of an ordinary store, a :class:`ShardedSearcher` of a sharded one
+    (``scheduler``: ranked on that Dask cluster's workers). ``scheduler`` with an ordinary store
+    is refused in one line; so are ``parts`` (the sub-entries) with a sharded one."""
+    from ..store.shards import is_sharded
+
+    if is_sharded(store):
+        if parts:
+            raise StoreError(f"{store} is a sharded store: --parts ranks the sub-entries of an ordinary store")
+        return ShardedSearcher(store, scheduler)
+    if scheduler:
+        raise StoreError(f"{store} is not a sharded store: --scheduler queries a store built with --shards")
+    return Searcher(store, parts=parts)
+
+
+#: Per process (a Dask worker's, or this one's): the shards kept open, by path, with what their
+#: files were when opened (a build's commit since then opens the shard again).
+_OPEN: dict = {}
+
+
+def _state(path: str):
+    from ..store.files import main_file, read_committed
+
+    try:
+        main = main_file(Path(path)).stat()
+        return read_committed(Path(path)), main.st_ino, main.st_mtime_ns
+    except OSError:
+        return None
+
+
+def _searcher(path: str) -> Searcher:
+    state = _state(path)
+    held = _OPEN.get(path)
+    if held is not None and held[1] == state and state is not None:
+        return held[0]
+    if held is not None:
+        held[0].close()
+        del _OPEN[path]
+    searcher = Searcher(path)
+    _OPEN[path] = (searcher, state)
+    return searcher
+
+
+def close_shards() -> None:
+    """Close every shard this process holds open."""
+    while _OPEN:
+        _OPEN.popitem()[1][0].close()
+
+
+def shard_info(path: str) -> dict:
+    """A shard's parameters, root and ok entries (run where the shard is)."""
+    searcher = _searcher(path)
+    return {"params": searcher.params, "root": searcher.root, "entries": len(searcher)}
+
+
+def shard_entry(path: str, entry: str):
+    """The stored signature of ``entry`` in the shard (StoreError as :meth:`Searcher.query_of_entry`)."""
+    return _searcher(path).query_of_entry(entry).signature
+
+
+def search_shard(path: str, signature, entry: str | None, top: int, metric: str, filters: Filters) -> dict:
+    """The shard's exact top ``top`` (run where the shard is): each hit as (distance, not the
+    query's own entry, relative path, metadata), in the store's order; the counts; why none."""
+    import time
+
+    started = time.perf_counter()
+    searcher = _searcher(path)
+    own = None
+    if entry is not None:
+        found = searcher.view.find(entry)
+        own = searcher.view.position_of(found) if found is not None else None
+    query = Query(entry or "", signature, own, entry if own is not None else None)
+    answer = searcher.search(query, top, metric, filters)
+    return {"hits": [(hit.distance, hit.relative_path != query.entry, hit.relative_path, hit.metadata)
+                     for hit in answer.hits],
+            "considered": answer.considered, "entries": answer.entries, "reason": answer.reason,
+            "nearest": answer.nearest, "own": own is not None, "seconds": time.perf_counter() - started}
+
+
+class ShardedSearcher:
+    """A sharded store opened to answer queries; the query interface of :class:`Searcher`."""
+
+    def __init__(self, store, scheduler: str | None = None):
+        self.store = Path(store)
+        self.shards = [str(p.resolve()) for p in shard_paths(self.store)]
+        self.scheduler = scheduler
+        self.client = None
+        self._workers: list = []
+        if scheduler:
+            from ..index.dask_pool import dask_client
+
+            self.client = dask_client(scheduler)
+            self._workers = sorted(self.client.scheduler_info()["workers"])
+        infos = self._each(shard_info, [(path,) for path in self.shards])
+        self.params, self.root = infos[0]["params"], infos[0]["root"]
+        for path, info in zip(self.shards, infos):
+            if info["params"] != self.params or info["root"] != self.root:
+                raise StoreError(f"shard {path} was built with other parameters or another root than {self.shards[0]}")
+        self.entries = sum(info["entries"] for info in infos)
+
+    def __len__(self) -> int:
+        return self.entries
+
+    def _each(self, function, arguments: list, shards=None) -> list:
+        """``function(*arguments[i])`` for each shard ``shards[i]`` (default all), where the shard is."""
+        shards = range(len(self.shards)) if shards is None else shards
+        if self.client is None:
+            return [function(*args) for args in arguments]
+        futures = [self.client.submit(function, *args, pure=False,
+                                      workers=[self._workers[k % len(self._workers)]] if self._workers else None,
+                                      allow_other_workers=True)
+                   for k, args in zip(shards, arguments)]
+        return self.client.gather(futures)
+
+    def close(self) -> None:
+        if self.client is None:
+            close_shards()
+        else:
+            self.client.close(timeout=5)
+            self.client = None
+
+    def __enter__(self) -> "ShardedSearcher":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def shard_of(self, entry: str) -> int:
+        return int(shard_of_paths([entry], len(self.shards))[0])
+
+    def present_metadata_keys(self) -> tuple:
+        if self.client is not None:
+            return ()
+        keys = []
+        for path in self.shards:
+            keys += [k for k in _searcher(path).present_metadata_keys() if k not in keys]
+        return tuple(keys)
+
+    def entry_path_of(self, file) -> str | None:
+        if not self.root:
+            return None
+        try:
+            return Path(file).resolve().relative_to(self.root).as_posix()
+        except (ValueError, OSError):
+            return None
+
+    def resolve_entry(self, entry) -> str:
+        """``entry`` as the store names it: a path relative to the root is taken as it is; a file
+        inside the root (absolute, or relative to here) becomes its path relative to the root."""
+        text = os.fspath(entry)
+        inside = self.entry_path_of(text) if os.path.exists(text) else None
+        return inside if inside is not None else text
+
+    def query_of_entry(self, entry) -> Query:
+        name = self.resolve_entry(entry)
+        k = self.shard_of(name)
+        signature = self._each(shard_entry, [(self.shards[k], name)], [k])[0]
+        return Query(os.fspath(entry), signature, None, name)
+
+    def query_of_part(self, part, file_type: str | None = None, label: str | None = None,
+                      threads: int | None = None) -> Query:
+        from ..io import LoadLimits
+        from ..signing.part import load_part
+        from ..signing.pipeline import signature_of_solid
+
+        solid = load_part(part, file_type, LoadLimits(faceting=self.params.faceting))
+        signature = signature_of_solid(solid, self.params.points, self.params.seed, self.params.bin_divisor, threads or 1)
+        path = os.path.abspath(part) if isinstance(part, (str, os.PathLike)) else None
+        entry = self.entry_path_of(part) if path is not None else None
+        if label is None:
+            label = os.fspath(part) if path is not None else getattr(part, "name", None) or type(part).__name__
+        return Query(str(label), signature, None, entry, path, solid)
+
+    def search(self, query: Query, top: int = 10, metric: str = "weighted", filters: Filters | None = None,
+               threads: int | None = None) -> Answer:
+        """Every shard's exact top ``top``, merged (see the module docstring)."""
+        from ..distance.metrics import metric as metric_record
+
+        metric_record(metric)
+        filters = filters or Filters()
+        if top < 1:
+            raise ValueError(f"top must be at least 1, not {top}")
+        answers = self._each(search_shard, [(path, query.signature, query.entry, top, metric, filters)
+                                            for path in self.shards])
+        self.last_seconds = [a["seconds"] for a in answers]  # each shard's own time (benchmarks)
+        found = [hit for answer in answers for hit in answer["hits"]]
+        found.sort(key=lambda hit: hit[:3])
+        own = any(a["own"] for a in answers)
+        answer = Answer(query.label, query.path, query.entry if own else None, metric, str(self.store.resolve()),
+                        self.root, [], considered=sum(a["considered"] for a in answers),
+                        entries=sum(a["entries"] for a in answers), filters=filters.described(),
+                        signature=query.signature)
+        answer.hits = [Hit(rank, float(distance), absolute(self.root, relative), relative, metadata)
+                       for rank, (distance, _, relative, metadata) in enumerate(found[:top], start=1)]
+        if not answer.hits:
+            answer.reason = _reason(answers, filters)
+        return answer
+
+
+def _reason(answers: list, filters: Filters) -> str:
+    """Why no shard has a hit: the shards' own reason when they agree, else what they share."""
+    nearest = [a["nearest"] for a in answers if a["nearest"] is not None]
+    if filters.max_distance is not None and nearest:
+        return f"no hit within --max-distance {filters.max_distance:g} (the nearest is at {min(nearest):.6g})"
+    reasons = [a["reason"] for a in answers if a["reason"]]
+    if not any(a["entries"] for a in answers):
+        return "the store has no entry yet (run 'shapeidx build DIR --shards N' first)"
+    if filters.where and all(r.startswith("no entry of the store matches") or r.startswith("the store has no")
+                             or r.startswith("none of the store") for r in reasons):
+        return f"no entry of the store matches {' and '.join(f'--where {c}' for c in filters.conditions())}"
+    return min(reasons, key=len) if reasons else "no entry is left to rank"

@@ -1,0 +1,154 @@
+"""A store sharded by path key (``build --shards N``, ``query`` of it, with and without a Dask
+cluster) answers exactly as one store holding every entry: the same hits, in the same order,
+with the same distances and metadata, for every metric and for ``--where`` filters.
+
+The reference is an ordinary store built the ordinary way from the same tree (it shares no
+code with the sharding: no manifest, no merge of answers). The cluster is real processes
+(``dask scheduler`` and ``dask worker``, tests/test_dask_build.py's LocalCluster).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+from clitools import cli, cli_json, shapeidx_command
+from storetools import FAST_POINTS, build, small_kicad
+
+from shapeidx.distance.metrics import METRICS
+from shapeidx.store import open_store
+from shapeidx.store.rank import path_keys
+from shapeidx.store.shards import shard_count, shard_paths
+
+distributed = pytest.importorskip("distributed", reason="the Dask half needs pip install 'shapeidx[dask]'")
+
+SHARDS = 3
+WHERE = ["material=steel"]
+
+
+@pytest.fixture(scope="module")
+def trees(data_dir, tmp_path_factory):
+    """A tree of KiCad parts with a metadata table, its ordinary store and its sharded store (built here)."""
+    tmp = tmp_path_factory.mktemp("shards")
+    tree = small_kicad(data_dir, tmp)
+    parts = sorted(p.relative_to(tree).as_posix() for p in tree.rglob("*.wrl"))
+    table = tmp / "parts.csv"
+    with open(table, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["path", "material"])
+        for k, part in enumerate(parts):
+            writer.writerow([part, "steel" if k % 3 else "brass"])
+    one = tmp / "one.shapeidx"
+    result = build(tree, one, "--metadata", table, "--workers", "1")
+    assert result.exit_code == 0, result.output
+    sharded = tmp / "sharded.shapeidx"
+    result = build(tree, sharded, "--metadata", table, "--workers", "1", "--shards", SHARDS)
+    assert result.exit_code == 0, result.output + result.stderr
+    return tree, table, parts, one, sharded
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    from test_dask_build import LocalCluster
+
+    cluster = LocalCluster(tmp_path_factory.mktemp("dask"))
+    try:
+        yield cluster
+    finally:
+        cluster.stop()
+
+
+def hits(answer: dict) -> list:
+    return [(h["rank"], h["relative_path"], h["distance"], h["metadata"]) for h in answer["hits"]]
+
+
+def test_each_shard_holds_exactly_the_paths_of_its_key(trees):
+    _, _, parts, one, sharded = trees
+    assert shard_count(sharded) == SHARDS
+    seen = []
+    for k, shard in enumerate(shard_paths(sharded)):
+        with open_store(shard) as reader:
+            paths = list(reader.paths)
+        # the key of shapeidx.store.rank.path_keys, reduced here by hand
+        assert all(int(path_keys([p])[0, 0]) % SHARDS == k for p in paths)
+        seen += paths
+    assert sorted(seen) == parts
+    assert len(set(seen)) == len(seen)
+    out = cli("stats", "--store", sharded)
+    assert out.exit_code != 0 and "sharded store" in (out.stderr or out.output)
+
+
+@pytest.mark.parametrize("metric", METRICS)
+def test_a_sharded_store_answers_as_one_store_for_every_metric(trees, metric):
+    _, _, parts, one, sharded = trees
+    for entry in (parts[2], parts[-5]):
+        for where in ([], WHERE):
+            args = ["--id", entry, "--top", 7, "--metric", metric, *[a for c in where for a in ("--where", c)]]
+            expected = cli_json("query", "--store", one, *args)
+            got = cli_json("query", "--store", sharded, *args)
+            assert hits(got) == hits(expected)
+            assert (got["entries"], got["considered"], got["entry"]) == (expected["entries"], expected["considered"],
+                                                                        expected["entry"])
+
+
+def test_ties_a_query_file_and_its_own_entry_merge_as_in_one_store(trees):
+    tree, _, parts, one, sharded = trees
+    part = tree / parts[5]
+    for extra in ([], ["--exclude-self"], ["--top", len(parts) + 3]):
+        expected = cli_json("query", part, "--store", one, *extra)
+        got = cli_json("query", part, "--store", sharded, *extra)
+        assert hits(got) == hits(expected)
+        assert got["entry"] == expected["entry"] == parts[5]
+    # no hit at all: the same exit status and the nearest distance in the reason
+    nothing = cli("query", "--id", parts[5], "--exclude-self", "--max-distance", "1e-9", "--store", sharded)
+    reference = cli("query", "--id", parts[5], "--exclude-self", "--max-distance", "1e-9", "--store", one)
+    assert nothing.exit_code == reference.exit_code == 6
+    assert nothing.stderr.split("no hit", 1)[1] == reference.stderr.split("no hit", 1)[1]
+
+
+def test_on_a_dask_cluster_every_shard_answers_from_a_worker(trees, cluster, tmp_path):
+    tree, table, parts, one, _ = trees
+    # the sharded build on the cluster's workers
+    sharded = tmp_path / "on-cluster.shapeidx"
+    run = subprocess.run(shapeidx_command("build", tree, "--store", sharded, "--points", FAST_POINTS, "--metadata",
+                                          table, "--shards", SHARDS, "--scheduler", cluster.address, "--json"),
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    summary = json.loads(run.stdout)
+    assert summary["indexed"] == len(parts) and summary["store"]["ok"] == len(parts)
+    built_by = {json.loads((shard / "build.json").read_text())["pid"] for shard in shard_paths(sharded)}
+    assert len(built_by) == SHARDS  # each shard by its own process on a worker, not by the client
+    for metric in ("weighted", "combined", "combined-angle", "all-angle"):
+        for where in ([], WHERE):
+            args = ["--id", parts[9], "--top", 6, "--metric", metric, *[a for c in where for a in ("--where", c)],
+                    "--json"]
+            run = subprocess.run(shapeidx_command("query", "--store", sharded, "--scheduler", cluster.address, *args),
+                                 capture_output=True, text=True, timeout=300)
+            assert run.returncode == 0, run.stderr
+            assert hits(json.loads(run.stdout)) == hits(cli_json("query", "--store", one, *args[:-1]))
+
+
+def test_an_incremental_build_changes_only_the_shard_of_each_changed_path(trees, tmp_path):
+    tree, table, parts, _, sharded = trees
+    tree2 = tmp_path / "parts"
+    shutil.copytree(tree, tree2)
+    store = tmp_path / "s.shapeidx"
+    shutil.copytree(sharded, store)
+    # a copied store has another root: rebuild from the copy as a new store instead
+    shutil.rmtree(store)
+    assert build(tree2, store, "--workers", "1", "--shards", SHARDS).exit_code == 0
+    gone = parts[4]
+    (tree2 / gone).unlink()
+    before = [len(open_store(s)) for s in shard_paths(store)]
+    result = build(tree2, store, "--workers", "1")  # the manifest says it is sharded: no --shards needed
+    assert result.exit_code == 0, result.output
+    after = [len(open_store(s)) for s in shard_paths(store)]
+    k = int(path_keys([gone])[0, 0]) % SHARDS
+    assert after[k] == before[k] - 1 and np.delete(after, k).tolist() == np.delete(before, k).tolist()
+    answer = cli_json("query", "--id", parts[0], "--store", store, "--top", len(parts))
+    assert gone not in [h["relative_path"] for h in answer["hits"]] and len(answer["hits"]) == len(parts) - 1
+    assert "has 3 shards" in build(tree2, store, "--shards", 2).output
