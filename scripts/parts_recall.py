@@ -141,10 +141,10 @@ def main() -> None:
     from shapeidx.search import Searcher
     from shapeidx.search.where_used import where_used
 
-    sizes = args.sizes or [None]
+    sizes = args.sizes or [0.05]
     runs = [(m, sc, z) for m in metrics for sc in scales for z in sizes]
     limits = {m: duplicate_thresholds(m) for m in metrics}
-    results = {run: {"r_precision": [], "recall_10": [], "count_right": [],
+    results = {run: {"r_precision": [], "recall_10": [], "count_right": [], "count_right_same": [],
                      "at": {t: [0, 0, 0] for t in limits[run[0]]}} for run in runs}
     with tempfile.TemporaryDirectory() as folder, Searcher(args.store, parts=True) as searcher:
         for k, (name, solid, inv, holders) in enumerate(queries):
@@ -163,6 +163,11 @@ def main() -> None:
                 for tier, t in limits[metric].items():
                     within = {u.relative_path for u in where_used(searcher, question, top=10**6, metric=metric,
                                                                    max_distance=t, scale=scale, same_size=size).uses}
+                    if tier == "same":
+                        uses = where_used(searcher, question, top=10**6, metric=metric, max_distance=t, scale=scale,
+                                          same_size=size).uses
+                        res["count_right_same"].extend(u.count == holders[u.relative_path] for u in uses
+                                                       if u.relative_path in holders)
                     res["at"][tier][0] += len(within & set(holders))
                     res["at"][tier][1] += len(within)
                     res["at"][tier][2] += r
@@ -174,6 +179,7 @@ def main() -> None:
             "r_precision": float(np.mean(res["r_precision"])),
             "recall_top10": float(np.mean(res["recall_10"])),
             "count_right": f"{sum(res['count_right'])}/{len(res['count_right'])}",
+            "count_right_within_same": f"{sum(res['count_right_same'])}/{len(res['count_right_same'])}",
             "max_distance": {tier: {"threshold": limits[metric][tier], "precision": (f / w if w else float("nan")),
                                     "recall": f / r} for tier, (f, w, r) in res["at"].items()},
         })
@@ -182,7 +188,8 @@ def main() -> None:
         tiers = "  ".join(f"{tier} (<= {v['threshold']:.4g}): P {v['precision']:.3f} R {v['recall']:.3f}"
                           for tier, v in run["max_distance"].items())
         print(f"{run['metric']:15s} {run['scale']:9s} same-size {run['same_size']}  R-precision {run['r_precision']:.3f}  recall@10"
-              f" {run['recall_top10']:.3f}  count right {run['count_right']}  {tiers}")
+              f" {run['recall_top10']:.3f}  count right {run['count_right']} (within same: {run['count_right_within_same']})"
+              f"  {tiers}")
     if args.json_out:
         Path(args.json_out).write_text(text + "\n")
 

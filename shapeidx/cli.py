@@ -553,13 +553,15 @@ def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bo
 @click.option("--id", "entry", metavar="PATH",
               help="Ask about an entry of the store instead of PART: a sub-part FILE#n or a file of the indexed folder.")
 @click.option("--top", "-k", default=10, show_default=True, type=click.IntRange(1), help="How many files.")
-@metric_option("weighted")
+@metric_option("all-angle")
 @click.option("--max-distance", type=FiniteFloat(0), metavar="D",
               help="Only sub-parts within D; each file's count is then of all its sub-parts within D.")
 @click.option("--scale", type=click.Choice(("sensitive", "invariant")), default="sensitive", show_default=True,
-              help="sensitive: leave out sub-parts more than twice or less than half PART's size; invariant: any size.")
+              help="sensitive: only sub-parts of PART's size (principal radii within --same-size); invariant: any size.")
+@click.option("--same-size", type=FiniteFloat(0), default=0.05, show_default=True, metavar="SHARE",
+              help="With --scale sensitive: the largest relative difference of principal radii.")
 @format_options
-def where_used(part, store, entry, top, metric, max_distance, scale, output_format, as_json):
+def where_used(part, store, entry, top, metric, max_distance, scale, same_size, output_format, as_json):
     """The files that hold a sub-part like PART (or --id PATH), nearest first: how far their
     nearest sub-part is, which it is, and how many times the file holds it. The store must be
     built with --parts (docs/assemblies.md).
@@ -585,7 +587,7 @@ def where_used(part, store, entry, top, metric, max_distance, scale, output_form
             question = searcher.query_of_entry(searcher.resolve_entry(_part_entry(searcher, entry)))
         else:
             question = searcher.query_of_part(part, label=part, threads=available_cores())
-        answer = rank_uses(searcher, question, top, metric, max_distance, scale)
+        answer = rank_uses(searcher, question, top, metric, max_distance, scale, same_size)
     if answer.reason is not None:
         raise NoAnswer(f"no answer for {answer.query}: {answer.reason}")
     if fmt == "json":

@@ -228,6 +228,13 @@ class TestBuildAndWhereUsed:
         uses = {u["relative_path"]: u["count"] for u in answer["uses"]}
         assert uses == {"boards/four.step": 4, "boards/six.step": 6}
         assert all(u["part"].startswith(u["relative_path"] + "#") for u in answer["uses"])
+        # same size only (the default): the other pin and the cube are other sizes; any size: every file
+        sized = json.loads(cli("where-used", query, "--store", store, "--json").stdout)
+        assert {u["relative_path"] for u in sized["uses"]} == {"boards/four.step", "boards/six.step"}
+        anysize = json.loads(cli("where-used", query, "--store", store, "--scale", "invariant", "--json").stdout)
+        assert {u["relative_path"] for u in anysize["uses"]} == {"boards/four.step", "boards/six.step",
+                                                                  "boards/other.step", "cube.step"}
+        assert [u["relative_path"] for u in anysize["uses"][:2]] == [u["relative_path"] for u in sized["uses"]]
         # by an entry: the pin of six.step finds four.step at once
         part = [u["part"] for u in answer["uses"] if u["relative_path"] == "boards/six.step"][0]
         csv = cli("where-used", "--id", part, "--store", store, "--top", "2", "--format", "csv")
