@@ -255,6 +255,9 @@ class TestBuildAndWhereUsed:
             assert hit["relative_path"].startswith(hit["parent"] + "#")
             assert hit["path"] == str(root / hit["parent"])
             assert hit["count"] == {"boards/four.step": 4, "boards/six.step": 6}[hit["parent"]]
+        api = shapeidx.query(store, str(query), top=2, parts=True)  # the Python API: the same hits
+        assert [(h["relative_path"], h["parent"], h["count"]) for h in api] == [
+            (h["relative_path"], h["parent"], h["count"]) for h in parts["hits"]]
         with open_store(parts_store(store)) as reader:  # a file that is one part is its own FILE#1
             assert "cube.step#1" in set(reader.paths)
 
