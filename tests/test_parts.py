@@ -326,3 +326,25 @@ class TestBuildAndWhereUsed:
         assert all(len(g["files"]) > 1 for g in groups)
         # the whole-file duplicates are not changed by the sub-parts
         assert json.loads(cli("duplicates", "--store", store, "--json").stdout) == []
+
+
+def test_a_failing_split_costs_the_sub_parts_only(library, tmp_path, monkeypatch):
+    """An unforeseen error while splitting a file: its sub-entries are one failed entry with
+    the reason in words; its whole entry is signed and the build goes on."""
+    from shapeidx.index.workers import Task, index_file
+    from shapeidx.store import StoreParams
+    from shapeidx.signing.parameters import BIN_DIVISOR, SIGNATURE_VERSION
+    import shapeidx.io.parts
+
+    root, _ = library
+    def broken(*args, **kwargs):
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.setattr(shapeidx.io.parts, "split_parts", broken)
+    params = StoreParams(points=256, seed=1, bin_divisor=BIN_DIVISOR, signature_version=SIGNATURE_VERSION)
+    path = "boards/four.step"
+    outcome = index_file(Task(path, str(root / path), parts=True), params, str(root))
+    assert outcome.kind == "indexed" and outcome.entry.status == 0
+    (failed,) = outcome.parts
+    assert failed.status == 1 and failed.path == failed.parent == path
+    assert "split" in failed.reason and "Traceback" not in failed.reason
