@@ -243,11 +243,12 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         with open_store(store, skip_damaged=True) as reader:  # the writer dropped what is damaged
             plan = make_plan(walk, reader, options)
         summary.found, summary.unchanged, summary.planned = plan.found, plan.unchanged, len(plan.tasks)
+        # with --parts: the files whose sub-parts alone are missing or stale are tasks too
+        parts = _parts_committer(store, params, root, options, reporter, plan, walk) if options.parts else None
         reporter.planned(plan)
         committer = Committer(writer, options.commit_interval, options.merge_after, reporter)
         committer.remove(plan.removed)
         summary.removed = len(plan.removed)
-        parts = _parts_committer(store, params, root, options, reporter, plan, walk) if options.parts else None
         committers = [committer] + ([parts] if parts else [])
         pool = _pool(options, params, root)
         profile = summary.profile = BuildProfile()
