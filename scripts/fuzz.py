@@ -32,7 +32,8 @@ as one of
 ``load_error``  a clean :class:`~shapeidx.errors.LoadError`: one line, naming the file, not
                 a wrapped internal exception
 ``wrapped``     a LoadError that only stands for an internal exception (its reason says the
-                input was something "shapeidx's checks did not foresee")
+                input was something "shapeidx's checks did not foresee") or quotes one
+                (a class name, zlib's "Error -3 while decompressing")
 ``exception``   any other exception (its type is recorded)
 ``crash``       the worker died (a signal: a native crash, or killed)
 ``hang``        the worker ran past the time limit and was killed
@@ -438,6 +439,12 @@ def _reset_peak() -> None:
         pass
 
 
+#: A reason quoting an exception or a library's own text: a class name (``OverflowError``,
+#: ``Transfer_TransferFailure``) or zlib's "Error -3 while decompressing": counted as wrapped.
+RAW_REASON = re.compile(r"\b[A-Z]\w*(Error|Exception|Failure)\b|\b[A-Z][a-z]+[A-Za-z]*_[A-Z][a-z]\w*|\bError -?\d|Traceback")
+#: Text a reason quotes from the file (a token, a node type): not the reason's own words.
+QUOTED = re.compile(r"'[^']*'")
+
 #: The time limit of OpenCASCADE's contained child (LoadLimits.max_seconds) in the cases: below
 #: the case's own --timeout, so that a STEP/IGES file OpenCASCADE hangs on is refused as the
 #: commands refuse it, not counted as a hang of the worker.
@@ -471,7 +478,9 @@ def run_case(path: str, root: str, signature: bool) -> dict:
             }
         except LoadError as exc:
             message = str(exc)
-            clean = "\n" not in message and message.startswith(printable(path)) and "cannot read (" not in message and UNFORESEEN not in message
+            reason = QUOTED.sub("''", message[len(printable(path)):])
+            clean = ("\n" not in message and message.startswith(printable(path)) and "cannot read (" not in message
+                     and UNFORESEEN not in message and not RAW_REASON.search(reason))
             result = {"outcome": "load_error" if clean else "wrapped", "error": message}
         except BaseException as exc:  # noqa: BLE001 - everything is a finding
             result = {"outcome": "exception", "error": f"{type(exc).__name__}: {exc}"[:300], "type": type(exc).__name__}

@@ -553,11 +553,15 @@ def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bo
 @click.option("--id", "entry", metavar="PATH",
               help="Ask about an entry of the store instead of PART: a sub-part FILE#n or a file of the indexed folder.")
 @click.option("--top", "-k", default=10, show_default=True, type=click.IntRange(1), help="How many files.")
-@metric_option("weighted")
+@metric_option("all-angle")
 @click.option("--max-distance", type=FiniteFloat(0), metavar="D",
               help="Only sub-parts within D; each file's count is then of all its sub-parts within D.")
+@click.option("--scale", type=click.Choice(("sensitive", "invariant")), default="sensitive", show_default=True,
+              help="sensitive: only sub-parts of PART's size (principal radii within --same-size); invariant: any size.")
+@click.option("--same-size", type=FiniteFloat(0), default=0.05, show_default=True, metavar="SHARE",
+              help="With --scale sensitive: the largest relative difference of principal radii.")
 @format_options
-def where_used(part, store, entry, top, metric, max_distance, output_format, as_json):
+def where_used(part, store, entry, top, metric, max_distance, scale, same_size, output_format, as_json):
     """The files that hold a sub-part like PART (or --id PATH), nearest first: how far their
     nearest sub-part is, which it is, and how many times the file holds it. The store must be
     built with --parts (docs/assemblies.md).
@@ -583,7 +587,7 @@ def where_used(part, store, entry, top, metric, max_distance, output_format, as_
             question = searcher.query_of_entry(searcher.resolve_entry(_part_entry(searcher, entry)))
         else:
             question = searcher.query_of_part(part, label=part, threads=available_cores())
-        answer = rank_uses(searcher, question, top, metric, max_distance)
+        answer = rank_uses(searcher, question, top, metric, max_distance, scale, same_size)
     if answer.reason is not None:
         raise NoAnswer(f"no answer for {answer.query}: {answer.reason}")
     if fmt == "json":
@@ -924,6 +928,20 @@ def _family_table(store, metric=None):
     return table
 
 
+def _parts_store_of(store):
+    """The parts store of ``store`` (``build --parts``), or a one-line error naming how to make it."""
+    from .errors import StoreError
+    from .store import open_store
+    from .store.files import parts_store
+
+    path = parts_store(_store_path(store))
+    if not path.is_dir():
+        open_store(_store_path(store)).close()  # no store at all: that error first
+        raise StoreError(f"the store {_store_path(store)} has no sub-parts: build it with 'shapeidx build DIR --store"
+                         f" {_store_path(store)} --parts' (docs/assemblies.md)")
+    return path
+
+
 def _table_keep(store, table, where):
     """``--where`` as a keep-mask over the table's entries (None: no condition)."""
     if not where:
@@ -1075,9 +1093,12 @@ def _no_entry_kept(where):
               help="Also report near duplicates (tier near: measured less precise, docs/duplicates.md).")
 @where_option
 @scale_option
+@click.option("--parts", is_flag=True,
+              help="Groups of sub-parts (a store built with build --parts) shared by several files: the same pin in"
+                   " two connectors; each group names its files.")
 @click.option("--csv", "as_csv", is_flag=True, help="One row per member (same as --format csv).")
 @format_options
-def duplicates(store, metric, with_near, where, scale, as_csv, output_format, as_json):
+def duplicates(store, metric, with_near, where, scale, parts, as_csv, output_format, as_json):
     """Groups of entries that are one part: identical files, or the same geometry at one size (or
     in other units, which each member's row names), most confident groups first.
 
@@ -1090,15 +1111,25 @@ def duplicates(store, metric, with_near, where, scale, as_csv, output_format, as
       shapeidx duplicates --store parts.shapeidx --near --csv > duplicates.csv
       shapeidx duplicates --store parts.shapeidx --scale sensitive --where 'path~Resistor*'
     """
-    from .families.duplicates import DEFAULT_TIERS, find_duplicates
+    from .families.duplicates import DEFAULT_TIERS, find_duplicates, shared_sub_parts
     from .system import available_cores
 
+    if parts:
+        store = str(_parts_store_of(store))
     table = _family_table(store, metric)
     keep = _table_keep(store, table, where)
     if len(table) == 0 or (keep is not None and not keep.any()):
         raise _empty_store_error(store) if len(table) == 0 else _no_entry_kept(where)
     tiers = DEFAULT_TIERS + (("near",) if with_near else ())
-    groups = find_duplicates(table, metric, scale, threads=available_cores(), tiers=tiers, keep=keep)
+    if parts:
+        from .store import open_store
+
+        with open_store(store) as reader:
+            parent_of = dict(zip(reader.paths.tolist(), reader.column("entries/parent").tolist()))
+        groups = shared_sub_parts(table, [parent_of[p] for p in table.paths], metric, scale, threads=available_cores(),
+                                  tiers=tiers, keep=keep)
+    else:
+        groups = find_duplicates(table, metric, scale, threads=available_cores(), tiers=tiers, keep=keep)
     fmt = "csv" if as_csv and output_format is None else chosen_format(output_format, as_json)
     if fmt == "json":
         emit_json(groups)
@@ -1120,7 +1151,8 @@ def duplicates(store, metric, with_near, where, scale, as_csv, output_format, as
     size_width = max([4] + [len(size_of(p)) for p in pairs])
     for g, group in enumerate(groups, start=1):
         click.echo(f"group {g}: {len(group['members'])} parts, {group['tier']}, confidence {group['confidence']:.2f}:"
-                   f" {printable(group['representative'])}")
+                   f" {printable(group['representative'])}"
+                   + (f" (in {len(group['files'])} files)" if "files" in group else ""))
         click.echo(f"  {'tier':{tier_width}s}  {'distance':<10s} {'size':{size_width}s}  {'mirrored':8s}  part")
         for p in group["pairs"]:
             click.echo(f"  {p['tier']:{tier_width}s}  {p['distance']:<10.4g} {size_of(p):{size_width}s}"

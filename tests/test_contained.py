@@ -184,9 +184,10 @@ def _iges_of(step: Path, out: Path, mode: int = 1) -> Path:
     return out
 
 
-def test_an_iges_directory_line_missing_is_refused_and_would_crash(data_dir, tmp_path):
-    """One line of the Directory section deleted: refused with a reason before OpenCASCADE
-    sees it; and with that check off, OpenCASCADE's crash is still contained."""
+def test_an_iges_directory_line_missing_is_a_contained_crash_with_its_cause(data_dir, tmp_path):
+    """One line of the Directory section deleted: OpenCASCADE dies on it; the line says so
+    and names the damaged numbering (the numbering alone does not refuse a file:
+    OpenCASCADE reads many such files all the same)."""
     whole = _iges_of(data_dir / "kicad6-step" / SEED_PART, tmp_path / "whole.igs")
     lines = whole.read_bytes().split(b"\n")
     directory = [i for i, line in enumerate(lines) if len(line) >= 73 and line[72:73] == b"D"]
@@ -199,16 +200,8 @@ def test_an_iges_directory_line_missing_is_refused_and_would_crash(data_dir, tmp
     run, outcomes = _load_each([whole, *paths])
     assert run.returncode == 0 and "mesh" in outcomes[0], outcomes
     for outcome in outcomes[1:]:
-        assert re.search(r"not a valid IGES file \(Directory section: line \d+ is numbered \d+ \(a line missing",
-                         outcome["error"]), outcome
-    unchecked = ("import sys\n"
-                 "import shapeidx.io.step as step\n"
-                 "step._directory_problem = lambda numbers: None\n"
-                 "from shapeidx.io import load\n"
-                 "try:\n    load(sys.argv[1])\nexcept Exception as exc:\n    print(exc)\n")
-    result = subprocess.run([sys.executable, "-c", unchecked, str(paths[0])], capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result
-    assert "OpenCASCADE crashed reading it (signal 11, SIGSEGV)" in result.stdout, result.stdout
+        assert re.search(r"OpenCASCADE crashed reading it \(signal 11, SIGSEGV\); its Directory section is damaged: "
+                         r"line \d+ is numbered \d+ \(a line missing or out of place\)$", outcome["error"]), outcome
 
 
 def test_the_web_server_survives_an_upload_that_crashes_opencascade(data_dir, crashing, tmp_path):

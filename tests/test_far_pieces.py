@@ -63,3 +63,20 @@ def test_real_parts_have_no_far_pieces(data_dir):
         triangles = triangulate_polygons(mesh.vertices, mesh.face_sizes, mesh.face_indices)
         far, _, _ = far_pieces(np.asarray(mesh.vertices, dtype=float), triangles)
         assert far is None, path
+
+
+@pytest.mark.parametrize("number", ["1e20", "-1e9", "1e60"])
+def test_a_cube_with_one_coordinate_written_huge_is_read(data_dir, number):
+    """The fuzz run's case: one number of a real ASCII STL cube (side 10) replaced by a huge
+    one, so one triangle reaches far away (connected to the cube, not a piece of its own).
+    That triangle is left out with a warning: the rest is the cube, open where it was
+    (area 600 - 50, analytic)."""
+    from shapeidx.io import load_bytes
+
+    source = (data_dir / "mesh-wild/openscad-testdata/testdata/manual/issue214/cube2.stl").read_bytes()
+    at = source.index(b"vertex", 200) + len(b"vertex ")
+    data = source[:at] + number.encode() + source[source.index(b" ", at):]
+    solid = make_solid(load_bytes(data, "cube2.stl"), "cube2.stl")
+    assert solid.area == pytest.approx(550.0, rel=1e-9)
+    assert solid.report["far_removed"] == 1 and not solid.watertight
+    assert any("1 triangle(s) far from the rest left out" in w for w in solid.warnings), solid.warnings

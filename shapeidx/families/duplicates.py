@@ -390,3 +390,29 @@ def _group(table, rep: int, chosen: np.ndarray, pairs_of: np.ndarray, flipped: n
     folders = sorted({m.split("/", 1)[0] if "/" in m else "" for m in members})
     return {"representative": str(paths[head]), "members": members, "tier": TIERS[weakest[0]],
             "confidence": group_confidence(*weakest), "folders": folders, "pairs": pairs}
+
+
+def shared_sub_parts(table, parents, metric: str = DEFAULT_METRIC, scale: str = "invariant", threads: int | None = None,
+                     tiers=DEFAULT_TIERS, keep=None) -> list[dict]:
+    """Duplicate groups of sub-parts (a parts store's table, ``build --parts``) that span
+    several files: the same pin in two connectors. ``parents``: the file of each entry of
+    ``table`` (its ``entries/parent``).
+
+    The sub-entries of one file share its content hash, which for whole files makes them
+    one "identical" atom; here each sub-entry is its own atom (its hash made unique by its
+    path), so sub-parts are grouped by their geometry alone. Each group also has ``files``
+    (its members' files, sorted) and keeps only groups whose members lie in two files or more.
+    """
+    import dataclasses
+
+    hashes = np.array([h + b"#" + str(p).encode("utf-8", "surrogatepass") if len(h) else h
+                       for h, p in zip(table.hashes, table.paths)], dtype=object)
+    table = dataclasses.replace(table, hashes=hashes)
+    parent_of = dict(zip(table.paths.tolist(), [str(p) for p in parents]))
+    groups = find_duplicates(table, metric, scale, threads=threads, tiers=tiers, keep=keep)
+    shared = []
+    for group in groups:
+        files = sorted({parent_of.get(m, m) for m in group["members"]})
+        if len(files) > 1:
+            shared.append({**group, "files": files})
+    return shared

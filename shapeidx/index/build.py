@@ -239,15 +239,16 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         for warning in walk.warnings:
             reporter.warning(warning)
         if table is not None:
-            summary.metadata_rows, summary.metadata_changed = len(table), _store_metadata(store, table)
+            summary.metadata_rows, summary.metadata_changed = len(table), _store_metadata(store, table, reporter)
         with open_store(store, skip_damaged=True) as reader:  # the writer dropped what is damaged
             plan = make_plan(walk, reader, options)
         summary.found, summary.unchanged, summary.planned = plan.found, plan.unchanged, len(plan.tasks)
+        # with --parts: the files whose sub-parts alone are missing or stale are tasks too
+        parts = _parts_committer(store, params, root, options, reporter, plan, walk) if options.parts else None
         reporter.planned(plan)
         committer = Committer(writer, options.commit_interval, options.merge_after, reporter)
         committer.remove(plan.removed)
         summary.removed = len(plan.removed)
-        parts = _parts_committer(store, params, root, options, reporter, plan, walk) if options.parts else None
         committers = [committer] + ([parts] if parts else [])
         pool = _pool(options, params, root)
         profile = summary.profile = BuildProfile()
@@ -356,11 +357,17 @@ def _metadata_table(options: BuildOptions, root: Path, walk, reporter):
     return table
 
 
-def _store_metadata(store: Path, table) -> bool:
-    """Write the table into the store (the lock is held) unless it holds the same; True if it changed."""
+def _store_metadata(store: Path, table, reporter=None) -> bool:
+    """Write the table into the store (the lock is held) unless it holds the same; True if it changed.
+    A damaged table in the store is replaced (it is what --metadata gives again)."""
     from ..store.metadata import load_table, write_table
 
-    current = load_table(store)
+    try:
+        current = load_table(store)
+    except StoreDamagedError as exc:
+        if reporter is not None:
+            reporter.warning(f"the store's metadata table was damaged; written again from --metadata ({exc})")
+        current = None
     if current is not None and current.sha256 == table.sha256 and current.source == table.source:
         return False
     write_table(store, table)

@@ -84,9 +84,10 @@ class BuildReporter:
         self.started = self.last_line = time.monotonic()
         if self.quiet:
             return
+        only_parts = sum(not getattr(task, "whole", True) for task in plan.tasks)
         self._say(
-            f"shapeidx build: {plan.found} files: {len(plan.tasks)} new or changed, {plan.unchanged} unchanged,"
-            f" {len(plan.removed)} to remove"
+            f"shapeidx build: {plan.found} files: {len(plan.tasks) - only_parts} new or changed, {plan.unchanged} unchanged,"
+            f" {len(plan.removed)} to remove" + (f"; {only_parts} to split into sub-parts" if only_parts else "")
         )
         if self.terminal and self.total:
             self.bar = click.progressbar(

@@ -168,8 +168,8 @@ def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
         entry, kind = Entry.failed(task.path, digest, size, mtime, reason), "failed"
     sub = None
     if parts:
-        sub = _failed_parts(task, entry) if kind == "failed" else _part_entries(task, digest, size, mtime, mesh, entry,
-                                                                               params, limits)
+        sub = _failed_parts(task, entry) if kind == "failed" else _guarded_parts(task, digest, size, mtime, mesh, entry,
+                                                                                params, limits)
         clock.lap("parts")
     if not whole:
         kind = "same" if task.whole else "skipped"
@@ -209,6 +209,23 @@ def _failed_parts(task: Task, entry: Entry) -> list | None:
     return [failed]
 
 
+def _guarded_parts(task: Task, digest: str, size: int, mtime: int, mesh, whole: Entry, params: StoreParams,
+                   limits) -> list:
+    """:func:`_part_entries`, whose failure costs the file's sub-entries (one failed ``FILE``),
+    never its whole entry or the build."""
+    try:
+        return _part_entries(task, digest, size, mtime, mesh, whole, params, limits)
+    except (LoadError, OutOfMemory) as exc:
+        reason = reason_of(exc, task.absolute)
+    except MemoryError:
+        reason = "out of memory while splitting it into sub-parts"
+    except Exception as exc:  # a bug in the split must cost the file's sub-parts, not the build
+        from ..errors import exception_in_words
+
+        reason = one_line(f"cannot be split into sub-parts: it holds {exception_in_words(exc)}")
+    return _failed_parts(task, Entry.failed(task.path, digest, size, mtime, reason))
+
+
 def _part_entries(task: Task, digest: str, size: int, mtime: int, mesh, whole: Entry, params: StoreParams,
                   limits) -> list:
     """The sub-entries of a file read and signed (``whole``): one per distinct sub-part, or
@@ -220,7 +237,7 @@ def _part_entries(task: Task, digest: str, size: int, mtime: int, mesh, whole: E
 
     try:
         parts = split_parts(task.absolute, limits, mesh=mesh)
-    except LoadError as exc:
+    except LoadError:
         parts = None  # the split failed where the whole file did not: the file is its own one part
     if not parts:
         if whole is None:  # only the parts were asked and the file is one part: sign it as a whole

@@ -134,6 +134,18 @@ def open_regular(path: str | os.PathLike):
         raise
 
 
+def read_regular(path: str | os.PathLike, limit: int | None = None) -> bytes:
+    """A small file's bytes through :func:`open_regular` (never blocks on a FIFO); more than
+    ``limit`` bytes raise :class:`OSError` (a record of a few bytes grown to gigabytes)."""
+    import errno
+
+    with open_regular(path) as f:
+        data = f.read(-1 if limit is None else limit + 1)
+    if limit is not None and len(data) > limit:
+        raise OSError(errno.EFBIG, f"larger than {limit:,} bytes", os.fspath(path))
+    return data
+
+
 def file_hash(path: str | os.PathLike) -> str:
     """SHA-256 of a file's bytes, as 64 hex digits (what a store entry records)."""
     import hashlib
@@ -288,8 +300,8 @@ def gunzip_bounded(source, path: Path, max_bytes: int) -> bytes:
     if declared is not None and declared > max_bytes:
         raise LoadError(
             path,
-            f"gzip data expands beyond the limit of {max_bytes:,} bytes (it declares {declared:,};"
-            f" refused as a possible bomb)",
+            f"gzip data expands beyond the limit of {max_bytes:,} bytes (it declares {declared:,}: a bomb,"
+            f" or its last bytes are damaged; refused)",
         )
     if isinstance(source, (bytes, bytearray, memoryview)):
         source = io.BytesIO(source)
@@ -311,8 +323,26 @@ def gunzip_bounded(source, path: Path, max_bytes: int) -> bytes:
     except LoadError:
         raise
     except (OSError, EOFError, zlib.error) as exc:
-        raise LoadError(path, f"corrupt gzip data ({exc})") from None
+        raise LoadError(path, f"corrupt gzip data ({_gzip_problem(exc)})") from None
     return b"".join(chunks)
+
+
+def _gzip_problem(exc: BaseException) -> str:
+    """What a gzip or zlib exception says about the data, in words (zlib's own text reads
+    "Error -3 while decompressing data: invalid distance too far back")."""
+    if isinstance(exc, EOFError):
+        return "it is cut short before the end of its compressed stream"
+    text = str(exc)
+    if isinstance(exc, zlib.error):
+        detail = text.split(":", 1)[1].strip() if ":" in text else ""
+        return "its compressed stream is damaged" + (f": {detail}" if detail else "")
+    if text.startswith("Not a gzipped file"):
+        return "not gzip after its first bytes"
+    if text.startswith("CRC check failed"):
+        return "its checksum does not match its content"
+    if text.startswith("Incorrect length"):
+        return "its declared length does not match its content"
+    return getattr(exc, "strerror", None) or "unreadable"
 
 
 def _gzip_declared_size(source) -> int | None:

@@ -93,9 +93,11 @@ class SimilarityScale:
             return cls.of_store(searcher, metric)
         target = folder / f"calibration-{metric}-d{MAX_DRAWS}-{key}.npz"
         try:
-            with np.load(target) as data:
+            from ..io.base import open_regular
+
+            with open_regular(target) as f, np.load(f) as data:  # a FIFO in the cache is a miss, never a hang
                 return cls(metric, data["distances"], int(data["pairs"]), int(data["draws"]))
-        except (OSError, KeyError, ValueError):
+        except (OSError, KeyError, ValueError, EOFError):
             pass
         scale = cls.of_store(searcher, metric)
         try:

@@ -25,8 +25,10 @@ ranking) set the current ``top``-th distance, and the search stops when no block
 bound at or below it. Every entry that could be in the answer, or tie with its last hit, has
 been measured exactly: the answer is the full ranking's (tests/test_blocks.py).
 
-The index costs a pass over the store to build (a few seconds per 10^6 entries) and holds
-about ``2 x features x 8`` bytes per block, plus one position per entry (8 MB per 10^6).
+The index costs two passes over the coarse histograms and a principal-axis tree to build
+(31-44 s per 10^6 entries on a loaded 2-core machine) and holds about ``2 x features x 8``
+bytes per block, one position per entry (8 MB per 10^6) and the coarse probabilities of the
+histograms of :data:`CACHED` (88 bytes an entry for ALL).
 """
 
 from __future__ import annotations
@@ -47,6 +49,10 @@ BLOCK = 256
 WARM_MIN = 50_000
 #: Leading principal components of each histogram's coarse probabilities in the ordering.
 COMPONENTS = 4
+#: Histograms whose coarse probabilities the index keeps per entry (float32, block order: 88
+#: bytes an entry for ALL at 1024 points): ALL's coarse bound is loose on near-alike parts, so
+#: the metrics of ALL alone (``all``, ``all-angle``) bound tens of thousands of entries one by one.
+CACHED = ("all",)
 #: Entries whose exact distances the first round measures (then as the bounds require).
 FIRST_ROUND = 1024
 
@@ -174,10 +180,13 @@ class BlockIndex:
         self.ends = np.minimum(self.starts + block, n)
         self.intervals: dict = {}
         self.max_bins: dict = {}
+        self.cached: dict = {}
         for h in HISTOGRAMS:
             p, bins = coarse_probabilities(view, h)
             self.intervals[h] = self._span(p)
             self.max_bins[h] = np.maximum.reduceat(bins[self.perm], self.starts) if n else np.zeros(0, np.int64)
+            if h in CACHED:  # in block order, float32: each entry's own bound without a gather
+                self.cached[h] = (p[self.perm].astype(np.float32), bins[self.perm])
             del p
         self.intervals["fractions"] = self._span(fractions)
         self.intervals["scales"] = self._span(scales)
@@ -244,6 +253,33 @@ class BlockIndex:
         # room for rounding, as lower_bounds leaves it
         return np.asarray(record.value(features), dtype=np.float64) * (1 - 1e-9) - 1e-15
 
+    def _entry_bounds(self, signature, metric: str, at: np.ndarray, threads: int) -> np.ndarray:
+        """:func:`entry_bounds` of the entries at block-order places ``at``: from the kept coarse
+        probabilities when the metric reads only kept histograms (its angle terms bounded by 0),
+        else from the mapped arrays."""
+        from ..distance.combined import ANGLE_FEATURES
+        from .distances import float32_slack
+
+        record = metric_record(metric)
+        if not record.histograms or not set(record.histograms) <= set(self.cached) or any(
+                f.startswith(("gap_", "scale_")) for f in record.features):
+            return entry_bounds(self.view, signature, metric, self.perm[at], threads)
+        features = {f"d_{h}": 0.0 for h in HISTOGRAMS}
+        features.update(dict.fromkeys(ANGLE_FEATURES, 0.0))
+        for h in record.histograms:
+            p, bins = self.cached[h]
+            query_p = np.asarray(signature.histograms[h].p, dtype=np.float64)
+            coarse = _coarse(query_p, self.view.sections[0].coarse) if len(query_p) else np.zeros(0)
+            width = max(p.shape[1], len(coarse))
+            q = np.zeros(width, dtype=np.float32)
+            q[: len(coarse)] = coarse
+            tail = float(q[p.shape[1]:].sum(dtype=np.float64))  # bins only the query has
+            l1 = np.abs(p[at] - q[: p.shape[1]]) @ np.ones(p.shape[1], dtype=np.float32)
+            widths = np.maximum(bins[at], len(query_p))
+            features[f"d_{h}"] = np.divide(np.maximum(l1 + tail - float32_slack(width), 0), widths,
+                                           out=np.zeros(len(at)), where=widths > 0)
+        return np.asarray(record.value(features), dtype=np.float64) * (1 - 1e-9) - 1e-15
+
     def nearest(self, signature, metric: str, top: int, keep: np.ndarray | None = None,
                 max_distance: float | None = None, threads: int = RANK_THREADS):
         """What :func:`shapeidx.search.distances.nearest` returns (positions and exact distances
@@ -270,11 +306,12 @@ class BlockIndex:
                 size += int(self.ends[b] - self.starts[b])
                 taken += 1
             round_size *= 2
-            chosen = np.concatenate([self.perm[self.starts[b] : self.ends[b]] for b in order[first:taken]])
+            at = np.concatenate([np.arange(self.starts[b], self.ends[b]) for b in order[first:taken]])
             if keep is not None:
-                chosen = chosen[keep[chosen]]
-            if len(chosen) and np.isfinite(reach):  # each entry's own coarse bound first
-                chosen = chosen[entry_bounds(self.view, signature, metric, chosen, threads) <= reach]
+                at = at[keep[self.perm[at]]]
+            if len(at) and np.isfinite(reach):  # each entry's own coarse bound first
+                at = at[self._entry_bounds(signature, metric, at, threads) <= reach]
+            chosen = self.perm[at]
             if len(chosen):
                 positions.append(chosen)
                 exact.append(distances(self.view, signature, metric, chosen, threads))

@@ -76,17 +76,19 @@ def _rank_blocks(blocks, query: np.ndarray, query_bins: int, out: np.ndarray) ->
             raise ValueError("histogram counts disagree with their totals")
 
 
-#: What float32 arithmetic may take off the L1 distance of two probability vectors: each term
-#: ``|p - q|`` is off by at most ``2^-23 (p + q)`` (the roundings of p, q and the difference), so
-#: the terms by ``2^-22`` together, and their float32 sum by ``2^-24`` per level of its pairwise
-#: summation (at most 10 levels here) times the sum (at most 2): below 1e-6 in all.
-FLOAT32_SLACK = 1e-6
+def float32_slack(columns: int) -> float:
+    """What float32 arithmetic may take off the L1 distance of two probability vectors of
+    ``columns`` bins: each term ``|p - q|`` is off by at most ``2^-23 (p + q)`` (the roundings
+    of p, q and of the difference), so all terms by ``2^-22`` (p and q each sum to at most 1),
+    and a float32 sum in any order (BLAS) by at most ``(columns - 1) 2^-24`` times the sum of
+    the terms (at most 2). Subtracted from a float32 L1, it leaves a lower bound of the exact one."""
+    return (2 * max(columns - 1, 0) + 4) * 2.0**-24 * 1.01
 
 
 def _bound_blocks(blocks, query: np.ndarray, query_bins: int, out: np.ndarray) -> None:
     """A lower bound of ``D`` from the coarse counts of every row of ``blocks`` into ``out``:
     their L1 distance in float32 (half the memory traffic of float64) less
-    :data:`FLOAT32_SLACK`, over the longer histogram's bin count. Each row's counts are checked
+    :func:`float32_slack`, over the longer histogram's bin count. Each row's counts are checked
     against its total, as :func:`_rank_blocks` checks them."""
     for bins, block, totals, rows in blocks:
         width = max(bins, query_bins)
@@ -115,7 +117,7 @@ def _bound_blocks(blocks, query: np.ndarray, query_bins: int, out: np.ndarray) -
             np.subtract(diff, q[: block.shape[1]], out=diff)
             np.abs(diff, out=diff)
             sums[start : start + n] = diff @ ones
-        out[rows] = np.maximum(sums + tail - FLOAT32_SLACK, 0) / width
+        out[rows] = np.maximum(sums + tail - float32_slack(columns), 0) / width
 
 
 def _at_positions(view, h: str, query_p: np.ndarray, positions: np.ndarray, coarse: bool) -> np.ndarray:

@@ -308,7 +308,7 @@ def far_pieces(vertices: np.ndarray, triangles: np.ndarray):
     graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(count, count))
     pieces, label = connected_components(graph, directed=False)
     if pieces < 2:
-        return None, 0.0, 0.0
+        return _far_corners(vertices, triangles, used, inverse)
     piece = label[corner_group[:, 0]]
     piece_lo = np.full((pieces, 3), np.inf)
     piece_hi = np.full((pieces, 3), -np.inf)
@@ -325,8 +325,45 @@ def far_pieces(vertices: np.ndarray, triangles: np.ndarray):
             break
         body |= near
     if body.all() or extent <= FAR_EXTENT * size:
-        return None, 0.0, size
+        return _far_corners(vertices, triangles, used, inverse)
     return ~body[piece], float(gap[~body].max()), size
+
+
+def _far_corners(vertices, triangles, used, inverse):
+    """Triangles with a corner far from all other points (a spike: one coordinate written
+    1e20 in one triangle of a part): :func:`far_pieces` for one connected piece.
+
+    Along each axis the used points are sorted; where the largest gap between neighbours
+    leaves at most ``max(3, 1 %)`` of the points on one side, and is more than
+    :data:`FAR_EXTENT` times the extent of the points on the other, those few are far.
+    Repeated while it finds some (stray points on several sides).
+    """
+    points = vertices[used]
+    far = np.zeros(len(points), dtype=bool)
+    found = True
+    while found:
+        found = False
+        for axis in range(3):
+            keep = np.flatnonzero(~far)
+            if len(keep) < 5:  # a far point and at least a tetrahedron
+                break
+            order = keep[np.argsort(points[keep, axis], kind="stable")]
+            coords = points[order, axis]
+            k = int(np.argmax(np.diff(coords)))
+            gap = float(coords[k + 1] - coords[k])
+            few, rest = (order[: k + 1], order[k + 1:]) if k + 1 <= len(order) // 2 else (order[k + 1:], order[: k + 1])
+            if len(few) > max(3, len(order) // 100):
+                continue
+            rest_size = float(np.max(points[rest].max(axis=0) - points[rest].min(axis=0)))
+            if gap > FAR_EXTENT * rest_size:
+                far[few] = True
+                found = True
+    if not far.any():
+        return None, 0.0, 0.0
+    body = points[~far]
+    lo, hi = body.min(axis=0), body.max(axis=0)
+    distance = float(np.max(np.maximum(lo - points[far], points[far] - hi)))
+    return far[inverse].reshape(-1, 3).any(axis=1), distance, float(np.max(hi - lo))
 
 
 def group_rows(rows: np.ndarray):

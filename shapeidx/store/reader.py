@@ -573,7 +573,9 @@ def check_store_directory(path: Path) -> None:
 def _signature_missing(path: Path) -> bool:
     """Whether the file lacks HDF5's signature at offset 0 (another kind of file, not a damaged store)."""
     try:
-        with open(path, "rb") as f:
+        from ..io.base import open_regular
+
+        with open_regular(path) as f:
             return f.read(8) != b"\x89HDF\r\n\x1a\n"
     except OSError:
         return False
