@@ -20,7 +20,7 @@ Measured, in one run on one machine:
 * the floor: for every part the build indexed, the bare Embree occlusion query over the
   same number of segments between its sample points (``scripts/bench.py``'s
   ``bare_query``: one thread, BVH built outside the timing), summed over the parts and
-  divided by the workers. ``wall / floor`` is the ratio the issue asks to keep at most 1.3;
+  divided by the workers. ``wall / floor`` is the ratio the issue asks to keep at most 1.2;
 * the same ratio in CPU time: the CPU seconds of the build's processes together over the
   floor's CPU seconds. On a machine that other work shares, wall times stretch with the
   load; this one does much less;
@@ -42,6 +42,7 @@ import json
 import os
 import random
 import shlex
+import shutil
 import subprocess
 import sys
 import threading
@@ -52,7 +53,7 @@ import bench  # noqa: E402  (this folder is on sys.path when run as a script)
 from _common import REPO, machine  # noqa: E402
 
 PACKAGE = "kicad-packages3d"
-TARGET = 1.3
+TARGET = 1.2
 
 
 def library(cache: Path) -> Path:
@@ -239,7 +240,7 @@ def main() -> int:
     files = sum(1 for _ in tree.rglob("*.wrl"))
     print(f"tree: {tree} ({files} VRML models{', a random subset' if args.subset else ''})")
     args.work.mkdir(parents=True, exist_ok=True)
-    store = args.work / f"bench-build-{os.getpid()}.h5"
+    store = args.work / f"bench-build-{os.getpid()}.shapeidx"
     try:
         build = timed_build(tree, store, args.workers, args.scheduler)
         record = build["record"]
@@ -266,11 +267,18 @@ def main() -> int:
             print("per-file work on one thread, CPU over the floor's CPU: "
                   + ", ".join(f"{stage} {found[stage] / floor_cpu:.2f}" for stage in stages)
                   + f"; together {sum(found[stage] for stage in stages) / floor_cpu:.2f}")
+        profile = record.get("profile")
+        if profile:
+            cpu = profile["cpu_seconds"]
+            print("the build's CPU by process and stage (build --json's profile), over the floor's CPU:")
+            print("  parent: " + ", ".join(f"{k} {v / floor_cpu:.3f}" for k, v in cpu["parent"].items())
+                  + f"; together {cpu['parent_total'] / floor_cpu:.3f}")
+            if cpu["workers_total"] is not None:
+                print("  workers: " + ", ".join(f"{k} {v / floor_cpu:.3f}" for k, v in cpu["workers"].items())
+                      + f"; together {cpu['workers_total'] / floor_cpu:.3f} ({profile['workers_started']} processes started)")
         print(f"load average at the end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     finally:
-        for path in [store, *store.parent.glob(store.name + ".*")]:
-            if path.is_file():
-                path.unlink()
+        shutil.rmtree(store, ignore_errors=True)
     return 0
 
 

@@ -110,7 +110,7 @@ def main() -> int:
     parser.add_argument("--metric", default="combined-angle")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--work", type=Path, default=Path("bench-stores"))
-    parser.add_argument("--methods", nargs="+", default=["exact", "hnsw"], help="candidate indexes to measure recall of")
+    parser.add_argument("--methods", nargs="+", default=["exact", "ivf"], help="candidate indexes to measure recall of (exact, ivf, hnsw)")
     args = parser.parse_args()
     print(f"machine: {machine()}")
     print(f"command: {shlex.join([sys.executable, *sys.argv])}")

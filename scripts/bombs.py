@@ -155,6 +155,22 @@ BOMBS = {
         lambda: ("#VRML V1.0 ascii\n" + "Separator { " * LEVELS + "Cube { }" + " }" * LEVELS).encode(),
         "nested deeper than",
     ),
+    # one coordIndex of 12 million triangles, gzipped to some 200 kB: refused from its polygon
+    # ends, counted before it is parsed (it took 7 GB before its refusal when it was parsed first)
+    "gzip-vrml2-one-coordindex-12M": (
+        "coordindex.wrl.gz",
+        lambda: gzip.compress(b"#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord Coordinate { point [ 0 0 0, 1 0 0,"
+                              b" 0 1 0 ] } coordIndex [ " + b"0,1,2,-1," * 12_000_000 + b" ] } }\n", compresslevel=6,
+                              mtime=0),
+        "GiB of memory",
+    ),
+    # one STEP entity of 200,000 parameters: OpenCASCADE took 241 s over such a file
+    "step-entity-of-200000-parameters": (
+        "parameters.step",
+        lambda: (b"ISO-10303-21;\nHEADER;\nFILE_DESCRIPTION((''),'2;1');\nENDSEC;\nDATA;\n#1=CARTESIAN_POINT('',(0.,0.,0.));\n"
+                 b"#2=EDGE_LOOP('',(" + b",".join([b"#1"] * 200_000) + b"));\nENDSEC;\nEND-ISO-10303-21;\n"),
+        "of 200,001 parameters, more than the limit of 20,000",
+    ),
     "gzip-vrml2-groups-nested-100000": (
         "nested-groups.wrz",
         lambda: gzip.compress(("#VRML V2.0 utf8\n" + "Group { children [ " * LEVELS).encode(), mtime=0),

@@ -32,7 +32,8 @@ as one of
 ``load_error``  a clean :class:`~shapeidx.errors.LoadError`: one line, naming the file, not
                 a wrapped internal exception
 ``wrapped``     a LoadError that only stands for an internal exception (its reason says the
-                input was something "shapeidx's checks did not foresee")
+                input was something "shapeidx's checks did not foresee") or quotes one
+                (a class name, zlib's "Error -3 while decompressing")
 ``exception``   any other exception (its type is recorded)
 ``crash``       the worker died (a signal: a native crash, or killed)
 ``hang``        the worker ran past the time limit and was killed
@@ -74,10 +75,10 @@ from multiprocessing.connection import wait
 from pathlib import Path
 
 DEFAULT_DATA = Path(os.environ.get("SHAPEIDX_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
-FOLDERS = ("mesh-wild", "vrml-wild", "kicad6", "ndr", "xexp-dev")
+FOLDERS = ("mesh-wild", "vrml-wild", "kicad6", "ndr", "xexp-dev", "kicad6-step")
 KINDS = (
     "stl-ascii", "stl-binary", "obj", "off", "ply-ascii", "ply-binary-le", "ply-binary-be",
-    "vrml1", "vrml2", "vrml-gzip",
+    "vrml1", "vrml2", "vrml-gzip", "step", "iges",
 )  # fmt: skip
 OUTCOMES = ("mesh", "load_error", "wrapped", "exception", "crash", "hang")
 CLEAN = ("mesh", "load_error")
@@ -113,6 +114,10 @@ def kind_of(path: Path, data: bytes) -> str | None:
         return "obj"
     if name.endswith(".off"):
         return "off" if data.lstrip()[:3] in (b"OFF", b"COF", b"NOF") else None
+    if name.endswith((".step", ".stp")):
+        return "step" if data.lstrip()[:12] == b"ISO-10303-21" else None
+    if name.endswith((".igs", ".iges")):
+        return "iges"
     if name.endswith(".ply"):
         head = data[:200]
         for fmt, kind in ((b"ascii", "ply-ascii"), (b"binary_little", "ply-binary-le"), (b"binary_big", "ply-binary-be")):
@@ -138,7 +143,7 @@ def find_seeds(data_dir: Path, per_kind: int, max_bytes: int, rng: random.Random
         if not root.is_dir():
             continue
         for path in sorted(root.rglob("*")):
-            if not path.is_file() or path.name.startswith(".") or path.suffix.lower() in (".tsv", ".step"):
+            if not path.is_file() or path.name.startswith(".") or path.suffix.lower() == ".tsv":
                 continue
             size = path.stat().st_size
             if size == 0 or size > max_bytes:
@@ -158,7 +163,38 @@ def find_seeds(data_dir: Path, per_kind: int, max_bytes: int, rng: random.Random
             seeds.append(Seed(kind, str(path.relative_to(data_dir)), suffix_of(path), path.read_bytes()))
     if not any(s.kind == "ply-binary-be" for s in seeds):
         seeds += derived_big_endian_ply(data_dir, seeds)
+    if not any(s.kind == "iges" for s in seeds):
+        seeds += derived_iges(data_dir, seeds, per_kind)
     return seeds
+
+
+def derived_iges(data_dir: Path, seeds: list[Seed], count: int) -> list[Seed]:
+    """The data holds no IGES: write the STEP seeds' solids as IGES with OpenCASCADE's own
+    writer, half as B-rep solids (mode 1), half as trimmed faces (mode 0)."""
+    import tempfile
+
+    try:
+        from OCP.IGESControl import IGESControl_Writer
+        from OCP.STEPControl import STEPControl_Reader
+    except ImportError:
+        return []
+    derived = []
+    for k, seed in enumerate(s for s in seeds if s.kind == "step"):
+        reader = STEPControl_Reader()
+        if not str(reader.ReadFile(str(data_dir / seed.name))).endswith("RetDone"):
+            continue
+        reader.TransferRoots()
+        writer = IGESControl_Writer("MM", k % 2)
+        if not writer.AddShape(reader.OneShape()):
+            continue
+        writer.ComputeModel()
+        with tempfile.TemporaryDirectory() as folder:
+            out = Path(folder) / "part.igs"
+            if writer.Write(str(out)):
+                derived.append(Seed("iges", f"derived from {seed.name} (IGES mode {k % 2})", ".igs", out.read_bytes()))
+        if len(derived) == count:
+            break
+    return derived
 
 
 def derived_big_endian_ply(data_dir: Path, seeds: list[Seed]) -> list[Seed]:
@@ -325,7 +361,21 @@ def mutate_splice(rng, data, kind, pool):
     return data[:at] + piece + data[at + len(piece) :]
 
 
+def mutate_bracket(rng, data, kind, pool):
+    """Delete or insert one bracket: a STEP entity without its ``)``, a VRML node without ``}``."""
+    if _binary(kind) or not data:
+        return mutate_flip(rng, data, kind, pool)
+    spots = [m.start() for m in re.finditer(rb"[()\[\]{}]", data[: 1 << 20])]
+    if not spots:
+        return mutate_bytes(rng, data, kind, pool)
+    at = rng.choice(spots)
+    if rng.random() < 0.7:
+        return data[:at] + data[at + 1 :]
+    return data[:at] + bytes([data[at]]) * rng.choice((1, 1, 64, 4096)) + data[at:]
+
+
 MUTATIONS = {
+    "bracket": mutate_bracket,
     "flip": mutate_flip,
     "bytes": mutate_bytes,
     "truncate": mutate_truncate,
@@ -334,7 +384,7 @@ MUTATIONS = {
     "number": mutate_number,
     "splice": mutate_splice,
 }
-WEIGHTS = {"flip": 2, "bytes": 2, "truncate": 1, "delete": 2, "duplicate": 2, "number": 4, "splice": 2}
+WEIGHTS = {"bracket": 1, "flip": 2, "bytes": 2, "truncate": 1, "delete": 2, "duplicate": 2, "number": 4, "splice": 2}
 
 
 def make_case(seeds: list[Seed], base_seed: int, number: int) -> tuple[bytes, str, dict]:
@@ -389,6 +439,18 @@ def _reset_peak() -> None:
         pass
 
 
+#: A reason quoting an exception or a library's own text: a class name (``OverflowError``,
+#: ``Transfer_TransferFailure``) or zlib's "Error -3 while decompressing": counted as wrapped.
+RAW_REASON = re.compile(r"\b[A-Z]\w*(Error|Exception|Failure)\b|\b[A-Z][a-z]+[A-Za-z]*_[A-Z][a-z]\w*|\bError -?\d|Traceback")
+#: Text a reason quotes from the file (a token, a node type): not the reason's own words.
+QUOTED = re.compile(r"'[^']*'")
+
+#: The time limit of OpenCASCADE's contained child (LoadLimits.max_seconds) in the cases: below
+#: the case's own --timeout, so that a STEP/IGES file OpenCASCADE hangs on is refused as the
+#: commands refuse it, not counted as a hang of the worker.
+STEP_SECONDS = 20.0
+
+
 def run_case(path: str, root: str, signature: bool) -> dict:
     """Load and clean one file; classify the end. Runs inside the worker."""
     import warnings
@@ -403,7 +465,7 @@ def run_case(path: str, root: str, signature: bool) -> dict:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            mesh = load(path, LoadLimits(root=Path(root)))
+            mesh = load(path, LoadLimits(root=Path(root), max_seconds=STEP_SECONDS))
             solid = make_solid(mesh, path)
             problem = _mesh_problem(np, solid)
             if signature and problem is None:
@@ -416,7 +478,9 @@ def run_case(path: str, root: str, signature: bool) -> dict:
             }
         except LoadError as exc:
             message = str(exc)
-            clean = "\n" not in message and message.startswith(printable(path)) and "cannot read (" not in message and UNFORESEEN not in message
+            reason = QUOTED.sub("''", message[len(printable(path)):])
+            clean = ("\n" not in message and message.startswith(printable(path)) and "cannot read (" not in message
+                     and UNFORESEEN not in message and not RAW_REASON.search(reason))
             result = {"outcome": "load_error" if clean else "wrapped", "error": message}
         except BaseException as exc:  # noqa: BLE001 - everything is a finding
             result = {"outcome": "exception", "error": f"{type(exc).__name__}: {exc}"[:300], "type": type(exc).__name__}
@@ -473,7 +537,9 @@ class Worker:
     def __init__(self, context, memory: int, signature: bool, scratch: Path, number: int):
         self.stderr_path = str(scratch / f"worker-{number}.stderr")
         self.conn, child = context.Pipe()
-        self.process = context.Process(target=_worker, args=(child, memory, signature, self.stderr_path), daemon=True)
+        # not a daemon: a daemonic process may not have children, and STEP/IGES cases must be
+        # read as every command reads them, in OpenCASCADE's contained child process
+        self.process = context.Process(target=_worker, args=(child, memory, signature, self.stderr_path), daemon=False)
         self.process.start()
         child.close()
         self.job = None

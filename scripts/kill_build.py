@@ -3,7 +3,7 @@
 
 Usage::
 
-    python scripts/kill_build.py TREE --store S.h5 [--kills 6] [--seed 1] [--points 128]
+    python scripts/kill_build.py TREE --store S.h5 [--kills 6] [--seed 1] [--points 128] [--workers N]
 
 Each round starts ``shapeidx build TREE`` (committing every 0.2 s, merging every 3
 batches, so kills land in every phase: computing, writing a batch, writing a merged main
@@ -262,10 +262,12 @@ def main() -> int:
     parser.add_argument("--kills", type=int, default=6)
     parser.add_argument("--seed", type=int, default=int(time.time()))
     parser.add_argument("--points", type=int, default=128)
+    parser.add_argument("--workers", type=int, default=0, help="worker processes of each build (0: the build's default)")
     args = parser.parse_args()
     print(f"seed {args.seed}")
     try:
-        report = kill_campaign(args.tree, args.store.resolve(), args.kills, args.seed, ("--points", args.points))
+        build_args = ("--points", args.points) + (("--workers", args.workers) if args.workers else ())
+        report = kill_campaign(args.tree, args.store.resolve(), args.kills, args.seed, build_args)
     except AssertionError as exc:
         print(f"FAILED: {exc}", file=sys.stderr)
         return 1

@@ -3,7 +3,7 @@
 
 Usage::
 
-    python scripts/make_store.py SOURCE N OUT [--seed S]
+    python scripts/make_store.py SOURCE N OUT [--seed S] [--shards K]
 
 SOURCE is a store built by ``shapeidx build`` from real parts (e.g. kicad6 at the default
 1024 points). Each of the N entries is one of SOURCE's ok entries, picked at random and
@@ -187,17 +187,38 @@ def synthetic_entries(real: dict, first: int, picks: np.ndarray, rng, width: int
     return entries
 
 
-def write_store(out: Path, size: int, real: dict, seed: int = 1, chunk: int = CHUNK) -> None:
-    """A store of ``size`` entries derived from ``real`` at ``out`` (which must not exist)."""
+def write_store(out: Path, size: int, real: dict, seed: int = 1, chunk: int = CHUNK, shards: int | None = None) -> None:
+    """A store of ``size`` entries derived from ``real`` at ``out`` (which must not exist);
+    ``shards``: a sharded store (:mod:`shapeidx.store.shards`) of that many shards holding
+    the same entries, each shard the entries whose path key is its own."""
     out = Path(out)
     if out.exists():
         raise FileExistsError(f"{out} exists: make_store writes new stores only")
     rng = np.random.default_rng(seed)
     picks = rng.integers(0, len(real["paths"]), size)
     width = len(str(max(size - 1, 0)))
+    if shards:
+        from shapeidx.store.shards import create_sharded, shard_of_paths
+
+        paths = [f"synthetic/{i:0{width}d}-{real['paths'][pick]}" for i, pick in enumerate(picks.tolist())]
+        of = shard_of_paths(paths, shards)
+        del paths
+        for k, shard in enumerate(create_sharded(out, shards)):
+            mine = np.flatnonzero(of == k)
+            _write(shard, real, mine, picks[mine], rng, width, chunk)
+        return
+    _write(out, real, np.arange(size), picks, rng, width, chunk)
+
+
+def _write(out: Path, real: dict, numbers: np.ndarray, picks: np.ndarray, rng, width: int, chunk: int) -> None:
+    """Entries ``numbers`` (made from the source entries ``picks``) into a new store ``out``."""
     with StoreWriter(out, real["params"], SYNTHETIC_ROOT) as writer:
-        for first in range(0, size, chunk):
-            writer.commit(Batch(entries=synthetic_entries(real, first, picks[first:first + chunk], rng, width)))
+        for at in range(0, len(numbers), chunk):
+            entries = synthetic_entries(real, 0, picks[at:at + chunk], rng, width)
+            for entry, number in zip(entries, numbers[at:at + chunk].tolist()):
+                entry.path = f"synthetic/{number:0{width}d}-{entry.path.split('-', 1)[1]}"
+                entry.hash = f"{number:064x}"
+            writer.commit(Batch(entries=entries))
         writer.merge()
 
 
@@ -207,13 +228,14 @@ def main() -> int:
     parser.add_argument("n", type=int, help="entries of the new store")
     parser.add_argument("out", type=Path, help="the new store (must not exist)")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--shards", type=int, help="write a sharded store of this many shards (same entries)")
     args = parser.parse_args()
     if args.out.exists():
         print(f"make_store: {args.out} exists: make_store writes new stores only", file=sys.stderr)
         return 1
     started = time.perf_counter()
     real = real_signatures(args.source)
-    write_store(args.out, args.n, real, args.seed)
+    write_store(args.out, args.n, real, args.seed, shards=args.shards)
     print(f"wrote {args.out}: {args.n:,} entries from {len(real['paths']):,} real signatures of {args.source}"
           f" ({sum(p.stat().st_size for p in args.out.rglob('*') if p.is_file()) / 1e6:.1f} MB) in {time.perf_counter() - started:.1f} s")
     return 0

@@ -13,9 +13,11 @@ file with several solids, each distinct solid is written out as a STEP file of i
 shapeidx.search.where_used); the files relevant to it are those holding a solid with its
 invariants, and the count each holds is the truth for the reported ``count``.
 
-Reported per metric: R-precision (of the R files that hold the part, how many are in the
-top R), recall in the top 10, and precision and recall with ``--max-distance`` at a few
-thresholds; and how often the reported count of a relevant file found is right.
+Reported per metric and ``--scale`` (sensitive: where-used's default, sub-parts of another
+size left out; invariant: the paper's): R-precision (of the R files that hold the part, how
+many are in the top R), recall in the top 10, precision and recall with ``--max-distance``
+at the metric's duplicate thresholds (``same`` and ``near``, shapeidx/distance/thresholds.json),
+and how often the reported count of a relevant file found in the top R is right.
 """
 
 from __future__ import annotations
@@ -97,12 +99,17 @@ def main() -> None:
     parser.add_argument("store")
     parser.add_argument("--tree", default=str(DATA / "kicad6-step"))
     parser.add_argument("--metric", action="append", dest="metrics")
-    parser.add_argument("--thresholds", default="0.002,0.005,0.01,0.02")
+    parser.add_argument("--scale", action="append", dest="scales", choices=("sensitive", "invariant"))
+    parser.add_argument("--same-size", action="append", dest="sizes", type=float)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", dest="json_out")
     args = parser.parse_args()
     metrics = args.metrics or ["weighted", "combined-angle", "all-angle", "all"]
-    thresholds = [float(t) for t in args.thresholds.split(",")]
+    scales = args.scales or ["sensitive", "invariant"]
+    from shapeidx.families.duplicates import thresholds as duplicate_thresholds
+    from shapeidx.io.step import _quiet_opencascade
+
+    _quiet_opencascade()
     tree = Path(args.tree).resolve()
     rng = np.random.default_rng(args.seed)
 
@@ -134,45 +141,55 @@ def main() -> None:
     from shapeidx.search import Searcher
     from shapeidx.search.where_used import where_used
 
-    results = {m: {"r_precision": [], "recall_10": [], "count_right": [], "count_asked": 0,
-                   "at": {t: [0, 0, 0] for t in thresholds}} for m in metrics}
+    sizes = args.sizes or [0.05]
+    runs = [(m, sc, z) for m in metrics for sc in scales for z in sizes]
+    limits = {m: duplicate_thresholds(m) for m in metrics}
+    results = {run: {"r_precision": [], "recall_10": [], "count_right": [], "count_right_same": [],
+                     "at": {t: [0, 0, 0] for t in limits[run[0]]}} for run in runs}
     with tempfile.TemporaryDirectory() as folder, Searcher(args.store, parts=True) as searcher:
         for k, (name, solid, inv, holders) in enumerate(queries):
             path = Path(folder) / f"q{k}.step"
             write_solid(solid, random_rigid(rng), path)
             question = searcher.query_of_part(str(path))
-            for metric in metrics:
-                answer = where_used(searcher, question, top=max(10, len(holders)), metric=metric)
+            r = len(holders)
+            for metric, scale, size in runs:
+                res = results[(metric, scale, size)]
+                answer = where_used(searcher, question, top=max(10, r), metric=metric, scale=scale, same_size=size)
                 ranked = [u.relative_path for u in answer.uses]
-                r = len(holders)
-                res = results[metric]
                 res["r_precision"].append(len(set(ranked[:r]) & set(holders)) / r)
                 res["recall_10"].append(len(set(ranked[:10]) & set(holders)) / r)
-                for use in answer.uses[:r]:
-                    if use.relative_path in holders:
-                        res["count_asked"] += 1
-                        res["count_right"].append(use.count == holders[use.relative_path])
-                for t in thresholds:
-                    within = {u.relative_path for u in answer.uses if u.distance <= t}
-                    if len(answer.uses) and answer.uses[-1].distance <= t:  # the list may go further
-                        within = {u.relative_path for u in where_used(searcher, question, top=10**6, metric=metric,
-                                                                       max_distance=t).uses}
-                    found = len(within & set(holders))
-                    res["at"][t][0] += found
-                    res["at"][t][1] += len(within)
-                    res["at"][t][2] += r
+                res["count_right"].extend(u.count == holders[u.relative_path] for u in answer.uses[:r]
+                                          if u.relative_path in holders)
+                for tier, t in limits[metric].items():
+                    within = {u.relative_path for u in where_used(searcher, question, top=10**6, metric=metric,
+                                                                   max_distance=t, scale=scale, same_size=size).uses}
+                    if tier == "same":
+                        uses = where_used(searcher, question, top=10**6, metric=metric, max_distance=t, scale=scale,
+                                          same_size=size).uses
+                        res["count_right_same"].extend(u.count == holders[u.relative_path] for u in uses
+                                                       if u.relative_path in holders)
+                    res["at"][tier][0] += len(within & set(holders))
+                    res["at"][tier][1] += len(within)
+                    res["at"][tier][2] += r
     summary = {"machine": machine(), "tree": str(tree), "files": len(files), "multi_solid_files": multi,
-               "queries": len(queries), "relevant_files": int(sum(len(q[3]) for q in queries)), "metrics": {}}
-    for metric, res in results.items():
-        summary["metrics"][metric] = {
+               "queries": len(queries), "relevant_files": int(sum(len(q[3]) for q in queries)), "runs": []}
+    for (metric, scale, size), res in results.items():
+        summary["runs"].append({
+            "metric": metric, "scale": scale, "same_size": size,
             "r_precision": float(np.mean(res["r_precision"])),
             "recall_top10": float(np.mean(res["recall_10"])),
             "count_right": f"{sum(res['count_right'])}/{len(res['count_right'])}",
-            "thresholds": {str(t): {"precision": (f / w if w else float("nan")), "recall": f / r}
-                           for t, (f, w, r) in res["at"].items()},
-        }
+            "count_right_within_same": f"{sum(res['count_right_same'])}/{len(res['count_right_same'])}",
+            "max_distance": {tier: {"threshold": limits[metric][tier], "precision": (f / w if w else float("nan")),
+                                    "recall": f / r} for tier, (f, w, r) in res["at"].items()},
+        })
     text = json.dumps(summary, indent=1)
-    print(text)
+    for run in summary["runs"]:
+        tiers = "  ".join(f"{tier} (<= {v['threshold']:.4g}): P {v['precision']:.3f} R {v['recall']:.3f}"
+                          for tier, v in run["max_distance"].items())
+        print(f"{run['metric']:15s} {run['scale']:9s} same-size {run['same_size']}  R-precision {run['r_precision']:.3f}  recall@10"
+              f" {run['recall_top10']:.3f}  count right {run['count_right']} (within same: {run['count_right_within_same']})"
+              f"  {tiers}")
     if args.json_out:
         Path(args.json_out).write_text(text + "\n")
 

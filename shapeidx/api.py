@@ -109,7 +109,9 @@ def open_store(path):
     Use it as a context manager, or close it. It is a :class:`~shapeidx.search.Searcher`:
     pass it to :func:`query`; ``paths``, ``column(name)``, ``counts(name, rows)``,
     ``signature(i)``, ``params`` and ``attrs`` read the store's entries
-    (:class:`~shapeidx.store.StoreReader`).
+    (:class:`~shapeidx.store.StoreReader`). Held open, a store of at least 50,000 entries
+    builds its block index on its second query (``warm()`` builds it at once), after which
+    every query prunes in blocks (docs/performance.md, *A warm searcher*).
     """
     from .search import Searcher
 
@@ -118,7 +120,7 @@ def open_store(path):
 
 def query(store, part=None, top: int = 10, metric: str = "weighted", entry: str | None = None,
           file_type: str | None = None, where=(), exclude_self: bool = False, max_distance: float | None = None,
-          scale: str = "invariant") -> list:
+          scale: str = "invariant", parts: bool = False) -> list:
     """The entries of ``store`` nearest to ``part`` (or to its entry ``entry``), nearest first.
 
     The same road as ``shapeidx query``, the web page and sheets (:mod:`shapeidx.search`):
@@ -146,6 +148,10 @@ def query(store, part=None, top: int = 10, metric: str = "weighted", entry: str 
         Leave out hits farther than this.
     scale : str
         ``"invariant"`` (the paper's) or ``"sensitive"`` (parts of another size left out).
+    parts : bool
+        Rank the store's sub-parts (built with ``build --parts``, docs/assemblies.md) instead
+        of its files (``store`` given as a path); each hit then also has ``parent`` (its file)
+        and ``count`` (how many times the file holds it).
 
     Returns
     -------
@@ -165,7 +171,9 @@ def query(store, part=None, top: int = 10, metric: str = "weighted", entry: str 
     if (part is None) == (entry is None):
         raise ValueError("give a part or an entry, not both or neither")
     filters = Filters(exclude_self, max_distance, scale, parse_where(where))
-    searcher = store if isinstance(store, Searcher) else Searcher(store)
+    if parts and isinstance(store, Searcher) and not store.parts:
+        raise ValueError("parts=True ranks the sub-parts: give the store's path, or a Searcher(store, parts=True)")
+    searcher = store if isinstance(store, Searcher) else Searcher(store, parts=parts)
     try:
         question = searcher.query_of_entry(entry) if entry is not None else searcher.query_of_part(
             part, file_type, threads=available_cores())

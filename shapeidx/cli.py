@@ -553,11 +553,15 @@ def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bo
 @click.option("--id", "entry", metavar="PATH",
               help="Ask about an entry of the store instead of PART: a sub-part FILE#n or a file of the indexed folder.")
 @click.option("--top", "-k", default=10, show_default=True, type=click.IntRange(1), help="How many files.")
-@metric_option("weighted")
+@metric_option("all-angle")
 @click.option("--max-distance", type=FiniteFloat(0), metavar="D",
               help="Only sub-parts within D; each file's count is then of all its sub-parts within D.")
+@click.option("--scale", type=click.Choice(("sensitive", "invariant")), default="sensitive", show_default=True,
+              help="sensitive: only sub-parts of PART's size (principal radii within --same-size); invariant: any size.")
+@click.option("--same-size", type=FiniteFloat(0), default=0.05, show_default=True, metavar="SHARE",
+              help="With --scale sensitive: the largest relative difference of principal radii.")
 @format_options
-def where_used(part, store, entry, top, metric, max_distance, output_format, as_json):
+def where_used(part, store, entry, top, metric, max_distance, scale, same_size, output_format, as_json):
     """The files that hold a sub-part like PART (or --id PATH), nearest first: how far their
     nearest sub-part is, which it is, and how many times the file holds it. The store must be
     built with --parts (docs/assemblies.md).
@@ -583,7 +587,7 @@ def where_used(part, store, entry, top, metric, max_distance, output_format, as_
             question = searcher.query_of_entry(searcher.resolve_entry(_part_entry(searcher, entry)))
         else:
             question = searcher.query_of_part(part, label=part, threads=available_cores())
-        answer = rank_uses(searcher, question, top, metric, max_distance)
+        answer = rank_uses(searcher, question, top, metric, max_distance, scale, same_size)
     if answer.reason is not None:
         raise NoAnswer(f"no answer for {answer.query}: {answer.reason}")
     if fmt == "json":
@@ -867,32 +871,36 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
         emit_json({"collection": directory, "store": str(store_path), **result})
         return
     scores = ("nn", "ft", "st", "e", "dcg")
+    family = ("knn", "nmi", "ari")  # classification and clustering agreement: the whole collection's only
     if fmt != "table":
         rows = []
         for name, figures in result["metrics"].items():
             rows.append({"metric": name, "class": "", **{s: figures[s] for s in scores},
-                         "in_sample": bool(figures.get("in_sample", False))})
+                         **{s: figures.get(s, "") for s in family}, "in_sample": bool(figures.get("in_sample", False))})
             for cls, per in figures.get("per_class", {}).items():
-                rows.append({"metric": name, "class": cls, **{s: per[s] for s in scores},
+                rows.append({"metric": name, "class": cls, **{s: per[s] for s in scores}, **{s: "" for s in family},
                              "in_sample": bool(figures.get("in_sample", False))})
-        emit_rows(fmt, ["metric", "class", *scores, "in_sample"], rows)
+        emit_rows(fmt, ["metric", "class", *scores, *family, "in_sample"], rows)
         return
     click.echo(
         f"{directory}: {result['models']} models in {result['classes']} classes, {result['points']} points"
         + (f" ({result['unlabelled']} files outside class folders left out)" if result["unlabelled"] else "")
     )
-    click.echo(f"{'distance':30s} {'NN':>6s} {'FT':>6s} {'ST':>6s} {'E':>6s} {'DCG':>6s}   {'kNN':>6s} {'NMI':>6s} {'ARI':>6s}")
+    labels = {name: metric_label(name) + (" (in-sample)" if figures.get("in_sample") else "")
+              for name, figures in result["metrics"].items()}
+    width = max([30, *map(len, labels.values())] + [len(c) + 2 for f in result["metrics"].values() for c in f.get("per_class", {})])
+    click.echo(f"{'distance':{width}s} {'NN':>6s} {'FT':>6s} {'ST':>6s} {'E':>6s} {'DCG':>6s}   {'kNN':>6s} {'NMI':>6s} {'ARI':>6s}")
     for name, figures in result["metrics"].items():
-        label = metric_label(name) + (" (in-sample)" if figures.get("in_sample") else "")
-        family = "   " + " ".join(f"{figures[s]:6.3f}" for s in ("knn", "nmi", "ari")) if "knn" in figures else ""
-        click.echo(f"{label:30s} " + " ".join(f"{figures[s]:6.3f}" for s in scores) + family)
+        agreement = "   " + " ".join(f"{figures[s]:6.3f}" for s in family) if "knn" in figures else ""
+        click.echo(f"{labels[name]:{width}s} " + " ".join(f"{figures[s]:6.3f}" for s in scores) + agreement)
         for cls, per in figures.get("per_class", {}).items():
-            click.echo(f"  {cls[:28]:28s} " + " ".join(f"{per[s]:6.3f}" for s in scores))
+            click.echo(f"  {printable(cls):{width - 2}s} " + " ".join(f"{per[s]:6.3f}" for s in scores))
     for name, figures in result["metrics"].items():
         if figures.get("in_sample"):
             click.echo(f"note: {metric_label(name)}'s weights were learned on this collection"
                        f" ({figures['learned_on']}): its figures are in-sample and flatter it;"
-                       " --cross-validate gives out-of-sample ones")
+                       + (" its (cross-validated) row gives out-of-sample ones" if cross_validate
+                          else " --cross-validate gives out-of-sample ones"))
 
 
 # --------------------------------------------------------------------------- families (classify, cluster, duplicates)
@@ -918,6 +926,20 @@ def _family_table(store, metric=None):
                    f" ({', '.join(table.missing_columns)}): sizes and mirroring unknown for its older entries;"
                    " rebuild with 'shapeidx build DIR --full' to fill them", err=True)
     return table
+
+
+def _parts_store_of(store):
+    """The parts store of ``store`` (``build --parts``), or a one-line error naming how to make it."""
+    from .errors import StoreError
+    from .store import open_store
+    from .store.files import parts_store
+
+    path = parts_store(_store_path(store))
+    if not path.is_dir():
+        open_store(_store_path(store)).close()  # no store at all: that error first
+        raise StoreError(f"the store {_store_path(store)} has no sub-parts: build it with 'shapeidx build DIR --store"
+                         f" {_store_path(store)} --parts' (docs/assemblies.md)")
+    return path
 
 
 def _table_keep(store, table, where):
@@ -990,11 +1012,14 @@ def classify(parts, store, k, metric, label_depth, labels_file, where, scale, ou
     if fmt != "table":
         emit_rows(fmt, ["path", "label", "confidence"], results)
         return
+    width = max([5] + [len(printable(nb["label"])) for r in results for nb in r["neighbours"]])
     for r in results:
         label = r["label"] if r["label"] is not None else "(no voter)"
         click.echo(f"{printable(r['path'])}: {printable(label)} (confidence {r['confidence']:.2f})")
+        if r["neighbours"]:
+            click.echo(f"    {'distance':<11s} {'label':{width}s}  voter")
         for nb in r["neighbours"]:
-            click.echo(f"    {nb['distance']:<11.6g} {printable(nb['label']):24s} {printable(nb['path'])}")
+            click.echo(f"    {nb['distance']:<11.6g} {printable(nb['label']):{width}s}  {printable(nb['path'])}")
 
 
 @main.command(context_settings=CONTEXT)
@@ -1068,9 +1093,12 @@ def _no_entry_kept(where):
               help="Also report near duplicates (tier near: measured less precise, docs/duplicates.md).")
 @where_option
 @scale_option
+@click.option("--parts", is_flag=True,
+              help="Groups of sub-parts (a store built with build --parts) shared by several files: the same pin in"
+                   " two connectors; each group names its files.")
 @click.option("--csv", "as_csv", is_flag=True, help="One row per member (same as --format csv).")
 @format_options
-def duplicates(store, metric, with_near, where, scale, as_csv, output_format, as_json):
+def duplicates(store, metric, with_near, where, scale, parts, as_csv, output_format, as_json):
     """Groups of entries that are one part: identical files, or the same geometry at one size (or
     in other units, which each member's row names), most confident groups first.
 
@@ -1083,15 +1111,25 @@ def duplicates(store, metric, with_near, where, scale, as_csv, output_format, as
       shapeidx duplicates --store parts.shapeidx --near --csv > duplicates.csv
       shapeidx duplicates --store parts.shapeidx --scale sensitive --where 'path~Resistor*'
     """
-    from .families.duplicates import DEFAULT_TIERS, find_duplicates
+    from .families.duplicates import DEFAULT_TIERS, find_duplicates, shared_sub_parts
     from .system import available_cores
 
+    if parts:
+        store = str(_parts_store_of(store))
     table = _family_table(store, metric)
     keep = _table_keep(store, table, where)
     if len(table) == 0 or (keep is not None and not keep.any()):
         raise _empty_store_error(store) if len(table) == 0 else _no_entry_kept(where)
     tiers = DEFAULT_TIERS + (("near",) if with_near else ())
-    groups = find_duplicates(table, metric, scale, threads=available_cores(), tiers=tiers, keep=keep)
+    if parts:
+        from .store import open_store
+
+        with open_store(store) as reader:
+            parent_of = dict(zip(reader.paths.tolist(), reader.column("entries/parent").tolist()))
+        groups = shared_sub_parts(table, [parent_of[p] for p in table.paths], metric, scale, threads=available_cores(),
+                                  tiers=tiers, keep=keep)
+    else:
+        groups = find_duplicates(table, metric, scale, threads=available_cores(), tiers=tiers, keep=keep)
     fmt = "csv" if as_csv and output_format is None else chosen_format(output_format, as_json)
     if fmt == "json":
         emit_json(groups)
@@ -1104,14 +1142,21 @@ def duplicates(store, metric, with_near, where, scale, as_csv, output_format, as
     members = sum(len(g["members"]) for g in groups)
     click.echo(f"{len(groups)} group(s) of duplicates, {members} entries, among {len(table)} entries"
                f" ({metric}; tiers {', '.join(tiers)}; most confident first)")
+    def size_of(p):
+        ratio = "?" if p["size_ratio"] is None else f"x{p['size_ratio']:.4g}"
+        return ratio + (f" (unit factor {p['unit']:.4g})" if p.get("unit") else "")
+
+    pairs = [p for group in groups for p in group["pairs"]]
+    tier_width = max([4] + [len(p["tier"]) for p in pairs])
+    size_width = max([4] + [len(size_of(p)) for p in pairs])
     for g, group in enumerate(groups, start=1):
         click.echo(f"group {g}: {len(group['members'])} parts, {group['tier']}, confidence {group['confidence']:.2f}:"
-                   f" {printable(group['representative'])}")
+                   f" {printable(group['representative'])}"
+                   + (f" (in {len(group['files'])} files)" if "files" in group else ""))
+        click.echo(f"  {'tier':{tier_width}s}  {'distance':<10s} {'size':{size_width}s}  {'mirrored':8s}  part")
         for p in group["pairs"]:
-            ratio = "size ?" if p["size_ratio"] is None else f"size x{p['size_ratio']:.4g}"
-            unit = f" (unit factor {p['unit']:.4g})" if p.get("unit") else ""
-            mirror = ", mirrored" if p["mirrored"] else ""
-            click.echo(f"  {p['tier']:9s} {p['distance']:<10.4g} {ratio}{unit}{mirror}  {printable(p['b'])}")
+            click.echo(f"  {p['tier']:{tier_width}s}  {p['distance']:<10.4g} {size_of(p):{size_width}s}"
+                       f"  {'yes' if p['mirrored'] else '':8s}  {printable(p['b'])}")
 
 
 if __name__ == "__main__":  # pragma: no cover

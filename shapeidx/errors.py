@@ -5,9 +5,10 @@ from __future__ import annotations
 import os
 import re
 
-# C0 and C1 control characters, DEL, Unicode line and paragraph separators, and the lone
-# surrogates by which Python stands for bytes of a file name that are not UTF-8.
-_UNPRINTABLE = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\ud800-\udfff]")
+# C0 and C1 control characters, DEL, Unicode line and paragraph separators, the bidirectional
+# controls (U+202E in "evil\u202elrw.wrl" shows "evilwrl.wrl": a name that lies about itself),
+# and the lone surrogates by which Python stands for bytes of a file name that are not UTF-8.
+_UNPRINTABLE = re.compile("[\x00-\x1f\x7f-\x9f\u061c\u200e\u200f\u202a-\u202e\u2066-\u2069\u2028\u2029\ud800-\udfff]")
 _NAMED = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}
 
 
@@ -26,12 +27,19 @@ def printable(text: object) -> str:
 
     Control characters (a newline or a carriage return in a file name could forge a line
     of its own, an escape sequence could rewrite the terminal) become ``\\n``, ``\\r``,
-    ``\\t``, ``\\xNN`` or ``\\uNNNN``; bytes of a file name that are not UTF-8 become
+    ``\\t``, ``\\xNN`` or ``\\uNNNN`` (so do the bidirectional controls, which would show
+    a name reordered); bytes of a file name that are not UTF-8 become
     ``\\xNN`` (printing them raw would fail with UnicodeEncodeError). Backslashes are left
     alone: a Windows path stays readable. Other text is returned unchanged.
     """
     text = str(text)
     return _UNPRINTABLE.sub(_escape, text) if _UNPRINTABLE.search(text) else text
+
+
+def quoted_bytes(data: bytes) -> str:
+    """Bytes of a file quoted in a message: UTF-8 text as it is, every byte that is not UTF-8 as
+    ``\\xNN`` (never U+FFFD, which hides what the byte was): ``b"1 0 \\xe9"`` -> ``'1 0 \\xe9'``."""
+    return "'" + printable(data.decode("utf-8", errors="backslashreplace")) + "'"
 
 
 _BYTES_REPR = re.compile(r"""\bb(['"])((?:\\.|(?!\1).)*)\1""")

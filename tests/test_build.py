@@ -244,3 +244,26 @@ def test_workers_use_separate_processes_and_agree_with_one(data_dir, tmp_path):
         assert list(a.paths) == list(b.paths)
         for name in ("all", "mixed"):
             assert np.array_equal(a.counts(name)[0], b.counts(name)[0])
+
+
+def test_json_profile_accounts_for_the_workers_cpu(data_dir, tmp_path):
+    """``build --json`` says where the CPU went: every stage a file passes through, the
+    processes started, and stages that add up to no more than the processes' own CPU time
+    (counted by the kernel, not by the build's clocks)."""
+    import json
+
+    tree = small_kicad(data_dir, tmp_path, ["LED_SMD"])
+    result = build(tree, tmp_path / "p.shapeidx", "--workers", "2", "--json", "-q")
+    assert result.exit_code == 0
+    profile = json.loads(result.stdout)["profile"]
+    cpu = profile["cpu_seconds"]
+    assert profile["workers_started"] == 2
+    named = {k: v for k, v in cpu["workers"].items() if k != "other"}
+    assert {"hash", "load", "solid", "signature", "facts"} <= set(named)
+    assert all(v >= 0 for v in cpu["workers"].values()) and named["signature"] > 0
+    assert sum(named.values()) <= cpu["workers_total"] + 0.05
+    assert abs(sum(cpu["workers"].values()) - cpu["workers_total"]) < 0.05
+    assert {"start", "setup", "commit", "progress", "other"} == set(cpu["parent"])
+    assert abs(sum(cpu["parent"].values()) - cpu["parent_total"]) < 0.01
+    unchanged = json.loads(build(tree, tmp_path / "p.shapeidx", "--workers", "2", "--json", "-q").stdout)
+    assert unchanged["indexed"] == 0 and unchanged["profile"]["workers_started"] == 0

@@ -169,3 +169,103 @@ def test_build_workers_read_in_their_own_process(loaded, crashing, tmp_path):
     assert status["good.step"] == STATUS_OK
     assert status["crash.step"] == STATUS_FAILED
     assert reasons["crash.step"] == "worker process died (SIGSEGV) while indexing this file", reasons
+
+
+def _iges_of(step: Path, out: Path, mode: int = 1) -> Path:
+    """A real kicad6 part written as IGES by OpenCASCADE's own writer (in a child process)."""
+    code = ("import sys\n"
+            "from OCP.STEPControl import STEPControl_Reader\n"
+            "from OCP.IGESControl import IGESControl_Writer\n"
+            "r = STEPControl_Reader(); r.ReadFile(sys.argv[1]); r.TransferRoots()\n"
+            "w = IGESControl_Writer('MM', int(sys.argv[3])); w.AddShape(r.OneShape()); w.ComputeModel()\n"
+            "assert w.Write(sys.argv[2])\n")
+    subprocess.run([sys.executable, "-c", code, str(step), str(out), str(mode)], check=True, timeout=300,
+                   capture_output=True)
+    return out
+
+
+def test_an_iges_directory_line_missing_is_a_contained_crash_with_its_cause(data_dir, tmp_path):
+    """One line of the Directory section deleted: OpenCASCADE dies on it; the line says so
+    and names the damaged numbering (the numbering alone does not refuse a file:
+    OpenCASCADE reads many such files all the same)."""
+    whole = _iges_of(data_dir / "kicad6-step" / SEED_PART, tmp_path / "whole.igs")
+    lines = whole.read_bytes().split(b"\n")
+    directory = [i for i, line in enumerate(lines) if len(line) >= 73 and line[72:73] == b"D"]
+    rng = random.Random(2)
+    paths = []
+    for k in range(3):
+        i = rng.choice(directory[1:])
+        paths.append(tmp_path / f"cut{k}.igs")
+        paths[-1].write_bytes(b"\n".join(lines[:i] + lines[i + 1:]))
+    run, outcomes = _load_each([whole, *paths])
+    assert run.returncode == 0 and "mesh" in outcomes[0], outcomes
+    for outcome in outcomes[1:]:
+        assert re.search(r"OpenCASCADE crashed reading it \(signal 11, SIGSEGV\); its Directory section is damaged: "
+                         r"line \d+ is numbered \d+ \(a line missing or out of place\)$", outcome["error"]), outcome
+
+
+def test_the_web_server_survives_an_upload_that_crashes_opencascade(data_dir, crashing, tmp_path):
+    """A real ``shapeidx serve``: the crashing upload is a 422 with the line, and the server
+    goes on answering (the same upload killed it before)."""
+    import socket
+    import shutil
+
+    import httpx
+
+    from storetools import FAST_POINTS
+
+    tree = tmp_path / "parts"
+    tree.mkdir()
+    good = data_dir / "kicad6-step" / SEED_PART
+    shutil.copy(good, tree / "good.step")
+    store = tmp_path / "s.shapeidx"
+    subprocess.run(shapeidx_command("build", tree, "--store", store, "--points", FAST_POINTS, "--workers", "1"),
+                   check=True, capture_output=True, timeout=600)
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    server = subprocess.Popen(shapeidx_command("serve", "--store", store, "--port", port),
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 120
+        while True:
+            try:
+                if httpx.get(f"{base}/api/store", timeout=5).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            assert server.poll() is None and time.monotonic() < deadline, server.stderr.read() if server.poll() else "no answer"
+            time.sleep(0.5)
+        answer = httpx.post(f"{base}/api/query", files={"file": ("crash.step", crashing.read_bytes())}, timeout=300)
+        assert answer.status_code == 422, answer.text
+        assert "OpenCASCADE crashed reading it (signal 11, SIGSEGV)" in answer.json()["error"]
+        assert server.poll() is None
+        again = httpx.post(f"{base}/api/query", files={"file": ("good.step", good.read_bytes())}, data={"top": "1"},
+                           timeout=300)
+        assert again.status_code == 200, again.text
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+
+
+def test_what_the_child_does_becomes_one_line(tmp_path):
+    """The mechanism on its own, with real deeds of the child: a result, an abort, a hang,
+    an unforeseen exception (no traceback, no exception name)."""
+    import os
+
+    from shapeidx.errors import LoadError
+    from shapeidx.io.contained import run_contained
+
+    where = tmp_path / "f.step"
+    assert run_contained(divmod, (7, 2), where) == (3, 1)
+    with pytest.raises(LoadError, match=r"f.step: OpenCASCADE crashed reading it \(signal 6, SIGABRT\)$"):
+        run_contained(os.abort, (), where)
+    started = time.monotonic()
+    with pytest.raises(LoadError, match=r"f.step: OpenCASCADE took longer than 0.5 s reading it \(stopped\)$"):
+        run_contained(time.sleep, (60,), where, seconds=0.5)
+    assert time.monotonic() - started < 30
+    with pytest.raises(LoadError) as caught:
+        run_contained(int, ("x",), where)
+    assert str(caught.value).startswith(f"{where}: cannot be read: it holds a value of the wrong form")
+    assert "ValueError" not in str(caught.value)

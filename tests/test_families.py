@@ -389,6 +389,45 @@ def test_candidates_find_the_exact_nearest_neighbours(dup_store, metric):
     assert found.sum() / (k * n) >= 0.95
 
 
+def test_the_inverted_file_finds_what_brute_force_numpy_finds():
+    from shapeidx.store.candidates import CandidateIndex
+
+    rng = np.random.default_rng(4)
+    centres = rng.normal(size=(60, 24))
+    vectors = (centres[rng.integers(0, 60, 6000)] + 0.3 * rng.normal(size=(6000, 24))).astype(np.float32)
+    index = CandidateIndex(vectors, "ivf")
+    assert index.method == "ivf" and index.index.nlist > 1
+    k = 10
+    found = index.neighbours(k)
+    picks = rng.choice(len(vectors), 200, replace=False)
+    squared = ((vectors[picks, None, :].astype(np.float64) - vectors[None, :, :]) ** 2).sum(axis=2)
+    squared[np.arange(len(picks)), picks] = np.inf
+    truth = np.argsort(squared, axis=1)[:, :k]
+    recall = np.mean([len(set(truth[r]) & set(found[i])) / k for r, i in enumerate(picks)])
+    assert recall >= 0.95
+    assert not (found == np.arange(len(vectors))[:, None]).any()
+    assert CandidateIndex(vectors[:50], "ivf").method == "exact"  # too few to train cells on
+
+
+def test_equal_exact_moments_make_same_beyond_the_distance_threshold_but_not_without_bound(dup_store):
+    from shapeidx.families.duplicates import EXACT_DISTANCE_FACTOR, pair_tiers
+
+    _, store = dup_store
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader)
+    a = np.array([table.index_of(CHIRAL)] * 2)
+    b = np.array([table.index_of("copies/rgb-rotated.stl"), table.index_of("copies/rgb-mirrored.stl")])
+    d = table.pair_distances(a, b, "combined-angle")
+    assert np.all(d > 0)
+    # a "same" threshold below both distances: the exact moments alone make them same ...
+    limits = {"same": d.max() / 2, "near": d.max()}
+    said = pair_tiers(table, a, b, "combined-angle", limits=limits)
+    assert list(said["tier"]) == ["same", "same"]
+    # ... up to EXACT_DISTANCE_FACTOR times that threshold, not beyond
+    limits = {"same": d.min() / (EXACT_DISTANCE_FACTOR * 1.01), "near": d.min() / 2}
+    assert list(pair_tiers(table, a, b, "combined-angle", limits=limits)["tier"]) == ["", ""]
+
+
 def test_nmi_and_ari_against_hand_computed_values():
     assert nmi([0, 0, 1, 1], ["a", "a", "b", "b"]) == pytest.approx(1.0)
     assert ari([0, 0, 1, 1], [5, 5, 7, 7]) == pytest.approx(1.0)
@@ -434,7 +473,7 @@ def test_one_voter_leave_one_out_is_the_retrieval_nearest_neighbour_score(dup_st
 # ---------------------------------------------------------------------------- issue 22: no chaining, sizes, stored embedding
 
 def test_every_duplicate_member_is_within_the_tier_of_its_representative_and_the_inches_copy_says_its_unit(dup_store):
-    from shapeidx.families.duplicates import find_duplicates, pair_tiers, thresholds
+    from shapeidx.families.duplicates import EXACT_DISTANCE_FACTOR, find_duplicates, pair_tiers, thresholds
 
     _, store = dup_store
     with open_store(store) as reader:
@@ -448,7 +487,7 @@ def test_every_duplicate_member_is_within_the_tier_of_its_representative_and_the
         b = np.array([table.index_of(p["b"]) for p in g["pairs"]])
         said = pair_tiers(table, a, b, "combined-angle")  # asked directly, not through a chain
         assert all(t in ("identical", "same", "near") for t in said["tier"])
-        assert np.all(said["distance"] <= limits["near"])
+        assert np.all(said["distance"] <= max(limits["near"], EXACT_DISTANCE_FACTOR * limits["same"]))
     group = next(g for g in groups if CHIRAL in g["members"])
     inches = next(p for p in group["pairs"] if p["b"] == "copies/rgb-inches.stl" or p["a"] == "copies/rgb-inches.stl")
     assert inches["unit"] == pytest.approx(1 / 25.4 if inches["b"] == "copies/rgb-inches.stl" else 25.4)

@@ -228,6 +228,13 @@ class TestBuildAndWhereUsed:
         uses = {u["relative_path"]: u["count"] for u in answer["uses"]}
         assert uses == {"boards/four.step": 4, "boards/six.step": 6}
         assert all(u["part"].startswith(u["relative_path"] + "#") for u in answer["uses"])
+        # same size only (the default): the other pin and the cube are other sizes; any size: every file
+        sized = json.loads(cli("where-used", query, "--store", store, "--json").stdout)
+        assert {u["relative_path"] for u in sized["uses"]} == {"boards/four.step", "boards/six.step"}
+        anysize = json.loads(cli("where-used", query, "--store", store, "--scale", "invariant", "--json").stdout)
+        assert {u["relative_path"] for u in anysize["uses"]} == {"boards/four.step", "boards/six.step",
+                                                                  "boards/other.step", "cube.step"}
+        assert [u["relative_path"] for u in anysize["uses"][:2]] == [u["relative_path"] for u in sized["uses"]]
         # by an entry: the pin of six.step finds four.step at once
         part = [u["part"] for u in answer["uses"] if u["relative_path"] == "boards/six.step"][0]
         csv = cli("where-used", "--id", part, "--store", store, "--top", "2", "--format", "csv")
@@ -248,6 +255,9 @@ class TestBuildAndWhereUsed:
             assert hit["relative_path"].startswith(hit["parent"] + "#")
             assert hit["path"] == str(root / hit["parent"])
             assert hit["count"] == {"boards/four.step": 4, "boards/six.step": 6}[hit["parent"]]
+        api = shapeidx.query(store, str(query), top=2, parts=True)  # the Python API: the same hits
+        assert [(h["relative_path"], h["parent"], h["count"]) for h in api] == [
+            (h["relative_path"], h["parent"], h["count"]) for h in parts["hits"]]
         with open_store(parts_store(store)) as reader:  # a file that is one part is its own FILE#1
             assert "cube.step#1" in set(reader.paths)
 
@@ -303,3 +313,38 @@ class TestBuildAndWhereUsed:
         result = cli("query", query, "--store", store, "--top", "1")
         assert result.exit_code == 0, result.output
         assert "boards/" in result.stdout
+
+    def test_duplicates_parts_reports_the_pin_shared_by_two_files(self, library, tmp_path):
+        root, _ = library
+        store = tmp_path / "s.shapeidx"
+        _build(root, store, "--parts")
+        result = cli("duplicates", "--parts", "--store", store, "--json")
+        assert result.exit_code == 0, result.output
+        groups = json.loads(result.stdout)
+        shared = [g for g in groups if g["files"] == ["boards/four.step", "boards/six.step"]]
+        assert len(shared) == 1 and len(shared[0]["members"]) == 2  # the pin, once per file
+        assert all(len(g["files"]) > 1 for g in groups)
+        # the whole-file duplicates are not changed by the sub-parts
+        assert json.loads(cli("duplicates", "--store", store, "--json").stdout) == []
+
+
+def test_a_failing_split_costs_the_sub_parts_only(library, tmp_path, monkeypatch):
+    """An unforeseen error while splitting a file: its sub-entries are one failed entry with
+    the reason in words; its whole entry is signed and the build goes on."""
+    from shapeidx.index.workers import Task, index_file
+    from shapeidx.store import StoreParams
+    from shapeidx.signing.parameters import BIN_DIVISOR, SIGNATURE_VERSION
+    import shapeidx.io.parts
+
+    root, _ = library
+    def broken(*args, **kwargs):
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.setattr(shapeidx.io.parts, "split_parts", broken)
+    params = StoreParams(points=256, seed=1, bin_divisor=BIN_DIVISOR, signature_version=SIGNATURE_VERSION)
+    path = "boards/four.step"
+    outcome = index_file(Task(path, str(root / path), parts=True), params, str(root))
+    assert outcome.kind == "indexed" and outcome.entry.status == 0
+    (failed,) = outcome.parts
+    assert failed.status == 1 and failed.path == failed.parent == path
+    assert "split" in failed.reason and "Traceback" not in failed.reason

@@ -82,3 +82,43 @@ def test_unforeseen_exceptions_are_said_in_words():
     assert caught[5].startswith("a value of the wrong kind")
     for text in caught:
         assert not RAW.search(text) and text.endswith(f"{UNFORESEEN} (please report the file)")
+
+
+def test_an_opencascade_exception_is_said_in_words(tmp_path):
+    """A real exception of OpenCASCADE's (a zero vector made a direction raises
+    ``Standard_ConstructionError``) in one of the reader's steps: its class and message
+    stay out of the line, which says which step failed and why in words."""
+    from OCP.gp import gp_Dir
+
+    from shapeidx.io.step import _occt
+
+    with pytest.raises(LoadError) as caught:
+        _occt(tmp_path / "part.igs", "mesh its faces", gp_Dir, 0.0, 0.0, 0.0)
+    message = str(caught.value)
+    assert message.startswith(f"{tmp_path / 'part.igs'}: OpenCASCADE could not mesh its faces: ")
+    assert not RAW.search(message) and "zero norm" not in message, message
+
+
+def test_damaged_gzip_is_said_in_words(data_dir):
+    """Bytes of a real gzipped KiCad VRML changed inside its compressed stream, or the file
+    cut short: the reason says what is wrong, not zlib's "Error -3 while decompressing"."""
+    import random
+
+    path = min((data_dir / "vrml-wild").rglob("*.wrz"), key=lambda p: p.stat().st_size)
+    data = path.read_bytes()
+    rng = random.Random(4)
+    reasons = set()
+    for _ in range(40):
+        damaged = bytearray(data)
+        for _ in range(4):
+            damaged[rng.randrange(20, len(data) - 8)] ^= 1 << rng.randrange(8)
+        for case in (bytes(damaged), data[: rng.randrange(20, len(data) - 8)]):
+            try:
+                load_bytes(case, path.name)
+            except LoadError as exc:
+                reasons.add(str(exc))
+    gzip_reasons = [r for r in reasons if "gzip" in r]
+    assert gzip_reasons
+    for reason in gzip_reasons:
+        assert not re.search(r"\bError -?\d|zlib|\bb'", reason) and not RAW.search(reason), reason
+    assert any("cut short" in r for r in gzip_reasons) and any("compressed stream is damaged" in r for r in gzip_reasons)

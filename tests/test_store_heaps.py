@@ -124,3 +124,87 @@ def test_a_sound_store_passes_and_a_stray_signature_is_not_a_collection(store, t
     odd = tmp_path / "odd.bin"
     odd.write_bytes(b"GCOL" * 10 + b"GCOL\x02\x00\x00\x00" + b"\xff" * 64 + b"GCOL")  # not collection headers
     check_global_heaps(odd)
+
+
+@pytest.mark.parametrize("offset", [48, 56])
+def test_a_damaged_object_header_is_damage_not_a_bug(store, offset):
+    """A bit flipped in the root group's object header (h5py raises KeyError, not OSError,
+    when it reads the attributes): check and build say damaged (5), --repair rebuilds."""
+    tree, store = store
+    main = store / "main.h5"
+    data = bytearray(main.read_bytes())
+    data[offset] ^= 1
+    main.write_bytes(bytes(data))
+    check = run_shapeidx("check", "--store", store, timeout=TIMEOUT)
+    assert check.returncode == 5 and "internal error" not in check.stderr, check.stderr
+    built = run_shapeidx("build", tree, "--store", store, "--points", "128", "--workers", "1", timeout=4 * TIMEOUT)
+    assert built.returncode == 5 and len(built.stderr.strip().splitlines()) == 1, built.stderr
+    repaired = run_shapeidx("build", tree, "--store", store, "--repair", "--points", "128", "--workers", "1",
+                            timeout=4 * TIMEOUT)
+    assert repaired.returncode == 0, repaired.stderr
+    assert run_shapeidx("check", "--store", store, timeout=TIMEOUT).returncode == 0
+
+
+def test_a_forged_verified_record_does_not_skip_the_heap_walk_of_a_small_store(store):
+    """STORE/verified rewritten to match the damaged main file (as a build that read it whole
+    would): a store below TRUST_VERIFIED_ABOVE is walked all the same."""
+    import json
+    import os
+
+    _, store = store
+    main = store / "main.h5"
+    damage(main, "free space of size 0")
+    stat = os.stat(main)
+    (store / "verified").write_text(json.dumps({k: int(getattr(stat, k)) for k in
+                                                ("st_dev", "st_ino", "st_size", "st_mtime_ns", "st_ctime_ns")}))
+    try:
+        result = run_shapeidx("stats", "--store", store, timeout=TIMEOUT)
+    except subprocess.TimeoutExpired:
+        pytest.fail("a forged STORE/verified makes stats hang")
+    assert result.returncode == 5 and "global heap" in result.stderr
+
+
+@pytest.mark.parametrize("name", ["committed", "build.json", "verified", "lock", "main.h5"])
+def test_a_fifo_in_place_of_a_store_file_never_blocks(store, name):
+    """A FIFO without a writer, put where a store file was: opening it for reading blocks
+    forever, so every read of a store file goes through a non-blocking open."""
+    import os
+
+    tree, store = store
+    target = store / name
+    target.unlink(missing_ok=True)
+    os.mkfifo(target)
+    entry = "LED_SMD/" + sorted(p.name for p in (tree / "LED_SMD").iterdir())[0]
+    for args in (("stats",), ("check",), ("query", "--id", entry), ("build", tree, "--points", "128", "--workers", "1")):
+        try:
+            result = run_shapeidx(*args, "--store", store, timeout=TIMEOUT)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"shapeidx {args[0]} blocks on a FIFO in place of {name}")
+        assert result.returncode in (0, 1, 5) and "Traceback" not in result.stderr, (args, result.stderr)
+        if name == "main.h5":
+            assert result.returncode == 5
+        if name == "lock" and args[0] == "build":
+            assert result.returncode == 1 and "not a regular file" in result.stderr
+
+
+def test_a_damaged_metadata_table_is_found_by_check_and_written_again(data_dir, tmp_path):
+    """metadata.h5 cut in half: every command that reads it said damaged (5) but check passed
+    it (0), and build --metadata, the one way to mend it, refused too."""
+    import os
+
+    tree = small_kicad(data_dir, tmp_path, ("LED_SMD",))
+    table = tmp_path / "meta.csv"
+    table.write_text("path,material\n" + "".join(f"LED_SMD/{p.name},steel\n" for p in sorted((tree / "LED_SMD").iterdir())))
+    store = tmp_path / "s.shapeidx"
+    assert build(tree, store, "--metadata", table).exit_code == 0
+    meta = store / "metadata.h5"
+    os.truncate(meta, meta.stat().st_size // 2)
+    check = run_shapeidx("check", "--store", store, timeout=TIMEOUT)
+    assert check.returncode == 5 and "metadata.h5" in check.stdout + check.stderr, check.stdout + check.stderr
+    assert run_shapeidx("stats", "--store", store, timeout=TIMEOUT).returncode == 5
+    again = run_shapeidx("build", tree, "--store", store, "--metadata", table, "--points", "128", "--workers", "1",
+                         timeout=4 * TIMEOUT)
+    assert again.returncode == 0 and "metadata table was damaged" in again.stderr, again.stderr
+    assert run_shapeidx("check", "--store", store, timeout=TIMEOUT).returncode == 0
+    stats = run_shapeidx("stats", "--store", store, timeout=TIMEOUT)
+    assert stats.returncode == 0 and "material" in stats.stdout

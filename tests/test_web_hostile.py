@@ -133,6 +133,11 @@ class TestHostAndOrigin:
         status, _, info = request(port, "/api/store", headers={"Host": host.format(port=port)})
         assert status == 200 and info["store"] == str(store.absolute())
 
+    def test_oversized_headers_are_refused(self, served):
+        _, _, port = served
+        answer = raw(port, b"GET /api/store HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: " + b"a" * 100_000 + b"\r\nConnection: close\r\n\r\n")
+        assert answer.startswith(b"HTTP/1.1 431") or answer.startswith(b"HTTP/1.1 400"), answer[:100]
+
     def test_static_redirect_does_not_echo_a_foreign_host(self, served):
         _, _, port = served
         answer = raw(port, b"GET /static HTTP/1.1\r\nHost: evil.example\r\nConnection: close\r\n\r\n")

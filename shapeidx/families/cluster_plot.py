@@ -38,7 +38,8 @@ LABELLED_CLUSTERS = 12
 #: Dark enough for text on white, distinct side by side (matplotlib's tab10 without its grey).
 PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22")
 GREY = "#9a9a9a"
-#: Longest leaf label (characters; longer names keep their end, where KiCad names differ).
+#: Longest leaf label (characters; longer names keep their start, the part's family, and their
+#: end, where KiCad names differ; the middle gives way).
 LABEL_CHARS = 44
 
 
@@ -110,7 +111,10 @@ def _short(path: str) -> str:
     for suffix in (".gz",) + PART_SUFFIXES:
         if name.lower().endswith(suffix):
             name = name[: -len(suffix)]
-    return name if len(name) <= LABEL_CHARS else "..." + name[-(LABEL_CHARS - 3):]
+    if len(name) <= LABEL_CHARS:
+        return name
+    head = (LABEL_CHARS - 3) // 2
+    return name[:head] + "..." + name[-(LABEL_CHARS - 3 - head):]
 
 
 def dendrogram_figure(result: dict, metric: str):

@@ -87,6 +87,8 @@ class BuildSummary:
     #: With ``--parts``: sub-entries written by this build, and the parts store's ok sub-entries after it.
     parts_indexed: int | None = None
     parts_entries: int | None = None
+    #: Where the build's CPU went (:class:`BuildProfile`); None for a dry run.
+    profile: "BuildProfile | None" = None
 
     def line(self) -> str:
         return f"{self.indexed} indexed, {self.unchanged} unchanged, {self.removed} removed, {self.failed} failed"
@@ -110,7 +112,48 @@ class BuildSummary:
                                                                   "changed": self.metadata_changed},
             "parts": None if self.parts_indexed is None else {"indexed": self.parts_indexed,
                                                               "entries": self.parts_entries},
+            "profile": None if self.profile is None else self.profile.to_dict(),
         }
+
+
+@dataclass
+class BuildProfile:
+    """CPU seconds of one build, by process and by stage (``build --json``'s ``profile``).
+
+    The parent: ``start`` (the interpreter and its imports, before the build begins),
+    ``setup`` (walk, plan, opening the store: before the first file is handed
+    out), ``commit`` (entries written, journal merges), ``progress`` (log and progress
+    lines), ``other`` (handing files to workers, waiting for them, the closing counts).
+    The workers: what each file cost by stage, summed (:class:`~shapeidx.index.workers.StageClock`),
+    and ``other``: the rest of the worker processes' CPU (imports at start, receiving tasks,
+    sending results), local workers only (a Dask cluster's workers are not this machine's).
+    """
+
+    parent: dict = field(default_factory=dict)
+    workers: dict = field(default_factory=dict)
+    workers_total: float | None = None
+    workers_started: int | None = None
+
+    def charge(self, stages: dict | None) -> None:
+        for stage, seconds in (stages or {}).items():
+            self.workers[stage] = self.workers.get(stage, 0.0) + seconds
+
+    def to_dict(self) -> dict:
+        workers = {k: round(v, 3) for k, v in sorted(self.workers.items())}
+        if self.workers_total is not None:
+            workers["other"] = round(max(0.0, self.workers_total - sum(self.workers.values())) + self.workers.get("other", 0.0), 3)
+        return {"cpu_seconds": {"parent": {k: round(v, 3) for k, v in self.parent.items()},
+                                "parent_total": round(sum(self.parent.values()), 3),
+                                "workers": workers,
+                                "workers_total": None if self.workers_total is None else round(self.workers_total, 3)},
+                "workers_started": self.workers_started}
+
+
+def _cpu(who) -> float:
+    import resource
+
+    usage = resource.getrusage(who)
+    return usage.ru_utime + usage.ru_stime
 
 
 def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
@@ -164,7 +207,10 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     KeyboardInterrupt
         On Ctrl-C or SIGTERM, after committing what was done.
     """
+    import resource
+
     started = time.monotonic()
+    cpu_started, children_started = _cpu(resource.RUSAGE_SELF), _cpu(resource.RUSAGE_CHILDREN)
     given = root
     root = Path(root).resolve()
     check_tree(given, root)
@@ -193,27 +239,39 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         for warning in walk.warnings:
             reporter.warning(warning)
         if table is not None:
-            summary.metadata_rows, summary.metadata_changed = len(table), _store_metadata(store, table)
+            summary.metadata_rows, summary.metadata_changed = len(table), _store_metadata(store, table, reporter)
         with open_store(store, skip_damaged=True) as reader:  # the writer dropped what is damaged
             plan = make_plan(walk, reader, options)
         summary.found, summary.unchanged, summary.planned = plan.found, plan.unchanged, len(plan.tasks)
+        # with --parts: the files whose sub-parts alone are missing or stale are tasks too
+        parts = _parts_committer(store, params, root, options, reporter, plan, walk) if options.parts else None
         reporter.planned(plan)
         committer = Committer(writer, options.commit_interval, options.merge_after, reporter)
         committer.remove(plan.removed)
         summary.removed = len(plan.removed)
-        parts = _parts_committer(store, params, root, options, reporter, plan, walk) if options.parts else None
         committers = [committer] + ([parts] if parts else [])
         pool = _pool(options, params, root)
+        profile = summary.profile = BuildProfile()
+        profile.parent = {"start": cpu_started, "setup": _cpu(resource.RUSAGE_SELF) - cpu_started, "commit": 0.0,
+                          "progress": 0.0}
+        clock = time.process_time
         try:
             for outcome in pool.run(plan.tasks):
                 if outcome is not None:
                     _redact_outside(outcome, root)
                     _count(summary, outcome)
+                    profile.charge(outcome.cpu)
+                    at = clock()
                     for one in committers:
                         one.add(outcome)
+                    committed = clock()
                     reporter.outcome(outcome)
+                    profile.parent["progress"] += clock() - committed
+                    profile.parent["commit"] += committed - at
+                at = clock()
                 for one in committers:
                     one.tick()
+                profile.parent["commit"] += clock() - at
         except (KeyboardInterrupt, ShapeidxError):  # e.g. a lost Dask scheduler: keep what came back
             for one in committers:
                 one.commit()
@@ -222,14 +280,20 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
             raise
         finally:
             pool.close()
+        if isinstance(pool, WorkerPool):
+            profile.workers_total = _cpu(resource.RUSAGE_CHILDREN) - children_started
+            profile.workers_started = pool.started
+        at = clock()
         for one in committers:
             one.finish()
+        profile.parent["commit"] += clock() - at
         if parts:
             parts.writer.close("finished")
         writer.facts = {"indexed": summary.indexed, "failed": summary.failed, "removed": summary.removed,
                         "unchanged": summary.unchanged}
     summary.seconds = time.monotonic() - started
     _store_counts(store, summary)
+    profile.parent["other"] = max(0.0, _cpu(resource.RUSAGE_SELF) - sum(profile.parent.values()))
     if options.parts:
         from ..store.files import parts_store
 
@@ -293,11 +357,17 @@ def _metadata_table(options: BuildOptions, root: Path, walk, reporter):
     return table
 
 
-def _store_metadata(store: Path, table) -> bool:
-    """Write the table into the store (the lock is held) unless it holds the same; True if it changed."""
+def _store_metadata(store: Path, table, reporter=None) -> bool:
+    """Write the table into the store (the lock is held) unless it holds the same; True if it changed.
+    A damaged table in the store is replaced (it is what --metadata gives again)."""
     from ..store.metadata import load_table, write_table
 
-    current = load_table(store)
+    try:
+        current = load_table(store)
+    except StoreDamagedError as exc:
+        if reporter is not None:
+            reporter.warning(f"the store's metadata table was damaged; written again from --metadata ({exc})")
+        current = None
     if current is not None and current.sha256 == table.sha256 and current.source == table.source:
         return False
     write_table(store, table)

@@ -54,8 +54,10 @@ class Committer:
         due = time.monotonic() - self.last >= self.interval
         if len(self.batch) >= BATCH_ENTRIES or (due and len(self.batch)):
             self.commit()
-            if self.writer.pending_batches >= self.merge_after and self.writer.compact():
-                self.reporter.merged()
+            if self.writer.pending_batches >= self.merge_after:
+                merged = self.writer.compact()
+                if merged:
+                    self.reporter.merged(merged)
 
     def commit(self) -> None:
         if len(self.batch):
@@ -66,8 +68,9 @@ class Committer:
 
     def finish(self) -> None:
         self.commit()
-        if self.writer.checkpoint():  # the journal folded into the main file once it is large enough
-            self.reporter.merged()
+        merged = self.writer.checkpoint()  # the journal folded into the main file once it is large enough
+        if merged:
+            self.reporter.merged(merged)
 
 
 class PartsCommitter(Committer):

@@ -51,7 +51,10 @@ def make_plan(walk: Walk, reader, options) -> Plan:
     same_stat = same_size & (known.mtime_ns[entry] == mtime) if len(known) else failed
     retry = options.retry_failed or reader.attrs.get("shapeidx_version") != __version__
     # failed entries retried unchanged (--retry-failed, --full, a new version): failing again is not news
-    failed_before = {files[k].path for k in np.flatnonzero(failed & same_stat).tolist()}
+    # a file that could not be read at all (permission, I/O error) is recorded without size or time
+    # (index.workers): it is tried again at every build, but its failing again is not news either
+    never_read = failed & (known.size[entry] == 0) & (known.mtime_ns[entry] == 0) if len(known) else failed
+    failed_before = {files[k].path for k in np.flatnonzero(failed & (same_stat | never_read)).tolist()}
     work = ~found | (failed & bool(retry)) | ~same_stat
     if options.full or options.rehash:
         work[:] = True

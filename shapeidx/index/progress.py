@@ -84,9 +84,10 @@ class BuildReporter:
         self.started = self.last_line = time.monotonic()
         if self.quiet:
             return
+        only_parts = sum(not getattr(task, "whole", True) for task in plan.tasks)
         self._say(
-            f"shapeidx build: {plan.found} files: {len(plan.tasks)} new or changed, {plan.unchanged} unchanged,"
-            f" {len(plan.removed)} to remove"
+            f"shapeidx build: {plan.found} files: {len(plan.tasks) - only_parts} new or changed, {plan.unchanged} unchanged,"
+            f" {len(plan.removed)} to remove" + (f"; {only_parts} to split into sub-parts" if only_parts else "")
         )
         if self.terminal and self.total:
             self.bar = click.progressbar(
@@ -124,9 +125,11 @@ class BuildReporter:
         if self.verbose:
             self._say(f"committed batch {seq} ({records} records)")
 
-    def merged(self) -> None:
+    def merged(self, what: str = "main") -> None:
+        """A merge happened: ``what`` is :meth:`~shapeidx.store.StoreWriter.compact`'s answer."""
         if self.verbose:
-            self._say("merged the journal into the store")
+            self._say("merged the journal into the main file" if what == "main"
+                      else "merged the journal's newest segments into one")
 
     def close(self) -> None:
         if self.bar is not None:

@@ -84,6 +84,23 @@ class Outcome:
     #: None when they were not made (same content: ``parts_same``).
     parts: list | None = None
     parts_same: bool = False
+    #: CPU seconds of the worker by stage ("hash", "load", "solid", "signature", "facts",
+    #: "parts"), all its threads counted: where a build's time goes (``build --json``'s profile).
+    cpu: dict | None = None
+
+
+class StageClock:
+    """CPU seconds of this process (every thread) by stage: ``lap(name)`` charges the time
+    since the previous lap to ``name``."""
+
+    def __init__(self):
+        self.last = time.process_time()
+        self.seconds: dict[str, float] = {}
+
+    def lap(self, stage: str) -> None:
+        now = time.process_time()
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + now - self.last
+        self.last = now
 
 
 def one_line(text: str) -> str:
@@ -109,9 +126,11 @@ def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
     from ..signing.solid import make_solid
 
     started = time.monotonic()
+    clock = StageClock()
     try:
         stat = os.stat(task.absolute)
         digest = file_hash(task.absolute)
+        clock.lap("hash")
     except FileNotFoundError:
         return Outcome(task, "missing")
     except OSError as exc:
@@ -122,13 +141,15 @@ def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
     parts = task.parts and not (task.parts_hash is not None and digest == task.parts_hash)
     same = {"parts_same": task.parts and not parts}
     if not whole and not parts:
-        return Outcome(task, "same" if task.whole else "skipped", size=size, mtime_ns=mtime, **same)
+        return Outcome(task, "same" if task.whole else "skipped", size=size, mtime_ns=mtime, cpu=clock.seconds, **same)
     limits = LoadLimits(root=Path(root), faceting=params.faceting)
     mesh = entry = None
     try:
         mesh = load(task.absolute, limits)
+        clock.lap("load")
         solid = make_solid(mesh, task.absolute)
-        entry = _signed(task.path, digest, size, mtime, solid, params, task.absolute)
+        clock.lap("solid")
+        entry = _signed(task.path, digest, size, mtime, solid, params, task.absolute, clock)
         kind = "indexed"
     except OutOfMemory as exc:
         entry = Entry.failed(task.path, digest, size, mtime, reason_of(exc, task.absolute))
@@ -147,22 +168,30 @@ def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
         entry, kind = Entry.failed(task.path, digest, size, mtime, reason), "failed"
     sub = None
     if parts:
-        sub = _failed_parts(task, entry) if kind == "failed" else _part_entries(task, digest, size, mtime, mesh, entry,
-                                                                               params, limits)
+        sub = _failed_parts(task, entry) if kind == "failed" else _guarded_parts(task, digest, size, mtime, mesh, entry,
+                                                                                params, limits)
+        clock.lap("parts")
     if not whole:
         kind = "same" if task.whole else "skipped"
         entry = None
-    return Outcome(task, kind, entry, size, mtime, time.monotonic() - started, parts=sub, **same)
+    clock.lap("failed" if kind == "failed" else "other")
+    return Outcome(task, kind, entry, size, mtime, time.monotonic() - started, parts=sub, cpu=clock.seconds, **same)
 
 
-def _signed(path: str, digest: str, size: int, mtime: int, solid, params: StoreParams, absolute: str) -> Entry:
+def _signed(path: str, digest: str, size: int, mtime: int, solid, params: StoreParams, absolute: str,
+            clock: StageClock | None = None) -> Entry:
     """The ok entry of one solid (a file, or a sub-part ``FILE#n``); ``absolute`` names the file in errors."""
     from ..signing.moments import shape_facts
     from ..signing.pipeline import signature_of_solid
 
     check_signature_headroom(absolute, len(solid.faces))
     signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor)
-    return Entry.indexed(path, digest, size, mtime, signature, solid.describe(), shape_facts(solid.vertices, solid.faces))
+    if clock is not None:
+        clock.lap("signature")
+    entry = Entry.indexed(path, digest, size, mtime, signature, solid.describe(), shape_facts(solid.vertices, solid.faces))
+    if clock is not None:
+        clock.lap("facts")
+    return entry
 
 
 def part_path(path: str, number: int) -> str:
@@ -180,6 +209,23 @@ def _failed_parts(task: Task, entry: Entry) -> list | None:
     return [failed]
 
 
+def _guarded_parts(task: Task, digest: str, size: int, mtime: int, mesh, whole: Entry, params: StoreParams,
+                   limits) -> list:
+    """:func:`_part_entries`, whose failure costs the file's sub-entries (one failed ``FILE``),
+    never its whole entry or the build."""
+    try:
+        return _part_entries(task, digest, size, mtime, mesh, whole, params, limits)
+    except (LoadError, OutOfMemory) as exc:
+        reason = reason_of(exc, task.absolute)
+    except MemoryError:
+        reason = "out of memory while splitting it into sub-parts"
+    except Exception as exc:  # a bug in the split must cost the file's sub-parts, not the build
+        from ..errors import exception_in_words
+
+        reason = one_line(f"cannot be split into sub-parts: it holds {exception_in_words(exc)}")
+    return _failed_parts(task, Entry.failed(task.path, digest, size, mtime, reason))
+
+
 def _part_entries(task: Task, digest: str, size: int, mtime: int, mesh, whole: Entry, params: StoreParams,
                   limits) -> list:
     """The sub-entries of a file read and signed (``whole``): one per distinct sub-part, or
@@ -191,7 +237,7 @@ def _part_entries(task: Task, digest: str, size: int, mtime: int, mesh, whole: E
 
     try:
         parts = split_parts(task.absolute, limits, mesh=mesh)
-    except LoadError as exc:
+    except LoadError:
         parts = None  # the split failed where the whole file did not: the file is its own one part
     if not parts:
         if whole is None:  # only the parts were asked and the file is one part: sign it as a whole
@@ -429,24 +475,32 @@ class WorkerPool:
         self.root = root
         self.timeout = timeout or None
         self.workers: list[_Worker] = []
+        #: Worker processes started (the first ones and every replacement): each pays the imports.
+        self.started = 0
 
     def run(self, tasks, wake_every: float = 1.0):
         """Yield an :class:`Outcome` per task (in completion order), or None at least every ``wake_every`` s.
 
         The None ticks let the caller commit on time while every worker is busy on slow files.
         """
+        try:
+            count = len(tasks)
+        except TypeError:
+            count = self.size
+        # as many workers as there are files, up to the pool's size, importing side by side;
+        # a build with nothing to do starts none
+        idle = [self._spawn() for _ in range(min(self.size, count))]
         pending = iter(tasks)
-        idle = [self._spawn() for _ in range(self.size)]
         busy: list[_Worker] = []
         exhausted = False
         try:
             while True:
-                while idle and not exhausted:
+                while (idle or len(busy) < self.size) and not exhausted:
                     task = next(pending, None)
                     if task is None:
                         exhausted = True
                         break
-                    worker = idle.pop()
+                    worker = idle.pop() if idle else self._spawn()
                     if not worker.process.is_alive():  # died while idle (killed from outside)
                         worker = self._replace(worker)
                     worker.give(task, self.timeout)
@@ -458,6 +512,7 @@ class WorkerPool:
             self.close()
 
     def _spawn(self) -> _Worker:
+        self.started += 1
         worker = _Worker(self.context, self.params, self.root, self.memory_limit)
         self.workers.append(worker)
         return worker

@@ -88,6 +88,17 @@ class LoadLimits:
             )
 
 
+    def check_reading(self, path, need: int, what: str) -> None:
+        """Raise LoadError when reading a file would take ``need`` bytes, more than
+        ``max_bytes``; ``what`` says for what ("to split its 75,000,000 coordIndex values")."""
+        if need > self.max_bytes:
+            raise LoadError(
+                path,
+                f"would need about {_binary_size(need)} of memory {what}, more than the limit of "
+                f"{_binary_size(self.max_bytes)} (refused as a possible bomb)",
+            )
+
+
 class NotRegularFile(OSError):
     """A name that is a FIFO, socket or device, not a file: ``str()`` says which."""
 
@@ -121,6 +132,18 @@ def open_regular(path: str | os.PathLike):
     except BaseException:
         os.close(fd)
         raise
+
+
+def read_regular(path: str | os.PathLike, limit: int | None = None) -> bytes:
+    """A small file's bytes through :func:`open_regular` (never blocks on a FIFO); more than
+    ``limit`` bytes raise :class:`OSError` (a record of a few bytes grown to gigabytes)."""
+    import errno
+
+    with open_regular(path) as f:
+        data = f.read(-1 if limit is None else limit + 1)
+    if limit is not None and len(data) > limit:
+        raise OSError(errno.EFBIG, f"larger than {limit:,} bytes", os.fspath(path))
+    return data
 
 
 def file_hash(path: str | os.PathLike) -> str:
@@ -170,6 +193,12 @@ class Format:
     weak : bool
         The sniff test is a last resort (binary STL has no magic number): tried after
         every other format's.
+    declared : callable or None
+        ``declared(data) -> (triangles, vertices)``: at least how many triangles and
+        vertices the file says it holds (header counts, ``f`` lines, ``endfacet``), found
+        without reading it (a header, or a count of bytes in C), and never more than its
+        bytes can hold. :func:`shapeidx.io.load` checks the memory they need
+        (:meth:`LoadLimits.check_memory`) before the reader spends it.
     """
 
     name: str
@@ -178,6 +207,7 @@ class Format:
     read: Callable
     sniff: Callable | None = None
     weak: bool = False
+    declared: Callable | None = None
 
 
 @dataclass
@@ -266,6 +296,13 @@ def read_bytes(path: str | os.PathLike, limits: LoadLimits | None = None) -> tup
 def gunzip_bounded(source, path: Path, max_bytes: int) -> bytes:
     """Decompress gzip data from ``source`` (a path, an open file or the compressed bytes), refusing to
     expand beyond ``max_bytes``; ``path`` names the file in errors."""
+    declared = _gzip_declared_size(source)
+    if declared is not None and declared > max_bytes:
+        raise LoadError(
+            path,
+            f"gzip data expands beyond the limit of {max_bytes:,} bytes (it declares {declared:,}: a bomb,"
+            f" or its last bytes are damaged; refused)",
+        )
     if isinstance(source, (bytes, bytearray, memoryview)):
         source = io.BytesIO(source)
     chunks = []
@@ -286,8 +323,50 @@ def gunzip_bounded(source, path: Path, max_bytes: int) -> bytes:
     except LoadError:
         raise
     except (OSError, EOFError, zlib.error) as exc:
-        raise LoadError(path, f"corrupt gzip data ({exc})") from None
+        raise LoadError(path, f"corrupt gzip data ({_gzip_problem(exc)})") from None
     return b"".join(chunks)
+
+
+def _gzip_problem(exc: BaseException) -> str:
+    """What a gzip or zlib exception says about the data, in words (zlib's own text reads
+    "Error -3 while decompressing data: invalid distance too far back")."""
+    if isinstance(exc, EOFError):
+        return "it is cut short before the end of its compressed stream"
+    text = str(exc)
+    if isinstance(exc, zlib.error):
+        detail = text.split(":", 1)[1].strip() if ":" in text else ""
+        return "its compressed stream is damaged" + (f": {detail}" if detail else "")
+    if text.startswith("Not a gzipped file"):
+        return "not gzip after its first bytes"
+    if text.startswith("CRC check failed"):
+        return "its checksum does not match its content"
+    if text.startswith("Incorrect length"):
+        return "its declared length does not match its content"
+    return getattr(exc, "strerror", None) or "unreadable"
+
+
+def _gzip_declared_size(source) -> int | None:
+    """The uncompressed size a gzip stream's last member declares (ISIZE, its last four
+    bytes: the size modulo 2^32), or None when it cannot be read. A lie can only make the
+    streaming limit the one that refuses."""
+    try:
+        if isinstance(source, (bytes, bytearray, memoryview)):
+            tail = bytes(source[-4:]) if len(source) >= 18 else b""
+        elif hasattr(source, "seek"):  # an open file: read its end, then go back
+            at = source.tell()
+            try:
+                source.seek(0, os.SEEK_END)
+                if source.tell() < 18:
+                    return None
+                source.seek(-4, os.SEEK_END)
+                tail = source.read(4)
+            finally:
+                source.seek(at)
+        else:
+            return None
+    except (OSError, ValueError):
+        return None
+    return int.from_bytes(tail, "little") if len(tail) == 4 else None
 
 
 #: Largest coordinate magnitude, and largest extent, that cleaning computes with: areas grow

@@ -35,7 +35,7 @@ import signal
 import threading
 from multiprocessing.connection import wait
 
-from ..errors import LoadError, OutOfMemory
+from ..errors import LoadError, OutOfMemory, exception_in_words
 
 __all__ = ["run_contained", "run_here", "is_contained", "DEFAULT_SECONDS"]
 
@@ -112,9 +112,10 @@ def _limit_memory(limit: int | None) -> None:
     try:
         import resource
 
-        _, hard = resource.getrlimit(resource.RLIMIT_DATA)
-        if hard != resource.RLIM_INFINITY:
-            limit = min(limit, hard)
+        soft, hard = resource.getrlimit(resource.RLIMIT_DATA)
+        for bound in (soft, hard):  # never above a limit the process already has
+            if bound != resource.RLIM_INFINITY:
+                limit = min(limit, bound)
         resource.setrlimit(resource.RLIMIT_DATA, (limit, hard))
     except (ImportError, ValueError, OSError):
         pass
@@ -143,6 +144,8 @@ def _child(conn, function, args, memory: int | None) -> None:
         result = ("oom", None, None, None)
     except RecursionError:
         result = ("error", None, "nesting too deep to read", None)
+    except Exception as exc:  # noqa: BLE001 (a reader bug: one line in words, not a traceback on stderr)
+        result = ("error", None, f"cannot be read: it holds {exception_in_words(exc)}", None)
     try:
         conn.send(result)
     except MemoryError:

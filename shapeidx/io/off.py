@@ -57,4 +57,19 @@ def read_off(path, data: bytes, limits: LoadLimits | None = None) -> PolygonMesh
     return PolygonMesh(points.reshape(-1, 3), np.array(sizes, dtype=np.int64), np.array(corners, dtype=np.int64), "off", warnings)
 
 
-FORMATS = [Format("off", "OFF", SUFFIXES["off"], read_off, sniff=lambda data: head_of(data)[:3] == b"OFF" or head_of(data)[:4] in (b"COFF", b"NOFF"))]
+def declared_off(data: bytes) -> tuple[int, int]:
+    """Faces and vertices the OFF header announces (bounded by what the bytes can hold:
+    a face line takes at least 8 bytes, a vertex line 6); (0, 0) when it cannot be read."""
+    fields: list[bytes] = []
+    for line in data[:4096].splitlines():
+        fields += line.split(b"#", 1)[0].split()
+        if len(fields) >= 3:
+            break
+    try:
+        vertices, faces = int(fields[1]), int(fields[2])
+    except (IndexError, ValueError):
+        return 0, 0
+    return max(0, min(faces, len(data) // 8)), max(0, min(vertices, len(data) // 6))
+
+
+FORMATS = [Format("off", "OFF", SUFFIXES["off"], read_off, declared=declared_off, sniff=lambda data: head_of(data)[:3] == b"OFF" or head_of(data)[:4] in (b"COFF", b"NOFF"))]

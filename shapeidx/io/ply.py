@@ -176,6 +176,21 @@ def _read_ascii(path, text: str, elements: list[_Element]):
     return values
 
 
+def declared_ply(data: bytes) -> tuple[int, int]:
+    """Faces and vertices the PLY header announces, bounded by what the bytes after it can
+    hold (a face takes 4 bytes at least, a vertex 3); (0, 0) when the header cannot be read."""
+    end = data.find(b"end_header")
+    if data[:3].lower() != b"ply" or end < 0:
+        return 0, 0
+    counts = {}
+    for line in data[:end].split(b"\n"):
+        fields = line.split()
+        if len(fields) == 3 and fields[0] == b"element" and fields[2].isdigit():
+            counts[fields[1]] = int(fields[2])
+    body = len(data) - end
+    return min(counts.get(b"face", 0), body // 4), min(counts.get(b"vertex", 0), body // 3)
+
+
 def _read_binary(path, data: bytes, offset: int, elements: list[_Element], order: str):
     values: dict = {}
     for element in elements:
@@ -264,4 +279,4 @@ def _need(path, data: bytes, offset: int, size: int, element: _Element) -> int:
     return offset + size
 
 
-FORMATS = [Format("ply", "PLY", SUFFIXES["ply"], read_ply, sniff=lambda data: head_of(data)[:3].lower() == b"ply")]
+FORMATS = [Format("ply", "PLY", SUFFIXES["ply"], read_ply, declared=declared_ply, sniff=lambda data: head_of(data)[:3].lower() == b"ply")]

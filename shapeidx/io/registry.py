@@ -106,6 +106,8 @@ def _read(data: bytes, path: Path, file_type: str | None, limits: LoadLimits) ->
     fmt = None
     try:
         fmt = FORMATS[file_type] if file_type else _sniff(path, data)
+        if fmt.declared is not None:  # refused from what the file declares, before it is read
+            limits.check_memory(path, *fmt.declared(data))
         mesh = fmt.read(path, data, limits)
     except LoadError:
         raise

@@ -39,8 +39,9 @@ def _read_ascii(path, data: bytes) -> PolygonMesh:
         corners = np.array(found, dtype=np.float64).reshape(-1, 3, 3)
     except ValueError:
         bad = next(f for v in found for f in v if not _is_number(f))
-        text = bad[:40].decode("latin-1")
-        raise LoadError(path, f"ASCII STL has a vertex coordinate that is not a number: {text!r}") from None
+        from ..errors import quoted_bytes
+
+        raise LoadError(path, f"ASCII STL has a vertex coordinate that is not a number: {quoted_bytes(bad[:40])}") from None
     return _from_corners(path, corners, "stl")
 
 
@@ -59,4 +60,15 @@ def _from_corners(path, corners: np.ndarray, fmt: str) -> PolygonMesh:
     return PolygonMesh.from_triangles(vertices, np.arange(len(vertices)).reshape(-1, 3), fmt)
 
 
-FORMATS = [Format("stl", "STL", SUFFIXES["stl"], read_stl, sniff=lambda data: head_of(data)[:5].lower() == b"solid" or len(data) >= 84, weak=True)]
+def declared_stl(data: bytes) -> tuple[int, int]:
+    """Triangles: the binary header's count when the length agrees with it, else ASCII
+    ``endfacet`` records (counted in C); three vertices each."""
+    if len(data) >= 84:
+        count = int(np.frombuffer(data, dtype="<u4", count=1, offset=80)[0])
+        if len(data) == 84 + 50 * count:
+            return count, 3 * count
+    count = data.count(b"endfacet") + data.count(b"ENDFACET")
+    return count, 3 * count
+
+
+FORMATS = [Format("stl", "STL", SUFFIXES["stl"], read_stl, declared=declared_stl, sniff=lambda data: head_of(data)[:5].lower() == b"solid" or len(data) >= 84, weak=True)]

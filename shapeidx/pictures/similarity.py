@@ -93,9 +93,11 @@ class SimilarityScale:
             return cls.of_store(searcher, metric)
         target = folder / f"calibration-{metric}-d{MAX_DRAWS}-{key}.npz"
         try:
-            with np.load(target) as data:
+            from ..io.base import open_regular
+
+            with open_regular(target) as f, np.load(f) as data:  # a FIFO in the cache is a miss, never a hang
                 return cls(metric, data["distances"], int(data["pairs"]), int(data["draws"]))
-        except (OSError, KeyError, ValueError):
+        except (OSError, KeyError, ValueError, EOFError):
             pass
         scale = cls.of_store(searcher, metric)
         try:
@@ -150,8 +152,12 @@ class SimilarityScale:
 
 
 def closer_than(share: float) -> str:
-    """``"closer than 97.2% of the store's pairs"``; a share above 0 never reads "100.0%"."""
+    """``"closer than 97.2% of the store's pairs"``; never "100.0%": the share is measured on a
+    sample of the store's pairs, so a hit closer than every pair sampled is "among the store's
+    closest pairs", and one rounded up to 100.0 reads "99.9%"."""
+    if share <= 0:
+        return "among the store's closest pairs (closer than every pair sampled)"
     text = f"{100 * (1 - share):.1f}"
-    if text == "100.0" and share > 0:
-        text = "99.9+"
+    if text == "100.0":
+        text = "99.9"
     return f"closer than {text}% of the store's pairs"

@@ -23,7 +23,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from ..io.base import file_hash
+from ..io.base import file_hash, read_regular
 from .render import DEFAULT_SIZE, RENDER_VERSION, render_file_png, render_solid_png
 
 
@@ -74,7 +74,7 @@ class ThumbnailCache:
             raise LoadError(path, f"cannot read the file ({exc.strerror or exc})") from None
         target = self.key_path(digest)
         try:
-            return target.read_bytes()
+            return read_regular(target, 64 << 20)  # a FIFO or a device in the cache is a miss, never a hang
         except OSError:
             pass
         data = render_solid_png(solid, self.size) if solid is not None else render_file_png(path, self.size)

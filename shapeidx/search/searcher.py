@@ -134,6 +134,8 @@ class Searcher:
         self.root = self.reader.attrs.get("root") or ""
         self._columns: dict = {}  # metadata key -> its values for every ranked entry, once read
         self._cache: dict = {}  # the metadata table's row of every entry, the keys with a value
+        self._blocks = None  # the BlockIndex of a long-lived searcher (shapeidx.search.blocks)
+        self._searches = 0
 
     def __len__(self) -> int:
         return len(self.view)
@@ -166,7 +168,20 @@ class Searcher:
         return self.reader.signature(index)
 
     def close(self) -> None:
+        self._blocks = None
         self.reader.close()
+
+    def warm(self):
+        """Build the block index (:mod:`shapeidx.search.blocks`) now: what a long-lived process
+        (``serve``, a Python session) does once so that every later query of a big store prunes
+        in blocks instead of bounding every entry. A searcher of at least
+        :data:`~shapeidx.search.blocks.WARM_MIN` entries builds it by itself on its second query."""
+        from .blocks import BlockIndex
+
+        if self._blocks is None and len(self.view):
+            with self.view.checked(None):
+                self._blocks = BlockIndex(self.view)
+        return self._blocks
 
     def __enter__(self) -> "Searcher":
         return self
@@ -378,7 +393,15 @@ class Searcher:
         if answer.reason is not None:
             return answer
         own = query.own if keep is None or query.own is None or keep[query.own] else None
-        chosen, exact = nearest(self.view, query.signature, metric, top, keep, own, filters.max_distance, threads)
+        from .blocks import WARM_MIN
+
+        self._searches += 1
+        if self._blocks is None and self._searches > 1 and len(self.view) >= WARM_MIN:
+            self.warm()  # a second query: a long-lived searcher, whose next queries the blocks serve
+        if self._blocks is not None and self._blocks.serves(metric, query.signature):
+            chosen, exact = self._blocks.nearest(query.signature, metric, top, keep, filters.max_distance, threads)
+        else:
+            chosen, exact = nearest(self.view, query.signature, metric, top, keep, own, filters.max_distance, threads)
         valid = np.isfinite(exact)
         if filters.max_distance is not None:
             valid &= exact <= filters.max_distance

@@ -97,6 +97,9 @@ def shard_entry(path: str, entry: str):
 def search_shard(path: str, signature, entry: str | None, top: int, metric: str, filters: Filters) -> dict:
     """The shard's exact top ``top`` (run where the shard is): each hit as (distance, not the
     query's own entry, relative path, metadata), in the store's order; the counts; why none."""
+    import time
+
+    started = time.perf_counter()
     searcher = _searcher(path)
     own = None
     if entry is not None:
@@ -107,7 +110,7 @@ def search_shard(path: str, signature, entry: str | None, top: int, metric: str,
     return {"hits": [(hit.distance, hit.relative_path != query.entry, hit.relative_path, hit.metadata)
                      for hit in answer.hits],
             "considered": answer.considered, "entries": answer.entries, "reason": answer.reason,
-            "nearest": answer.nearest, "own": own is not None}
+            "nearest": answer.nearest, "own": own is not None, "seconds": time.perf_counter() - started}
 
 
 class ShardedSearcher:
@@ -215,6 +218,7 @@ class ShardedSearcher:
             raise ValueError(f"top must be at least 1, not {top}")
         answers = self._each(search_shard, [(path, query.signature, query.entry, top, metric, filters)
                                             for path in self.shards])
+        self.last_seconds = [a["seconds"] for a in answers]  # each shard's own time (benchmarks)
         found = [hit for answer in answers for hit in answer["hits"]]
         found.sort(key=lambda hit: hit[:3])
         own = any(a["own"] for a in answers)

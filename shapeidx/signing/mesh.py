@@ -258,6 +258,114 @@ def merge_vertices(vertices: np.ndarray, faces: np.ndarray, relative_tolerance: 
     return points[first], group[inverse].reshape(-1, 3)
 
 
+#: A part whose typical triangle is smaller than this fraction of its extent is looked at for
+#: far pieces (:func:`far_pieces`); real parts' typical triangles are 1e-3 to 1e-1 of it.
+FAR_CHECK = 1e-4
+#: Pieces this many times the body's size away from it (and beyond) are near it.
+NEAR_GAP = 10.0
+#: Far pieces are left out when they make the extent this many times the body's.
+FAR_EXTENT = 100.0
+
+
+def far_pieces(vertices: np.ndarray, triangles: np.ndarray):
+    """Triangles of pieces far from the part's body: a stray triangle written far away.
+
+    The merging of points (:func:`merge_vertices`) and every tolerance after it follow the
+    part's extent; one stray triangle 10^12 away from a 1 mm part would make them 10^3 and
+    collapse every real face. So the body is found first, by the local size of the faces:
+
+    * pieces: triangles joined by shared points (exactly equal coordinates);
+    * the body: the piece of most triangles, grown by every piece less than
+      :data:`NEAR_GAP` times its size away (repeated while it grows);
+    * what is left is far, and is left out when it makes the extent more than
+      :data:`FAR_EXTENT` times the body's (otherwise it is part of the part, kept).
+
+    Only run when the typical (median) triangle is below :data:`FAR_CHECK` of the extent.
+
+    Returns
+    -------
+    far : (k,) bool or None
+        The triangles to leave out, or None when none are.
+    distance : float
+        How far the farthest left-out point is from the body's box.
+    size : float
+        The body's size (largest side of its box).
+    """
+    if len(triangles) < 2:
+        return None, 0.0, 0.0
+    corners = vertices[triangles]  # (k, 3, 3)
+    lo, hi = corners.min(axis=1), corners.max(axis=1)  # each triangle's box
+    extent = float(np.max(hi.max(axis=0) - lo.min(axis=0)))
+    local = np.max(hi - lo, axis=1)
+    if not extent > 0 or float(np.median(local)) >= FAR_CHECK * extent:
+        return None, 0.0, 0.0
+    used, inverse = unique_indices(triangles, return_inverse=True)
+    _, point_group = group_rows(np.ascontiguousarray(vertices[used]).view(np.int64).reshape(len(used), 3))
+    corner_group = point_group[inverse].reshape(-1, 3)
+    count = int(point_group.max()) + 1
+    rows = np.concatenate([corner_group[:, 0], corner_group[:, 1]])
+    cols = np.concatenate([corner_group[:, 1], corner_group[:, 2]])
+    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(count, count))
+    pieces, label = connected_components(graph, directed=False)
+    if pieces < 2:
+        return _far_corners(vertices, triangles, used, inverse)
+    piece = label[corner_group[:, 0]]
+    piece_lo = np.full((pieces, 3), np.inf)
+    piece_hi = np.full((pieces, 3), -np.inf)
+    np.minimum.at(piece_lo, piece, lo)
+    np.maximum.at(piece_hi, piece, hi)
+    body = np.zeros(pieces, dtype=bool)
+    body[np.argmax(np.bincount(piece, minlength=pieces))] = True
+    while True:
+        body_lo, body_hi = piece_lo[body].min(axis=0), piece_hi[body].max(axis=0)
+        size = float(np.max(body_hi - body_lo))
+        gap = np.max(np.maximum(body_lo - piece_hi, piece_lo - body_hi), axis=1)
+        near = ~body & (gap <= NEAR_GAP * size)
+        if not near.any():
+            break
+        body |= near
+    if body.all() or extent <= FAR_EXTENT * size:
+        return _far_corners(vertices, triangles, used, inverse)
+    return ~body[piece], float(gap[~body].max()), size
+
+
+def _far_corners(vertices, triangles, used, inverse):
+    """Triangles with a corner far from all other points (a spike: one coordinate written
+    1e20 in one triangle of a part): :func:`far_pieces` for one connected piece.
+
+    Along each axis the used points are sorted; where the largest gap between neighbours
+    leaves at most ``max(3, 1 %)`` of the points on one side, and is more than
+    :data:`FAR_EXTENT` times the extent of the points on the other, those few are far.
+    Repeated while it finds some (stray points on several sides).
+    """
+    points = vertices[used]
+    far = np.zeros(len(points), dtype=bool)
+    found = True
+    while found:
+        found = False
+        for axis in range(3):
+            keep = np.flatnonzero(~far)
+            if len(keep) < 5:  # a far point and at least a tetrahedron
+                break
+            order = keep[np.argsort(points[keep, axis], kind="stable")]
+            coords = points[order, axis]
+            k = int(np.argmax(np.diff(coords)))
+            gap = float(coords[k + 1] - coords[k])
+            few, rest = (order[: k + 1], order[k + 1:]) if k + 1 <= len(order) // 2 else (order[k + 1:], order[: k + 1])
+            if len(few) > max(3, len(order) // 100):
+                continue
+            rest_size = float(np.max(points[rest].max(axis=0) - points[rest].min(axis=0)))
+            if gap > FAR_EXTENT * rest_size:
+                far[few] = True
+                found = True
+    if not far.any():
+        return None, 0.0, 0.0
+    body = points[~far]
+    lo, hi = body.min(axis=0), body.max(axis=0)
+    distance = float(np.max(np.maximum(lo - points[far], points[far] - hi)))
+    return far[inverse].reshape(-1, 3).any(axis=1), distance, float(np.max(hi - lo))
+
+
 def group_rows(rows: np.ndarray):
     """Group equal rows of a 2-D integer array (``np.unique(axis=0)``, several times faster).
 

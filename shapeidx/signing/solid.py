@@ -28,6 +28,7 @@ from ..errors import LoadError
 from ..io.base import PolygonMesh, check_coordinate_range, without_float_warnings
 from .mesh import (
     Shells,
+    far_pieces,
     flip_faces,
     merge_vertices,
     orient_shells,
@@ -77,11 +78,93 @@ def shell_bounds(vertices: np.ndarray, faces: np.ndarray, shell: np.ndarray, cou
     return lo, hi
 
 
+def faces_by_shell(faces: np.ndarray, shell: np.ndarray):
+    """A function giving the faces of one shell, after one sort (not one scan per shell)."""
+    order = np.argsort(shell, kind="stable")
+    ordered = faces[order]
+    starts = np.searchsorted(shell[order], np.arange(int(shell.max(initial=-1)) + 2))
+    return lambda s: ordered[starts[s]:starts[s + 1]]
+
+
+#: A box spanning more grid cells than this is paired with every other box directly.
+_MAX_CELLS = 512
+
+
+def touching_pairs(lo: np.ndarray, hi: np.ndarray, tol: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Every pair ``(i, j)``, ``i < j``, of boxes that touch or overlap (within ``tol``).
+
+    Sub-quadratic for boxes spread in space: each box is hashed into the cells of a grid
+    (cells the size of a typical box) that it spans, and only boxes sharing a cell are
+    compared; two boxes that overlap share the cell holding the low corner of their
+    intersection. A box spanning more than :data:`_MAX_CELLS` cells is compared with all
+    others directly. (A scan of every box per box took 32 s for 16,000 separate shells.)
+    """
+    n = len(lo)
+    empty = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+    if n < 2:
+        return empty
+    lo, hi = lo - tol, hi + tol
+    sides = np.max(hi - lo, axis=1)
+    origin = lo.min(axis=0)
+    # a typical box's size, but no more than 2^20 cells along an axis (integers stay exact)
+    cell = max(float(np.median(sides)), float(np.max(hi.max(axis=0) - origin)) / 2**20)
+    if not cell > 0:
+        cell = 1.0
+    first = np.floor((lo - origin) / cell)
+    last = np.floor((hi - origin) / cell)
+    spans = last - first + 1
+    counts = np.prod(spans, axis=1)
+    big = ~(counts <= _MAX_CELLS)  # NaN-safe
+    pairs_i, pairs_j = [], []
+    small = np.flatnonzero(~big)
+    if len(small):
+        first_i = first[small].astype(np.int64)
+        last_i = last[small].astype(np.int64)
+        counts_i = counts[small].astype(np.int64)
+        box = np.repeat(small, counts_i)
+        # the k-th cell of a box: offsets in x, y, z within its spans
+        k = np.arange(len(box)) - np.repeat(np.cumsum(counts_i) - counts_i, counts_i)
+        span = (last_i - first_i + 1)[np.searchsorted(small, box)]
+        dz = k % span[:, 2]
+        dy = (k // span[:, 2]) % span[:, 1]
+        dx = k // (span[:, 2] * span[:, 1])
+        cells = first_i[np.searchsorted(small, box)] + np.stack([dx, dy, dz], axis=1)
+        _, key = np.unique(cells, axis=0, return_inverse=True)
+        key = key.reshape(-1)
+        order = np.lexsort((box, key))
+        key, box = key[order], box[order]
+        starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        sizes = np.diff(np.r_[starts, len(key)])
+        for size in np.unique(sizes[sizes > 1]):
+            groups = starts[sizes == size]
+            members = box[groups[:, None] + np.arange(size)]  # (g, size)
+            a, b = np.triu_indices(size, 1)
+            pairs_i.append(members[:, a].reshape(-1))
+            pairs_j.append(members[:, b].reshape(-1))
+    for i in np.flatnonzero(big):
+        others = np.arange(n)
+        others = others[(others != i) & ~(big & (others < i))]  # a pair of big boxes once
+        pairs_i.append(np.full(len(others), i))
+        pairs_j.append(others)
+    if not pairs_i:
+        return empty
+    i, j = np.concatenate(pairs_i), np.concatenate(pairs_j)
+    i, j = np.minimum(i, j), np.maximum(i, j)
+    touch = np.all(lo[i] <= hi[j], axis=1) & np.all(lo[j] <= hi[i], axis=1)
+    i, j = i[touch], j[touch]
+    if len(i) == 0:
+        return empty
+    unique = np.unique(np.stack([i, j], axis=1), axis=0)  # boxes sharing several cells
+    return unique[:, 0], unique[:, 1]
+
+
 def nesting_depth(vertices, faces, shell, closed_ids, lo, hi) -> np.ndarray:
     """For each closed shell, how many other closed shells contain it entirely.
 
     Shell ``a`` is inside shell ``b`` when its bounding box lies within ``b``'s and every
-    vertex of ``a`` has winding number above one half with respect to ``b``.
+    vertex of ``a`` has winding number above one half with respect to ``b``. Only pairs of
+    touching boxes are looked at (:func:`touching_pairs`), and each shell's faces come from
+    one sort of all faces, so that many separate shells cost about linear time.
     """
     depth = np.zeros(len(closed_ids), dtype=np.int64)
     if len(closed_ids) < 2:
@@ -89,19 +172,27 @@ def nesting_depth(vertices, faces, shell, closed_ids, lo, hi) -> np.ndarray:
     clo, chi = lo[closed_ids], hi[closed_ids]
     span = float(np.max(chi.max(axis=0) - clo.min(axis=0)))
     tol = 1e-9 * span
-    faces_of = {s: faces[shell == s] for s in closed_ids}
-    for j, b in enumerate(closed_ids):
-        inside_box = np.all(clo >= clo[j] - tol, axis=1) & np.all(chi <= chi[j] + tol, axis=1)
-        inside_box[j] = False
-        candidates = np.flatnonzero(inside_box)
-        if len(candidates) == 0:
-            continue
+    i, j = touching_pairs(clo, chi, tol)
+    # (inner, outer) pairs: inner's box within outer's
+    inner = np.concatenate([i, j])
+    outer = np.concatenate([j, i])
+    within = np.all(clo[inner] >= clo[outer] - tol, axis=1) & np.all(chi[inner] <= chi[outer] + tol, axis=1)
+    inner, outer = inner[within], outer[within]
+    if len(inner) == 0:
+        return depth
+    faces_of = faces_by_shell(faces, shell)
+    order = np.argsort(outer, kind="stable")
+    inner, outer = inner[order], outer[order]
+    bounds = np.flatnonzero(np.r_[True, outer[1:] != outer[:-1], True])
+    for start, stop in zip(bounds[:-1], bounds[1:]):
+        j = int(outer[start])
+        candidates = inner[start:stop]
         queries, owner = [], []
-        for i in candidates:
-            used = unique_indices(faces_of[closed_ids[i]])
+        for c in candidates:
+            used = unique_indices(faces_of(closed_ids[c]))
             queries.append(vertices[used])
-            owner.append(np.full(len(used), i))
-        w = winding_numbers(vertices, faces_of[b], np.concatenate(queries))
+            owner.append(np.full(len(used), c))
+        w = winding_numbers(vertices, faces_of(closed_ids[j]), np.concatenate(queries))
         owner = np.concatenate(owner)
         outside = np.bincount(owner, weights=(w <= 0.5), minlength=len(closed_ids))
         contained = candidates[outside[candidates] == 0]
@@ -111,17 +202,7 @@ def nesting_depth(vertices, faces, shell, closed_ids, lo, hi) -> np.ndarray:
 
 def _overlapping(lo: np.ndarray, hi: np.ndarray) -> bool:
     """Do any two of these boxes touch or overlap?"""
-    n = len(lo)
-    if n < 2:
-        return False
-    order = np.argsort(lo[:, 0])
-    lo, hi = lo[order], hi[order]
-    # sweep along x: only boxes starting before this one ends can overlap it
-    for i in range(n - 1):
-        later = slice(i + 1, np.searchsorted(lo[:, 0], hi[i, 0], side="right"))
-        if np.any(np.all(lo[later] <= hi[i], axis=1) & np.all(hi[later] >= lo[i], axis=1)):
-            return True
-    return False
+    return len(touching_pairs(lo, hi)[0]) > 0
 
 
 def _to_manifold(vertices: np.ndarray, faces: np.ndarray):
@@ -146,10 +227,11 @@ def unite_by_depth(vertices, faces, shell, closed_ids, depth):
     import manifold3d
 
     result = None
+    faces_of = faces_by_shell(faces, shell)
     for d in range(int(depth.max()) + 1):
         parts = []
         for s in closed_ids[depth == d]:
-            solid = _to_manifold(vertices, faces[shell == s])
+            solid = _to_manifold(vertices, faces_of(s))
             if solid is None:
                 return None
             parts.append(solid)
@@ -353,6 +435,16 @@ def make_solid(mesh: PolygonMesh, path=None) -> Solid:
     }
     if not np.isfinite(read_area) or read_area <= 0:
         raise LoadError(path, "has zero surface area (every face is degenerate)")
+    far, distance, size = far_pieces(vertices, triangles)
+    report["far_removed"] = 0
+    if far is not None:  # tolerances follow the body's size, not a stray piece's distance
+        triangles = triangles[~far]
+        report["far_removed"] = int(far.sum())
+        warnings.append(f"{int(far.sum())} triangle(s) far from the rest left out (up to {distance:.3g} away from a part "
+                        f"{size:.3g} across: stray geometry?)")
+        referenced = np.zeros(len(vertices), dtype=bool)
+        referenced[triangles] = True
+        used = vertices[referenced]
 
     # work near the origin: volumes, winding numbers and booleans lose precision far from it
     centre = (used.min(axis=0) + used.max(axis=0)) / 2

@@ -57,9 +57,19 @@ FINE_PER_COARSE = 3
 #: Candidates fetched from the embedding per neighbour wanted: 3 finds 99.8% of the exact
 #: 10 nearest on 10,000 synthetic entries (1 finds 63%); scripts/bench_families.py.
 OVERFETCH = 3
-#: Up to this many entries the index is exact (brute force on the vectors); above, HNSW.
-EXACT_LIMIT = 200_000
-#: HNSW graph degree and search breadth (recall measured by scripts/bench_families.py).
+#: Up to this many entries the index is exact (brute force on the vectors: N^2 work); above,
+#: an inverted file (IVF: N sqrt(N) work). At 10^5 entries brute force was 290 of the 420 s of
+#: ``find_duplicates`` (docs/performance-families.md).
+EXACT_LIMIT = 20_000
+#: IVF: lists per sqrt(N) entries, lists probed per query, training points per list (FAISS's
+#: k-means wants at least 39), the sample's seed. Recall against brute force is measured by
+#: ``scripts/bench_families.py`` (docs/performance-families.md).
+IVF_LISTS_PER_ROOT = 4
+IVF_PROBE = 24
+IVF_TRAIN_PER_LIST = 40
+IVF_SEED = 22
+#: HNSW graph degree and search breadth (``method="hnsw"``; recall measured by
+#: scripts/bench_families.py).
 HNSW_M = 32
 HNSW_EF_SEARCH = 256
 HNSW_EF_CONSTRUCTION = 200
@@ -197,9 +207,16 @@ def embed(table, metric: str = "combined") -> np.ndarray:
     return np.ascontiguousarray(np.nan_to_num(vectors), dtype=np.float32)
 
 
+def ivf_lists(n: int) -> int:
+    """Lists of the inverted file for ``n`` vectors: :data:`IVF_LISTS_PER_ROOT` sqrt(n)."""
+    return max(1, int(IVF_LISTS_PER_ROOT * np.sqrt(n)))
+
+
 class CandidateIndex:
     """Nearest vectors by Euclidean distance: exact (FAISS flat) up to :data:`EXACT_LIMIT`
-    entries, HNSW above (or as ``method`` says: ``"exact"``, ``"hnsw"``, ``"auto"``)."""
+    entries, an inverted file above (FAISS IVF-flat: :func:`ivf_lists` k-means cells, each
+    query scans the :data:`IVF_PROBE` nearest), or as ``method`` says: ``"exact"``, ``"ivf"``,
+    ``"hnsw"``, ``"auto"``."""
 
     def __init__(self, vectors: np.ndarray, method: str = "auto", threads: int | None = None):
         import faiss
@@ -208,9 +225,18 @@ class CandidateIndex:
             faiss.omp_set_num_threads(int(threads))
         self.vectors = np.ascontiguousarray(vectors, dtype=np.float32)
         n, dim = self.vectors.shape
-        self.method = ("exact" if n <= EXACT_LIMIT else "hnsw") if method == "auto" else method
+        self.method = ("exact" if n <= EXACT_LIMIT else "ivf") if method == "auto" else method
+        if self.method == "ivf" and n < 2 * IVF_TRAIN_PER_LIST:
+            self.method = "exact"  # too few vectors to train cells on
         if self.method == "exact":
             self.index = faiss.IndexFlatL2(dim)
+        elif self.method == "ivf":
+            lists = min(ivf_lists(n), n // IVF_TRAIN_PER_LIST)
+            self.quantizer = faiss.IndexFlatL2(dim)
+            self.index = faiss.IndexIVFFlat(self.quantizer, dim, lists)
+            sample = np.random.default_rng(IVF_SEED).choice(n, min(n, IVF_TRAIN_PER_LIST * lists), replace=False)
+            self.index.train(self.vectors[np.sort(sample)])
+            self.index.nprobe = min(IVF_PROBE, lists)
         elif self.method == "hnsw":
             self.index = faiss.IndexHNSWFlat(dim, HNSW_M)
             self.index.hnsw.efConstruction = HNSW_EF_CONSTRUCTION
@@ -267,17 +293,18 @@ def candidate_pairs(table, metric: str, k: int, method: str = "auto", threads: i
     rows = np.repeat(np.arange(n), found.shape[1])
     cols = found.ravel()
     valid = cols >= 0
+    # each pair's exact distance once (a pair in both entries' lists is one distance)
+    key = np.where(valid, np.minimum(rows, cols) * max(n, 1) + np.maximum(rows, cols), -1)
+    pairs, which = np.unique(key[valid], return_inverse=True)
     exact = np.full(len(cols), np.inf)
-    exact[valid] = table.pair_distances(rows[valid], cols[valid], metric)
+    exact[valid] = table.pair_distances(pairs // max(n, 1), pairs % max(n, 1), metric)[which.ravel()]
     exact = exact.reshape(n, -1)
     order = np.lexsort((found, exact), axis=1) if n else np.zeros((0, 0), np.int64)
     neighbours = np.take_along_axis(found, order, axis=1)[:, :k]
     neighbour_distances = np.take_along_axis(exact, order, axis=1)[:, :k]
-    a, b = np.minimum(rows, cols)[valid], np.maximum(rows, cols)[valid]
-    d = exact.ravel()[valid]
-    key = a * max(n, 1) + b
-    _, first = np.unique(key, return_index=True)
-    return a[first], b[first], d[first], neighbours, neighbour_distances
+    _, first = np.unique(which.ravel(), return_index=True)
+    a, b = pairs // max(n, 1), pairs % max(n, 1)
+    return a, b, exact.ravel()[valid][first], neighbours, neighbour_distances
 
 
 def query_candidates(view, signature, metric: str, top: int, first: int | None = None, exclude: int | None = None,

@@ -326,8 +326,8 @@ def _store_files(store: Path) -> tuple[list, int | None, dict]:
     try:
         with open_hdf5(main_file(store)) as f:
             attrs = {k: (as_text(v) if isinstance(v, (bytes, str)) else v) for k, v in f.attrs.items()}
-    except OSError:
-        pass
+    except (OSError, KeyError, RuntimeError, ValueError):  # h5py says KeyError for a damaged object header
+        pass  # the main file's own scan reports it
     merged = int(attrs.get("journal_seq", 0))
     points = int(attrs["points"]) if "points" in attrs else None
     return [(0, main_file(store))] + [(seq, p) for seq, p in batch_files(store) if seq > merged], points, attrs
@@ -371,9 +371,24 @@ def check_store(store, files: bool = False) -> CheckReport:
             text = str(exc)
             what = text[text.index("damaged (") + 9 : text.rindex("): ")] if "damaged (" in text and "): " in text else text
             report.problems.append(Problem(store.name, "journal", what))
+    _check_metadata(store, report)
     if files and not report.problems:
         _check_files(store, attrs.get("root"), report)
     return report
+
+
+def _check_metadata(store: Path, report: CheckReport) -> None:
+    """The --metadata table (STORE/metadata.h5), read as every command reads it."""
+    from ..errors import StoreDamagedError
+    from .metadata import METADATA_FILE, load_table
+
+    try:
+        load_table(store)
+    except StoreDamagedError as exc:
+        text = str(exc)
+        what = text[text.index("damaged (") + 9 : text.rindex("): ")] if "damaged (" in text and "): " in text else text
+        report.problems.append(Problem(METADATA_FILE, "table", what + "; 'shapeidx build DIR --metadata TABLE.csv'"
+                                                                      " writes it again"))
 
 
 def _check_files(store: Path, root: str | None, report: CheckReport) -> None:

@@ -169,7 +169,9 @@ def committed_path(store: Path) -> Path:
 def read_committed(store: Path) -> int:
     """The newest journal sequence number a build committed (``STORE/committed``; 0 when none)."""
     try:
-        return int(committed_path(store).read_text().split()[0])
+        from ..io.base import read_regular
+
+        return int(read_regular(committed_path(store), 4096).split()[0])  # a FIFO put there never blocks
     except (OSError, ValueError, IndexError):
         return 0
 

@@ -70,7 +70,9 @@ def collection_problem(data, at: int, file_size: int) -> str | None:
 def check_global_heaps(path: str | os.PathLike) -> None:
     """Raise :class:`GlobalHeapDamaged` when a global heap collection of the file is damaged
     so that HDF5 would loop on it or read past it (see the module docstring)."""
-    with open(path, "rb") as f:
+    from ..io.base import open_regular
+
+    with open_regular(path) as f:  # a FIFO in a store file's place is refused, never waited on
         file_size = os.fstat(f.fileno()).st_size
         if file_size < HEADER:
             return

@@ -50,8 +50,10 @@ def identity(store: Path) -> dict | None:
 def is_verified(store: Path) -> bool:
     """Whether the main file is the very file last recorded as verified."""
     try:
-        recorded = json.loads(verified_path(store).read_text())
-    except (OSError, ValueError):
+        from ..io.base import read_regular
+
+        recorded = json.loads(read_regular(verified_path(store), 4096))
+    except (OSError, ValueError, RecursionError):
         return False
     now = identity(store)
     return now is not None and isinstance(recorded, dict) and all(recorded.get(k) == now[k] for k in _FIELDS)

@@ -54,7 +54,11 @@ from .layout import (
 )
 from .rank import write_rank, write_rank_entries, write_rank_histogram
 from .reader import StoreReader, check_params, check_root, open_store
+from ..io.base import read_regular
 from .heaps import open_hdf5
+
+#: Largest STORE/build.json read (it holds a few hundred bytes).
+STATE_LIMIT = 1 << 20
 from .verified import mark_verified
 
 #: A run of the newest segments is merged into the segment before it while that one holds at
@@ -100,8 +104,8 @@ def record_build(store: Path, state: str, facts: dict | None = None) -> None:
     path = build_state_path(store)
     record = {"state": state, "pid": os.getpid(), "host": socket.gethostname(), "at": utc_now()}
     try:
-        previous = json.loads(path.read_text())
-    except (OSError, ValueError):
+        previous = json.loads(read_regular(path, STATE_LIMIT))
+    except (OSError, ValueError, RecursionError):
         previous = {}
     record["started"] = utc_now() if state == "running" else previous.get("started")
     if facts:
@@ -120,8 +124,8 @@ def read_build_state(store: Path) -> dict | None:
     import json
 
     try:
-        record = json.loads(build_state_path(store).read_text())
-    except (OSError, ValueError):
+        record = json.loads(read_regular(build_state_path(store), STATE_LIMIT))
+    except (OSError, ValueError, RecursionError):  # a FIFO, a directory, garbage, 64 MiB of '{'
         return None
     if not isinstance(record, dict):
         return None
@@ -132,7 +136,7 @@ def read_build_state(store: Path) -> dict | None:
 
 def _lock_held(store: Path) -> bool:
     try:
-        fd = os.open(lock_path(store), os.O_RDONLY)
+        fd = os.open(lock_path(store), os.O_RDONLY | os.O_NONBLOCK)  # a FIFO put there never blocks
     except OSError:
         return False
     try:
@@ -163,9 +167,16 @@ class StoreLock:
         ``wait``: wait for the holder, for at most ``timeout`` seconds (None: as long as it takes).
         """
         try:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NONBLOCK, 0o644)
         except OSError as exc:
             raise StoreError(f"cannot create the lock file {self.path}: {exc.strerror or exc}") from None
+        import stat
+
+        if not stat.S_ISREG(os.fstat(fd).st_mode):  # a FIFO, a device: nothing a lock can be taken on
+            os.close(fd)
+            raise StoreError(f"the lock file {self.path} is not a regular file; remove it (no build is running"
+                             " when nothing holds it) and build again")
+        os.set_blocking(fd, True)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -310,7 +321,7 @@ class StoreWriter:
             try:
                 with open_hdf5(main_file(self.path)) as f:
                     merged = int(f.attrs["journal_seq"]) if "journal_seq" in f.attrs else 0
-            except OSError:
+            except (OSError, KeyError, RuntimeError, ValueError):  # KeyError: h5py's word for a damaged header
                 return  # a damaged main file: open_store says so next, in one line
             for seq, batch in batch_files(self.path):
                 if seq <= merged:

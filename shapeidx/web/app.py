@@ -124,6 +124,10 @@ class StoreService:
         self._listing = None
         self.max_upload = MAX_UPLOAD
         self.scale("weighted")  # the default metric's calibration before the first query
+        from ..search.blocks import WARM_MIN
+
+        if len(self.searcher) >= WARM_MIN:  # a big store: every query prunes in blocks from the first
+            self.searcher.warm()
 
     def close(self) -> None:
         self.searcher.close()

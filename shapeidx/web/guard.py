@@ -1,6 +1,7 @@
 """What a local web server exposed to a browser needs besides its routes.
 
-* :class:`HostOriginGuard` (ASGI middleware): the ``Host`` header must name the server
+* :class:`HostOriginGuard` (ASGI middleware): headers of at most :data:`MAX_HEADER_BYTES`
+  (431 beyond); the ``Host`` header must name the server
   (:func:`allowed_hosts`: localhost, 127.0.0.1, [::1] and the address it was bound to), so a
   page served by another site whose name is made to resolve to 127.0.0.1 (DNS rebinding)
   gets 400, never the store's paths; a request that carries an ``Origin`` must come from the
@@ -30,6 +31,10 @@ HEADER_TIMEOUT = 10.0
 BODY_IDLE_TIMEOUT = 10.0
 #: Longest time to receive a whole request body, seconds (64 MB at 1 MB/s fits).
 BODY_TIMEOUT = 120.0
+
+#: Largest request head (the headers' names and values), bytes: 431 beyond (h11 limits only a
+#: head that arrives in pieces).
+MAX_HEADER_BYTES = 16 * 1024
 
 LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
 WILDCARDS = ("0.0.0.0", "::", "")
@@ -134,6 +139,9 @@ class HostOriginGuard:
 
     def problem(self, scope) -> tuple[int, str] | None:
         """(status, reason) for a request to refuse, or None."""
+        size = sum(len(key) + len(value) + 4 for key, value in scope.get("headers") or ())
+        if size > MAX_HEADER_BYTES:
+            return 431, f"the request's headers are too large ({size:,} bytes; at most {MAX_HEADER_BYTES:,})"
         host = _header(scope, b"host")
         if host is None or host == "\x00several":
             return 400, "the request needs one Host header"

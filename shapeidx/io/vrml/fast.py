@@ -43,8 +43,9 @@ def load_flat(path, data: bytes, limits: LoadLimits, check_expansion) -> Polygon
         The whole file, decompressed.
     limits : LoadLimits
     check_expansion : callable(triangles, visits)
-        The reader's own limit check (raises LoadError); when it refuses, None is
-        returned, and the Python reader raises the same refusal with its own counts.
+        The reader's own limit check (raises LoadError), which it raises here; files over
+        the compiled scanner's own limits (``max_triangles``) are left to the Python
+        reader, which refuses them before it splits their polygons.
 
     Returns
     -------
@@ -58,10 +59,9 @@ def load_flat(path, data: bytes, limits: LoadLimits, check_expansion) -> Polygon
     if found is None:
         return None
     vertices, sizes, corners, triangles, visits, _ = found
-    try:
-        check_expansion(triangles, visits)
-    except LoadError:
-        return None
+    # the counts are the Python reader's (the same file, read the same way): a refusal is
+    # final, and is not read again in Python (which would spend what the refusal spares)
+    check_expansion(triangles, visits)
     if not sizes:  # as MeshBuilder.arrays() makes an empty mesh
         return PolygonMesh(np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), "vrml2", [])
     # frombuffer over a bytearray: writeable, C-contiguous, no copy

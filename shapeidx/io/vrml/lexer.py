@@ -359,4 +359,6 @@ def describe(token: bytes) -> str:
 
 
 def _show(text: bytes) -> str:
-    return repr(text.decode("utf-8", errors="replace")) if text else "end of file"
+    from ...errors import quoted_bytes
+
+    return quoted_bytes(text) if text else "end of file"

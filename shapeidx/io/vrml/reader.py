@@ -38,6 +38,10 @@ from .scene import MAX_NODE_VISITS, MeshBuilder, SceneWalker, Warnings
 
 __all__ = ["FORMATS", "load_vrml"]
 
+#: Memory that splitting a coordIndex into polygons takes per value, before the triangles are
+#: counted (measured: 68 bytes on one coordIndex of 4 million values, from the reader's
+#: peak RSS; numpy's temporaries of :func:`.geometry.face_sets_from_coord_indices`).
+BYTES_PER_INDEX = 100
 _URL_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.\-]+:")
 
 
@@ -124,6 +128,23 @@ class _VrmlLoad:
                 f"DEF/USE would expand to {visits:,} node instances, more than {MAX_NODE_VISITS:,} (refused as a possible bomb)",
             )
 
+    def check_splitting(self, path: Path, scene: Scene) -> None:
+        """Refuse a file whose coordIndex values are too many to split into polygons.
+
+        Splitting takes some :data:`BYTES_PER_INDEX` per value (numpy's temporaries),
+        before the triangles are counted: one coordIndex of 75 million values (a 450 kB
+        gzipped file) would take 7 GB. It refuses no mesh that the count would admit: a value
+        of a polygon gives at least a quarter of a triangle (``a, b, c, -1``), whose cleaning
+        is estimated at 800 bytes.
+        """
+        values = 0
+        for node in scene.all_nodes:
+            if node.type == "IndexedFaceSet":
+                index = node.fields.get("coordIndex")
+                if index.__class__ is np.ndarray:
+                    values += len(index)
+        self.limits.check_reading(path, BYTES_PER_INDEX * values, f"to split its {values:,} coordIndex values into polygons")
+
     def read_scene(self, path: Path, inlined: bool = False) -> Scene | None:
         """Read and parse one file; its parser warnings join ours.
 
@@ -134,6 +155,7 @@ class _VrmlLoad:
         if inlined and not data.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"#VRML"):
             return None
         scene = parse_vrml(data, path)
+        self.check_splitting(path, scene)
         self.walker.prepare(scene.all_nodes, scene.version)
         for message in scene.warnings:
             self.warnings.add(path.name if inlined else None, message)
@@ -218,6 +240,21 @@ def _looks_like_vrml(data: bytes) -> bool:
     return head_of(data).startswith((b"#VRML", b"#Inventor"))
 
 
+#: What ends a polygon in a coordIndex: ``-1`` and a separator (counted by bytes.count, in C).
+_POLYGON_ENDS = (b"-1,", b"-1 ", b"-1\n", b"-1\r", b"-1\t", b"-1]")
+
+
+def declared_vrml(data: bytes) -> tuple[int, int]:
+    """Triangles at least: one per ``-1`` that ends a polygon (each gives one triangle or
+    more), counted over the bytes in C before the file is parsed, so that one huge
+    coordIndex is refused before the scanner stores it (a 450 kB gzipped file of 25 million
+    triangles took 7 GB before this count). The count also takes a ``-1`` written as a
+    coordinate (rare: CAD exporters write ``-1.0``); it is checked against the memory
+    limit only, some 5 million triangles by default."""
+    return sum(data.count(end) for end in _POLYGON_ENDS), 0
+
+
 FORMATS = [
-    Format("vrml", "VRML", SUFFIXES["vrml"], lambda path, data, limits: load_vrml(path, limits, data), sniff=_looks_like_vrml)
+    Format("vrml", "VRML", SUFFIXES["vrml"], lambda path, data, limits: load_vrml(path, limits, data), sniff=_looks_like_vrml,
+           declared=declared_vrml)
 ]

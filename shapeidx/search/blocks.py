@@ -1,0 +1,325 @@
+"""Bounds that prune in blocks: how a long-lived process answers a big store in a fraction of a pass.
+
+A one-off query bounds every entry's distance from below (the coarse histograms,
+:func:`shapeidx.search.distances.nearest`): a pass over every entry, linear in the store. A
+long-lived process (``shapeidx serve``, a Python session holding a
+:class:`~shapeidx.search.Searcher`) builds, once, a :class:`BlockIndex` of the store it has
+open:
+
+* the live entries are ordered so that entries with alike signatures are neighbours (a
+  principal-axis tree over a few numbers per entry: the class fractions, the class scales and
+  the leading principal components of each coarse histogram and of the normal-angle
+  histograms), and cut into blocks of :data:`BLOCK` entries;
+* each block keeps, per feature a metric reads, the interval its entries span: each coarse
+  bin's probability (``rank/H/coarse`` over the entry's total), the largest bin count, each
+  class fraction, each class scale, the square root of each normal-angle probability.
+
+For a query, every block's distance is bounded from below at once by the metric's own
+formula (:attr:`shapeidx.distance.metrics.Metric.value`) over per-feature lower bounds: a
+bin whose query value lies outside the block's interval contributes at least its gap to it
+(the L1 distance of probabilities, of coarse ones no more than of the full ones; the
+Hellinger distance of the angle histograms term by term), and every formula of the registry
+grows with each feature. Blocks are then taken nearest bound first; the exact distances of
+their entries (:func:`shapeidx.search.distances.distances`, bit for bit those of a full
+ranking) set the current ``top``-th distance, and the search stops when no block left has a
+bound at or below it. Every entry that could be in the answer, or tie with its last hit, has
+been measured exactly: the answer is the full ranking's (tests/test_blocks.py).
+
+The index costs two passes over the coarse histograms and a principal-axis tree to build
+(31-44 s per 10^6 entries on a loaded 2-core machine) and holds about ``2 x features x 8``
+bytes per block, one position per entry (8 MB per 10^6) and the coarse probabilities of the
+histograms of :data:`CACHED` (88 bytes an entry for ALL).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..distance.combined import class_scales, learned_weights, signature_means
+from ..distance.metrics import REGISTRY
+from ..distance.metrics import metric as metric_record
+from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
+from ..signing.parameters import CLASS_NAMES, HISTOGRAMS
+from .distances import RANK_THREADS, _coarse, distances, entry_features
+
+#: Entries per block.
+BLOCK = 256
+#: Entries from which a :class:`~shapeidx.search.Searcher` builds its index by itself (on its
+#: second query: a one-off command never pays for it).
+WARM_MIN = 50_000
+#: Leading principal components of each histogram's coarse probabilities in the ordering.
+COMPONENTS = 4
+#: Histograms whose coarse probabilities the index keeps per entry (float32, block order: 88
+#: bytes an entry for ALL at 1024 points): ALL's coarse bound is loose on near-alike parts, so
+#: the metrics of ALL alone (``all``, ``all-angle``) bound tens of thousands of entries one by one.
+CACHED = ("all",)
+#: Entries whose exact distances the first round measures (then as the bounds require).
+FIRST_ROUND = 1024
+
+
+def _to_view(view, i: int) -> np.ndarray:
+    """Per rank position of file ``i``: its position among the view's live entries (-1: superseded)."""
+    out = np.full(len(view.sections[i]), -1, dtype=np.int64)
+    out[view.live[i]] = view.starts[i] + np.arange(len(view.live[i]))
+    return out
+
+
+def coarse_probabilities(view, h: str) -> tuple[np.ndarray, np.ndarray]:
+    """Every live entry's coarse probabilities of histogram ``h`` ((n, W) float64, zero-padded:
+    ``rank/H/coarse`` over the entry's total, as ranking divides them) and its bin count (n,)."""
+    n = len(view)
+    width = max([-(-int(b) // s.coarse) for s in view.sections for b in s.groups[h][:, 0].tolist()] or [0])
+    p = np.zeros((n, width))
+    bins = np.zeros(n, dtype=np.int64)
+    for i, section in enumerate(view.sections):
+        to_view = _to_view(view, i)
+        with view.checked(i):
+            for b, block, totals, rank_positions in section.blocks(h, "coarse"):
+                at = to_view[rank_positions]
+                live = at >= 0
+                if not live.any():
+                    continue
+                rows = np.asarray(block[live])
+                if rows.shape[1] and not np.array_equal(np.maximum(rows.sum(axis=1, dtype=np.int64), 1), totals[live]):
+                    raise ValueError("histogram counts disagree with their totals")
+                p[at[live], : rows.shape[1]] = rows / totals[live, None]
+                bins[at[live]] = b
+    return p, bins
+
+
+def _components(values: np.ndarray, count: int, rng) -> np.ndarray:
+    """``values`` projected on their ``count`` leading principal axes (from a sample), float32."""
+    if values.shape[1] == 0:
+        return np.zeros((len(values), 0), dtype=np.float32)
+    sample = values[rng.choice(len(values), min(len(values), 4096), replace=False)]
+    mean = sample.mean(axis=0)
+    _, vectors = np.linalg.eigh(np.cov(sample - mean, rowvar=False).reshape(values.shape[1], values.shape[1]))
+    axes = vectors[:, ::-1][:, :count].astype(np.float32)
+    return values.astype(np.float32) @ axes - (mean @ axes).astype(np.float32)
+
+
+def tree_order(points: np.ndarray, leaf: int = BLOCK, seed: int = 0) -> np.ndarray:
+    """A permutation of the rows of ``points`` (n, d) in which every run of ``leaf`` rows from a
+    multiple of ``leaf`` is one leaf of a principal-axis tree: each node split at a multiple of
+    ``leaf`` along its rows' leading principal axis, so a leaf holds neighbours."""
+    rng = np.random.default_rng(seed)
+    n = len(points)
+    perm = np.arange(n)
+    stack = [(0, n)]
+    while stack:
+        a, b = stack.pop()
+        if b - a <= leaf:
+            continue
+        rows = points[perm[a:b]]
+        sample = rows[rng.choice(len(rows), min(len(rows), 4096), replace=False)] if len(rows) > 4096 else rows
+        centred = sample - sample.mean(axis=0)
+        axis = rng.standard_normal(points.shape[1]).astype(np.float32)
+        for _ in range(4):  # power iteration: near enough the leading principal axis to split
+            axis = centred.T @ (centred @ axis)
+            norm = float(np.sqrt(axis @ axis))
+            if norm == 0:
+                break
+            axis /= norm
+        left = (-(-(b - a) // leaf) // 2) * leaf
+        split = np.argpartition(rows @ axis, left - 1)
+        perm[a:b] = perm[a:b][split]
+        stack += [(a, a + left), (a + left, b)]
+    return perm
+
+
+def entry_bounds(view, signature, metric: str, positions: np.ndarray, threads: int = RANK_THREADS) -> np.ndarray:
+    """A lower bound of the ``metric`` distance to the live entries at ``positions`` (their coarse
+    histograms; the other features exact), as :func:`shapeidx.search.distances.lower_bounds`."""
+    from ..distance.combined import ANGLE_FEATURES
+
+    record = metric_record(metric)
+    # a metric of D terms leaves its (non-negative) angle terms out of the bound: 0 bounds them
+    angles = record.angles and not record.histograms
+    features = entry_features(view, signature, record.histograms, positions, angles, coarse=True, threads=threads)
+    if record.angles and not angles:
+        features.update(dict.fromkeys(ANGLE_FEATURES, 0.0))
+    return np.asarray(record.value(features), dtype=np.float64) * (1 - 1e-9) - 1e-15
+
+
+def _monotone(name: str) -> bool:
+    """Whether the block bound holds for the metric: its formula grows with every feature
+    (the paper's four do; a learned one when none of its weights is negative)."""
+    record = REGISTRY[name]
+    if record.learned:
+        return all(w >= 0 for w in learned_weights(name)["weights"].values())
+    return True
+
+
+class BlockIndex:
+    """The blocks of a view (see the module docstring)."""
+
+    def __init__(self, view, block: int = BLOCK):
+        self.view = view
+        self.block = block
+        n = len(view)
+        self.n = n
+        rng = np.random.default_rng(0)
+        fractions = np.asarray(view.gather("fractions"), dtype=np.float64)
+        scales = class_scales(np.asarray(view.gather("means"), dtype=np.float64))
+        angle_p = view.angle_probabilities()
+        self.angles_known = bool(np.isfinite(angle_p).all())
+        roots = np.sqrt(angle_p).reshape(n, -1) if self.angles_known else None
+        ordering = [fractions.astype(np.float32), scales.astype(np.float32)]
+        for h in HISTOGRAMS:
+            p, _ = coarse_probabilities(view, h)
+            ordering.append(_components(p, COMPONENTS, rng))
+            del p
+        if roots is not None:
+            ordering.append(_components(roots, 2 * COMPONENTS, rng))
+        points = np.concatenate(ordering, axis=1)
+        del ordering
+        points /= np.maximum(points.std(axis=0), np.float32(1e-12))  # every column counts alike in the splits
+        self.perm = tree_order(points, block)
+        del points
+        self.starts = np.arange(0, n, block)
+        self.ends = np.minimum(self.starts + block, n)
+        self.intervals: dict = {}
+        self.max_bins: dict = {}
+        self.cached: dict = {}
+        for h in HISTOGRAMS:
+            p, bins = coarse_probabilities(view, h)
+            self.intervals[h] = self._span(p)
+            self.max_bins[h] = np.maximum.reduceat(bins[self.perm], self.starts) if n else np.zeros(0, np.int64)
+            if h in CACHED:  # in block order, float32: each entry's own bound without a gather
+                self.cached[h] = (p[self.perm].astype(np.float32), bins[self.perm])
+            del p
+        self.intervals["fractions"] = self._span(fractions)
+        self.intervals["scales"] = self._span(scales)
+        if roots is not None:
+            self.intervals["angles"] = self._span(roots)
+
+    def _span(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per block, the lowest and highest value of each column of ``values`` (rows in view order)."""
+        lo = np.empty((len(self.starts), values.shape[1]))
+        hi = np.empty_like(lo)
+        step = 64 * self.block
+        for start in range(0, self.n, step):
+            rows = values[self.perm[start : start + step]]
+            first = start // self.block
+            at = np.arange(0, len(rows), self.block)
+            if values.shape[1]:
+                lo[first : first + len(at)] = np.minimum.reduceat(rows, at, axis=0)
+                hi[first : first + len(at)] = np.maximum.reduceat(rows, at, axis=0)
+        return lo, hi
+
+    def __len__(self) -> int:
+        return len(self.starts)
+
+    def serves(self, metric: str, signature) -> bool:
+        """Whether the blocks can rank ``metric`` (else the one-off road ranks it, or refuses it
+        in one line: angles the store or the query lacks)."""
+        if REGISTRY[metric].angles and (not self.angles_known or signature.angles is None):
+            return False
+        return _monotone(metric)
+
+    def bounds(self, signature, metric: str) -> np.ndarray:
+        """A lower bound of the ``metric`` distance from ``signature`` to every entry of each block."""
+        record = metric_record(metric)
+        blocks = len(self.starts)
+        features = {f"d_{h}": np.zeros(blocks) for h in HISTOGRAMS}
+        for h in record.histograms:
+            query_p = np.asarray(signature.histograms[h].p, dtype=np.float64)
+            lo, hi = self.intervals[h]
+            coarse = _coarse(query_p, self.view.sections[0].coarse) if len(query_p) else np.zeros(0)
+            width = max(lo.shape[1], len(coarse))
+            q = np.zeros(width)
+            q[: len(coarse)] = coarse
+            lo = np.pad(lo, ((0, 0), (0, width - lo.shape[1])))
+            hi = np.pad(hi, ((0, 0), (0, width - hi.shape[1])))
+            l1 = np.maximum(np.maximum(lo - q, q - hi), 0).sum(axis=1)
+            bins = np.maximum(self.max_bins[h], len(query_p))
+            features[f"d_{h}"] = np.divide(l1, bins, out=np.zeros(blocks), where=bins > 0)
+        fractions = signature.fractions
+        lo, hi = self.intervals["fractions"]
+        for i, c in enumerate(CLASS_NAMES):
+            features[f"gap_{c}"] = np.maximum(np.maximum(lo[:, i] - fractions[c], fractions[c] - hi[:, i]), 0)
+        scale = class_scales(signature_means(signature))
+        lo, hi = self.intervals["scales"]
+        for i, c in enumerate(CLASS_NAMES):
+            features[f"scale_{c}"] = np.maximum(np.maximum(lo[:, i] - scale[i], scale[i] - hi[:, i]), 0)
+        if record.angles:
+            lo, hi = self.intervals["angles"]
+            root = np.sqrt(angle_probabilities(signature.angles)).reshape(-1)
+            gap = np.maximum(np.maximum(lo - root, root - hi), 0).reshape(blocks, len(ANGLE_HISTOGRAMS), ANGLE_BINS)
+            p_gap = np.maximum(np.maximum(lo ** 2 - root ** 2, root ** 2 - hi ** 2), 0).reshape(gap.shape)
+            for k, h in enumerate(ANGLE_HISTOGRAMS):
+                features[f"hellinger_angle_{h}"] = np.sqrt((gap[:, k] ** 2).sum(axis=1) / 2)
+                features[f"angle_{h}"] = p_gap[:, k].sum(axis=1)
+        # room for rounding, as lower_bounds leaves it
+        return np.asarray(record.value(features), dtype=np.float64) * (1 - 1e-9) - 1e-15
+
+    def _entry_bounds(self, signature, metric: str, at: np.ndarray, threads: int) -> np.ndarray:
+        """:func:`entry_bounds` of the entries at block-order places ``at``: from the kept coarse
+        probabilities when the metric reads only kept histograms (its angle terms bounded by 0),
+        else from the mapped arrays."""
+        from ..distance.combined import ANGLE_FEATURES
+        from .distances import float32_slack
+
+        record = metric_record(metric)
+        if not record.histograms or not set(record.histograms) <= set(self.cached) or any(
+                f.startswith(("gap_", "scale_")) for f in record.features):
+            return entry_bounds(self.view, signature, metric, self.perm[at], threads)
+        features = {f"d_{h}": 0.0 for h in HISTOGRAMS}
+        features.update(dict.fromkeys(ANGLE_FEATURES, 0.0))
+        for h in record.histograms:
+            p, bins = self.cached[h]
+            query_p = np.asarray(signature.histograms[h].p, dtype=np.float64)
+            coarse = _coarse(query_p, self.view.sections[0].coarse) if len(query_p) else np.zeros(0)
+            width = max(p.shape[1], len(coarse))
+            q = np.zeros(width, dtype=np.float32)
+            q[: len(coarse)] = coarse
+            tail = float(q[p.shape[1]:].sum(dtype=np.float64))  # bins only the query has
+            l1 = np.abs(p[at] - q[: p.shape[1]]) @ np.ones(p.shape[1], dtype=np.float32)
+            widths = np.maximum(bins[at], len(query_p))
+            features[f"d_{h}"] = np.divide(np.maximum(l1 + tail - float32_slack(width), 0), widths,
+                                           out=np.zeros(len(at)), where=widths > 0)
+        return np.asarray(record.value(features), dtype=np.float64) * (1 - 1e-9) - 1e-15
+
+    def nearest(self, signature, metric: str, top: int, keep: np.ndarray | None = None,
+                max_distance: float | None = None, threads: int = RANK_THREADS):
+        """What :func:`shapeidx.search.distances.nearest` returns (positions and exact distances
+        of a set holding every entry the answer can contain), block by block."""
+        bound = self.bounds(signature, metric)
+        if keep is not None:
+            kept = np.add.reduceat(keep[self.perm].astype(np.int64), self.starts)
+            bound[kept == 0] = np.inf
+        if max_distance is not None:
+            bound[bound > max_distance] = np.inf
+        order = np.argsort(bound, kind="stable")
+        order = order[np.isfinite(bound[order])]
+        taken, positions, exact = 0, [], []
+        reach = np.inf
+        round_size = max(FIRST_ROUND, 16 * top)
+        while taken < len(order) and bound[order[taken]] <= reach:
+            # rounds of blocks, nearest bound first, each twice the last: the first measured
+            # exactly, the next through each entry's own bound first; each round's exact
+            # distances bring the reach down for the next
+            size = 0
+            first = taken
+            while taken < len(order) and bound[order[taken]] <= reach and (size < round_size or taken == first):
+                b = order[taken]
+                size += int(self.ends[b] - self.starts[b])
+                taken += 1
+            round_size *= 2
+            at = np.concatenate([np.arange(self.starts[b], self.ends[b]) for b in order[first:taken]])
+            if keep is not None:
+                at = at[keep[self.perm[at]]]
+            if len(at) and np.isfinite(reach):  # each entry's own coarse bound first
+                at = at[self._entry_bounds(signature, metric, at, threads) <= reach]
+            chosen = self.perm[at]
+            if len(chosen):
+                positions.append(chosen)
+                exact.append(distances(self.view, signature, metric, chosen, threads))
+                measured = np.concatenate(exact)
+                valid = measured if max_distance is None else measured[measured <= max_distance]
+                reach = np.partition(valid, top - 1)[top - 1] if len(valid) >= top else np.inf
+                if max_distance is not None:
+                    reach = min(reach, max_distance)
+        if not positions:
+            return np.zeros(0, dtype=np.int64), np.zeros(0)
+        return np.concatenate(positions), np.concatenate(exact)
