@@ -371,17 +371,18 @@ def test_cluster_plot_refuses_an_unknown_picture_format_before_the_work(dup_stor
     assert "unknown picture format '.gif'" in result.stderr and len(result.stderr.strip().splitlines()) == 1
 
 
-def test_candidates_find_the_exact_nearest_neighbours(dup_store):
+@pytest.mark.parametrize("metric", ["combined", "unified"])
+def test_candidates_find_the_exact_nearest_neighbours(dup_store, metric):
     _, store = dup_store
     with open_store(store) as reader:
         table = FamilyTable.load(reader)
     n = len(table)
     i, j = np.triu_indices(n, 1)
     exact = np.zeros((n, n))
-    exact[i, j] = exact[j, i] = table.pair_distances(i, j, "combined")
+    exact[i, j] = exact[j, i] = table.pair_distances(i, j, metric)
     np.fill_diagonal(exact, np.inf)
     k = 5
-    _, _, _, neighbours, nd = candidate_pairs(table, "combined", k)
+    _, _, _, neighbours, nd = candidate_pairs(table, metric, k)
     assert not (neighbours == np.arange(n)[:, None]).any()
     kth = np.sort(exact, axis=1)[:, k - 1]
     found = (nd <= kth[:, None] + 1e-12).sum(axis=1)
