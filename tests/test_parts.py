@@ -348,3 +348,61 @@ def test_a_failing_split_costs_the_sub_parts_only(library, tmp_path, monkeypatch
     (failed,) = outcome.parts
     assert failed.status == 1 and failed.path == failed.parent == path
     assert "split" in failed.reason and "Traceback" not in failed.reason
+
+
+@pytest.fixture(scope="module")
+def store(library, tmp_path_factory):
+    """The library built with --parts, once for the sheet and web tests."""
+    store = tmp_path_factory.mktemp("sheets") / "s.shapeidx"
+    _build(library[0], store, "--parts")
+    return store
+
+
+class TestSheetsAndWeb:
+    """Sub-parts on the surfaces that draw answers: the sheet and the web page name each hit's
+    parent file and count, the very ones ``query --parts --json`` gives."""
+
+    def test_sheet_shows_the_parent_and_count_of_each_hit(self, library, store, tmp_path):
+        from html.parser import HTMLParser
+
+        root, query = library
+        sheet = tmp_path / "out.html"
+        result = cli("query", query, "--store", store, "--parts", "--top", "3", "--sheet", sheet, "--json")
+        assert result.exit_code == 0, result.output + result.stderr
+        hits = json.loads(result.stdout)["hits"]
+
+        class Cards(HTMLParser):  # each card's sub-part line, read from the HTML
+            def __init__(self):
+                super().__init__()
+                self.cards, self.inside = [], False
+
+            def handle_starttag(self, tag, attrs):
+                attrs = dict(attrs)
+                if tag == "article":
+                    self.cards.append({"path": attrs["data-path"], "line": "", "img": False})
+                if tag == "div" and attrs.get("class") == "subpart":
+                    self.inside = True
+                if tag == "img" and self.cards:
+                    self.cards[-1]["img"] = True
+
+            def handle_endtag(self, tag):
+                if tag == "div":
+                    self.inside = False
+
+            def handle_data(self, data):
+                if self.inside:
+                    self.cards[-1]["line"] += data
+
+        cards = Cards()
+        cards.feed(sheet.read_text())
+        assert [c["path"] for c in cards.cards] == [h["relative_path"] for h in hits]
+        for card, hit in zip(cards.cards, hits):
+            times = "once" if hit["count"] == 1 else f"{hit['count']} times"
+            assert f"in {hit['parent']}, {times}" in card["line"]
+            assert card["img"]  # the picture of the file holding it (FILE#n is no file to render)
+        # the query an entry FILE#n: its picture is its file's too, and the header names its file
+        entry = hits[0]["relative_path"]
+        again = cli("query", "--id", entry, "--store", store, "--parts", "--top", "2", "--sheet", sheet)
+        assert again.exit_code == 0, again.output + again.stderr
+        assert f"a sub-part of <b>{hits[0]['parent']}</b>" in sheet.read_text()
+        assert "no picture" not in sheet.read_text()
