@@ -406,3 +406,55 @@ class TestSheetsAndWeb:
         assert again.exit_code == 0, again.output + again.stderr
         assert f"a sub-part of <b>{hits[0]['parent']}</b>" in sheet.read_text()
         assert "no picture" not in sheet.read_text()
+
+    def test_web_api_ranks_sub_parts_with_parts_1(self, library, store, tmp_path):
+        import warnings
+
+        pytest.importorskip("starlette")
+        pytest.importorskip("httpx")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            from starlette.testclient import TestClient
+        from shapeidx.web.app import StoreService, create_app
+
+        root, query = library
+        cli_hits = json.loads(cli("query", query, "--store", store, "--parts", "--top", "4", "--json").stdout)["hits"]
+        service = StoreService(store)
+        try:
+            client = TestClient(create_app(service), base_url="http://127.0.0.1:8765")
+            info = client.get("/api/store").json()
+            assert info["parts"] is True and info["sub_parts"] > info["ok"]
+            with open(query, "rb") as f:
+                data = f.read()
+            answer = client.post("/api/query", files={"file": (query.name, data)}, data={"top": "4", "parts": "1"})
+            assert answer.status_code == 200, answer.text
+            hits = answer.json()["hits"]
+            keys = ("relative_path", "parent", "count", "path")
+            assert [tuple(h[k] for k in keys) for h in hits] == [tuple(h[k] for k in keys) for h in cli_hits]
+            assert [h["distance"] for h in hits] == pytest.approx([h["distance"] for h in cli_hits], rel=1e-9)
+            # a hit's picture is its file's
+            picture = client.get(hits[0]["thumbnail"])
+            assert picture.status_code == 200 and picture.content[:4] == b"\x89PNG"
+            # by a sub-part's id: it first, with its parent; without parts=1 the files are ranked
+            by_id = client.get("/api/query", params={"id": hits[0]["id"], "parts": "1", "top": "3"}).json()
+            assert by_id["hits"][0]["id"] == hits[0]["id"] and by_id["hits"][0]["distance"] == 0
+            assert by_id["query"]["parent"] == hits[0]["parent"]
+            files = client.get("/api/query", params={"id": hits[0]["id"], "top": "3"}).json()
+            assert all("parent" not in h and "#" not in h["id"] for h in files["hits"])
+            assert client.get("/api/query", params={"id": "cube.step", "parts": "maybe"}).status_code == 400
+        finally:
+            service.close()
+        # a store without sub-parts: parts is false, and parts=1 is a 409 that says how to build them
+        plain = tmp_path / "plain.shapeidx"
+        _build(root, plain)
+        service = StoreService(plain)
+        try:
+            client = TestClient(create_app(service), base_url="http://127.0.0.1:8765")
+            assert client.get("/api/store").json()["parts"] is False
+            refused = client.get("/api/query", params={"id": "cube.step", "parts": "1"})
+            assert refused.status_code == 409 and "--parts" in refused.json()["error"]
+            with open(query, "rb") as f:
+                upload = client.post("/api/query", files={"file": (query.name, f.read())}, data={"parts": "1"})
+            assert upload.status_code == 409 and "--parts" in upload.json()["error"]
+        finally:
+            service.close()
