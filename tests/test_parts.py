@@ -458,3 +458,72 @@ class TestSheetsAndWeb:
             assert upload.status_code == 409 and "--parts" in upload.json()["error"]
         finally:
             service.close()
+
+    def test_web_page_in_a_browser(self, library, store, tmp_path):
+        """The page in headless chromium (as tests/test_web_browser.py): the Sub-parts box is
+        shown for a store built with --parts; ticked, an upload ranks sub-parts and each card
+        says whose; a click on a hit's picture asks by that sub-part."""
+        import subprocess
+        import time
+        import urllib.request
+
+        import test_web_browser as browsing  # skips when chromium or Playwright is missing
+        from clitools import shapeidx_command
+
+        root, query = library
+        cli_hits = json.loads(cli("query", query, "--store", store, "--parts", "--top", "4", "--json").stdout)["hits"]
+        port = browsing.free_port()
+        log = open(tmp_path / "serve.log", "w")
+        process = subprocess.Popen(shapeidx_command("serve", "--store", store, "--port", port), stdout=log,
+                                   stderr=subprocess.STDOUT)
+        url = f"http://127.0.0.1:{port}/"
+        try:
+            deadline = time.monotonic() + 60
+            while True:
+                try:
+                    urllib.request.urlopen(url + "api/store", timeout=2).read()
+                    break
+                except OSError:
+                    if process.poll() is not None or time.monotonic() > deadline:
+                        pytest.fail(f"shapeidx serve did not start: {(tmp_path / 'serve.log').read_text()}")
+                    time.sleep(0.2)
+            with browsing.sync_api.sync_playwright() as p:
+                context = p.chromium.launch_persistent_context(
+                    str(tmp_path / "profile"), executable_path=browsing.CHROMIUM, args=browsing.CHROMIUM_ARGS,
+                    headless=True, viewport={"width": 1280, "height": 1000})
+                page = context.new_page()
+                errors = []
+                page.on("pageerror", lambda e: errors.append(str(e)))
+                page.goto(url)
+                page.wait_for_selector("#store-info:has-text('sub-parts')")
+                assert page.locator("#parts-label").is_visible()
+                page.check("#parts")
+                page.set_input_files("#file", str(query))
+                page.fill("#top", "4")
+                page.click("#upload-button")
+                page.wait_for_selector("[data-testid=hit] [data-testid=sub-part]")
+                cards = page.locator("[data-testid=hit]")
+                assert [c.get_attribute("data-id") for c in cards.all()] == [h["relative_path"] for h in cli_hits]
+                for card, hit in zip(cards.all(), cli_hits):
+                    line = card.locator("[data-testid=sub-part]").inner_text()
+                    assert line == f"sub-part of {hit['parent']} (×{hit['count']})"
+                page.wait_for_function("() => [...document.querySelectorAll('[data-testid=hit] img')].every(i => i.complete)")
+                assert browsing.loaded(page, "[data-testid=hit] img")
+                page.screenshot(path=str(tmp_path / "parts.png"))
+                # ask by the first sub-part: the address keeps parts=1, the query card names its file
+                first = cli_hits[0]
+                cards.nth(0).locator("img").click()
+                page.wait_for_function("() => location.hash.includes('parts=1') && location.hash.includes('%23')")
+                page.wait_for_selector(f"[data-testid=query-card] [data-testid=sub-part]:has-text('{first['parent']}')")
+                page.wait_for_selector(f"[data-testid=hit][data-id='{first['relative_path']}']")
+                assert page.locator("[data-testid=hit]").first.get_attribute("data-id") == first["relative_path"]
+                # unticked: the files again
+                page.uncheck("#parts")
+                page.wait_for_function("() => !location.hash.includes('parts=1')")
+                page.wait_for_selector("[data-testid=hit]:not(:has([data-testid=sub-part]))")
+                assert not errors, errors
+                context.close()
+        finally:
+            process.terminate()
+            process.wait(timeout=20)
+            log.close()
