@@ -407,6 +407,23 @@ class TestSheetsAndWeb:
         assert f"a sub-part of <b>{hits[0]['parent']}</b>" in sheet.read_text()
         assert "no picture" not in sheet.read_text()
 
+    def test_where_used_sheet_shows_each_file_its_sub_part_and_count(self, library, store, tmp_path):
+        root, query = library
+        sheet = tmp_path / "uses.html"
+        result = cli("where-used", query, "--store", store, "--scale", "invariant", "--sheet", sheet, "--json")
+        assert result.exit_code == 0, result.output + result.stderr
+        uses = json.loads(result.stdout)["uses"]
+        text = sheet.read_text()
+        cards = re.findall(r'<article class="hit".*?</article>', text, re.S)
+        assert len(cards) == len(uses) == 4
+        for card, use in zip(cards, uses):
+            times = "once" if use["count"] == 1 else f"{use['count']} times"
+            assert f'data-path="{use["part"]}"' in card
+            assert f'in <b class="parent">{use["relative_path"]}</b>, {times}' in card
+            assert "<img" in card  # the file's picture
+        missing = cli("where-used", query, "--store", store, "--sheet", tmp_path / "no" / "uses.html")
+        assert_one_line_error(missing, tmp_path / "no")
+
     def test_web_api_ranks_sub_parts_with_parts_1(self, library, store, tmp_path):
         import warnings
 
