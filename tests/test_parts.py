@@ -452,6 +452,8 @@ class TestSheetsAndWeb:
             # a hit's picture is its file's
             picture = client.get(hits[0]["thumbnail"])
             assert picture.status_code == 200 and picture.content[:4] == b"\x89PNG"
+            by_sub_id = client.get("/api/thumbnail", params={"id": hits[0]["id"]})
+            assert by_sub_id.status_code == 200 and by_sub_id.content == picture.content
             # by a sub-part's id: it first, with its parent; without parts=1 the files are ranked
             by_id = client.get("/api/query", params={"id": hits[0]["id"], "parts": "1", "top": "3"}).json()
             assert by_id["hits"][0]["id"] == hits[0]["id"] and by_id["hits"][0]["distance"] == 0

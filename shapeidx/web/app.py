@@ -365,6 +365,8 @@ class StoreService:
             if png is None:
                 raise RequestError(404, "no picture of this upload")
             return png
+        if self.searcher.view.find(query_id) is None and (sub := self.sub_entry(query_id)) is not None:
+            query_id = sub[1]  # a sub-part FILE#n: the picture of its file (a whole-file entry)
         self.regular_file_of(query_id)  # a known entry inside the root, a regular file, or an error
         try:
             return self.thumbs.png(query_id)
