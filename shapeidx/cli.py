@@ -561,7 +561,10 @@ def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bo
 @click.option("--same-size", type=FiniteFloat(0), default=0.05, show_default=True, metavar="SHARE",
               help="With --scale sensitive: the largest relative difference of principal radii.")
 @format_options
-def where_used(part, store, entry, top, metric, max_distance, scale, same_size, output_format, as_json):
+@click.option("--sheet", metavar="OUT.html",
+              help="Also write the answer as one self-contained HTML file (each file's picture, its nearest"
+                   " sub-part and count).")
+def where_used(part, store, entry, top, metric, max_distance, scale, same_size, output_format, as_json, sheet):
     """The files that hold a sub-part like PART (or --id PATH), nearest first: how far their
     nearest sub-part is, which it is, and how many times the file holds it. The store must be
     built with --parts (docs/assemblies.md).
@@ -573,6 +576,7 @@ def where_used(part, store, entry, top, metric, max_distance, scale, same_size, 
       shapeidx build library/ --store lib.shapeidx --parts
       shapeidx where-used pin.step --store lib.shapeidx --top 5
       shapeidx where-used --id Connector/conn_2x10.step#3 --store lib.shapeidx --max-distance 0.05 --format csv
+      shapeidx where-used pin.step --store lib.shapeidx --sheet pin-uses.html
     """
     from .errors import NoAnswer
     from .search import Searcher
@@ -582,12 +586,21 @@ def where_used(part, store, entry, top, metric, max_distance, scale, same_size, 
     fmt = chosen_format(output_format, as_json)
     if bool(part) == bool(entry):
         raise click.UsageError("give either PART or --id PATH")
+    if sheet and not os.path.isdir(os.path.dirname(os.path.abspath(sheet))):
+        from .errors import ShapeidxError
+
+        raise ShapeidxError(f"{sheet}: no folder {os.path.dirname(os.path.abspath(sheet))} to write the sheet in")
     with Searcher(_store_path(store), parts=True) as searcher:
         if entry:
             question = searcher.query_of_entry(searcher.resolve_entry(_part_entry(searcher, entry)))
         else:
             question = searcher.query_of_part(part, label=part, threads=available_cores())
         answer = rank_uses(searcher, question, top, metric, max_distance, scale, same_size)
+        if sheet:
+            from .pictures.sheet import where_used_sheet
+
+            where_used_sheet(searcher, answer, question, sheet)
+            click.echo(f"shapeidx: wrote {sheet}", err=True)
     if answer.reason is not None:
         raise NoAnswer(f"no answer for {answer.query}: {answer.reason}")
     if fmt == "json":

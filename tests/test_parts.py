@@ -348,3 +348,201 @@ def test_a_failing_split_costs_the_sub_parts_only(library, tmp_path, monkeypatch
     (failed,) = outcome.parts
     assert failed.status == 1 and failed.path == failed.parent == path
     assert "split" in failed.reason and "Traceback" not in failed.reason
+
+
+@pytest.fixture(scope="module")
+def store(library, tmp_path_factory):
+    """The library built with --parts, once for the sheet and web tests."""
+    store = tmp_path_factory.mktemp("sheets") / "s.shapeidx"
+    _build(library[0], store, "--parts")
+    return store
+
+
+class TestSheetsAndWeb:
+    """Sub-parts on the surfaces that draw answers: the sheet and the web page name each hit's
+    parent file and count, the very ones ``query --parts --json`` gives."""
+
+    def test_sheet_shows_the_parent_and_count_of_each_hit(self, library, store, tmp_path):
+        from html.parser import HTMLParser
+
+        root, query = library
+        sheet = tmp_path / "out.html"
+        result = cli("query", query, "--store", store, "--parts", "--top", "3", "--sheet", sheet, "--json")
+        assert result.exit_code == 0, result.output + result.stderr
+        hits = json.loads(result.stdout)["hits"]
+
+        class Cards(HTMLParser):  # each card's sub-part line, read from the HTML
+            def __init__(self):
+                super().__init__()
+                self.cards, self.inside = [], False
+
+            def handle_starttag(self, tag, attrs):
+                attrs = dict(attrs)
+                if tag == "article":
+                    self.cards.append({"path": attrs["data-path"], "line": "", "img": False})
+                if tag == "div" and attrs.get("class") == "subpart":
+                    self.inside = True
+                if tag == "img" and self.cards:
+                    self.cards[-1]["img"] = True
+
+            def handle_endtag(self, tag):
+                if tag == "div":
+                    self.inside = False
+
+            def handle_data(self, data):
+                if self.inside:
+                    self.cards[-1]["line"] += data
+
+        cards = Cards()
+        cards.feed(sheet.read_text())
+        assert [c["path"] for c in cards.cards] == [h["relative_path"] for h in hits]
+        for card, hit in zip(cards.cards, hits):
+            times = "once" if hit["count"] == 1 else f"{hit['count']} times"
+            assert f"in {hit['parent']}, {times}" in card["line"]
+            assert card["img"]  # the picture of the file holding it (FILE#n is no file to render)
+        # the query an entry FILE#n: its picture is its file's too, and the header names its file
+        entry = hits[0]["relative_path"]
+        again = cli("query", "--id", entry, "--store", store, "--parts", "--top", "2", "--sheet", sheet)
+        assert again.exit_code == 0, again.output + again.stderr
+        assert f"a sub-part of <b>{hits[0]['parent']}</b>" in sheet.read_text()
+        assert "no picture" not in sheet.read_text()
+
+    def test_where_used_sheet_shows_each_file_its_sub_part_and_count(self, library, store, tmp_path):
+        root, query = library
+        sheet = tmp_path / "uses.html"
+        result = cli("where-used", query, "--store", store, "--scale", "invariant", "--sheet", sheet, "--json")
+        assert result.exit_code == 0, result.output + result.stderr
+        uses = json.loads(result.stdout)["uses"]
+        text = sheet.read_text()
+        cards = re.findall(r'<article class="hit".*?</article>', text, re.S)
+        assert len(cards) == len(uses) == 4
+        for card, use in zip(cards, uses):
+            times = "once" if use["count"] == 1 else f"{use['count']} times"
+            assert f'data-path="{use["part"]}"' in card
+            assert f'in <b class="parent">{use["relative_path"]}</b>, {times}' in card
+            assert "<img" in card  # the file's picture
+        missing = cli("where-used", query, "--store", store, "--sheet", tmp_path / "no" / "uses.html")
+        assert_one_line_error(missing, tmp_path / "no")
+
+    def test_web_api_ranks_sub_parts_with_parts_1(self, library, store, tmp_path):
+        import warnings
+
+        pytest.importorskip("starlette")
+        pytest.importorskip("httpx")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            from starlette.testclient import TestClient
+        from shapeidx.web.app import StoreService, create_app
+
+        root, query = library
+        cli_hits = json.loads(cli("query", query, "--store", store, "--parts", "--top", "4", "--json").stdout)["hits"]
+        service = StoreService(store)
+        try:
+            client = TestClient(create_app(service), base_url="http://127.0.0.1:8765")
+            info = client.get("/api/store").json()
+            assert info["parts"] is True and info["sub_parts"] > info["ok"]
+            with open(query, "rb") as f:
+                data = f.read()
+            answer = client.post("/api/query", files={"file": (query.name, data)}, data={"top": "4", "parts": "1"})
+            assert answer.status_code == 200, answer.text
+            hits = answer.json()["hits"]
+            keys = ("relative_path", "parent", "count", "path")
+            assert [tuple(h[k] for k in keys) for h in hits] == [tuple(h[k] for k in keys) for h in cli_hits]
+            assert [h["distance"] for h in hits] == pytest.approx([h["distance"] for h in cli_hits], rel=1e-9)
+            # a hit's picture is its file's
+            picture = client.get(hits[0]["thumbnail"])
+            assert picture.status_code == 200 and picture.content[:4] == b"\x89PNG"
+            by_sub_id = client.get("/api/thumbnail", params={"id": hits[0]["id"]})
+            assert by_sub_id.status_code == 200 and by_sub_id.content == picture.content
+            # by a sub-part's id: it first, with its parent; without parts=1 the files are ranked
+            by_id = client.get("/api/query", params={"id": hits[0]["id"], "parts": "1", "top": "3"}).json()
+            assert by_id["hits"][0]["id"] == hits[0]["id"] and by_id["hits"][0]["distance"] == 0
+            assert by_id["query"]["parent"] == hits[0]["parent"]
+            files = client.get("/api/query", params={"id": hits[0]["id"], "top": "3"}).json()
+            assert all("parent" not in h and "#" not in h["id"] for h in files["hits"])
+            assert client.get("/api/query", params={"id": "cube.step", "parts": "maybe"}).status_code == 400
+        finally:
+            service.close()
+        # a store without sub-parts: parts is false, and parts=1 is a 409 that says how to build them
+        plain = tmp_path / "plain.shapeidx"
+        _build(root, plain)
+        service = StoreService(plain)
+        try:
+            client = TestClient(create_app(service), base_url="http://127.0.0.1:8765")
+            assert client.get("/api/store").json()["parts"] is False
+            refused = client.get("/api/query", params={"id": "cube.step", "parts": "1"})
+            assert refused.status_code == 409 and "--parts" in refused.json()["error"]
+            with open(query, "rb") as f:
+                upload = client.post("/api/query", files={"file": (query.name, f.read())}, data={"parts": "1"})
+            assert upload.status_code == 409 and "--parts" in upload.json()["error"]
+        finally:
+            service.close()
+
+    def test_web_page_in_a_browser(self, library, store, tmp_path):
+        """The page in headless chromium (as tests/test_web_browser.py): the Sub-parts box is
+        shown for a store built with --parts; ticked, an upload ranks sub-parts and each card
+        says whose; a click on a hit's picture asks by that sub-part."""
+        import subprocess
+        import time
+        import urllib.request
+
+        import test_web_browser as browsing  # skips when chromium or Playwright is missing
+        from clitools import shapeidx_command
+
+        root, query = library
+        cli_hits = json.loads(cli("query", query, "--store", store, "--parts", "--top", "4", "--json").stdout)["hits"]
+        port = browsing.free_port()
+        log = open(tmp_path / "serve.log", "w")
+        process = subprocess.Popen(shapeidx_command("serve", "--store", store, "--port", port), stdout=log,
+                                   stderr=subprocess.STDOUT)
+        url = f"http://127.0.0.1:{port}/"
+        try:
+            deadline = time.monotonic() + 60
+            while True:
+                try:
+                    urllib.request.urlopen(url + "api/store", timeout=2).read()
+                    break
+                except OSError:
+                    if process.poll() is not None or time.monotonic() > deadline:
+                        pytest.fail(f"shapeidx serve did not start: {(tmp_path / 'serve.log').read_text()}")
+                    time.sleep(0.2)
+            with browsing.sync_api.sync_playwright() as p:
+                context = p.chromium.launch_persistent_context(
+                    str(tmp_path / "profile"), executable_path=browsing.CHROMIUM, args=browsing.CHROMIUM_ARGS,
+                    headless=True, viewport={"width": 1280, "height": 1000})
+                page = context.new_page()
+                errors = []
+                page.on("pageerror", lambda e: errors.append(str(e)))
+                page.goto(url)
+                page.wait_for_selector("#store-info:has-text('sub-parts')")
+                assert page.locator("#parts-label").is_visible()
+                page.check("#parts")
+                page.set_input_files("#file", str(query))
+                page.fill("#top", "4")
+                page.click("#upload-button")
+                page.wait_for_selector("[data-testid=hit] [data-testid=sub-part]")
+                cards = page.locator("[data-testid=hit]")
+                assert [c.get_attribute("data-id") for c in cards.all()] == [h["relative_path"] for h in cli_hits]
+                for card, hit in zip(cards.all(), cli_hits):
+                    line = card.locator("[data-testid=sub-part]").inner_text()
+                    assert line == f"sub-part of {hit['parent']} (×{hit['count']})"
+                page.wait_for_function("() => [...document.querySelectorAll('[data-testid=hit] img')].every(i => i.complete)")
+                assert browsing.loaded(page, "[data-testid=hit] img")
+                page.screenshot(path=str(tmp_path / "parts.png"))
+                # ask by the first sub-part: the address keeps parts=1, the query card names its file
+                first = cli_hits[0]
+                cards.nth(0).locator("img").click()
+                page.wait_for_function("() => location.hash.includes('parts=1') && location.hash.includes('%23')")
+                page.wait_for_selector(f"[data-testid=query-card] [data-testid=sub-part]:has-text('{first['parent']}')")
+                page.wait_for_selector(f"[data-testid=hit][data-id='{first['relative_path']}']")
+                assert page.locator("[data-testid=hit]").first.get_attribute("data-id") == first["relative_path"]
+                # unticked: the files again
+                page.uncheck("#parts")
+                page.wait_for_function("() => !location.hash.includes('parts=1')")
+                page.wait_for_selector("[data-testid=hit]:not(:has([data-testid=sub-part]))")
+                assert not errors, errors
+                context.close()
+        finally:
+            process.terminate()
+            process.wait(timeout=20)
+            log.close()

@@ -164,6 +164,21 @@ def _metadata_html(metadata: dict | None) -> str:
     return '<div class="metadata">' + " · ".join(f"<b>{_esc(k)}</b> {_esc(v)}" for k, v in metadata.items()) + "</div>"
 
 
+def _times(count) -> str:
+    count = count or 1
+    return "once" if count == 1 else f"{count} times"
+
+
+def _sub_part_html(extra: dict) -> str:
+    """A sub-part's line (``query --parts``): which file holds it and how many times."""
+    parent = extra.get("parent")
+    if not parent:
+        return ""
+    title = extra.get("title")
+    named = f" ({_esc(title)})" if title else ""
+    return (f'<div class="subpart">sub-part{named} in <b class="parent">{_esc(parent)}</b>, {_times(extra.get("count"))}</div>')
+
+
 def _link(part: SheetPart) -> str:
     if part.path is None:
         return f'<span class="path">{_esc(part.label)}</span>'
@@ -191,6 +206,7 @@ details{font-size:12px;color:#555;margin-top:4px}
 .path{word-break:break-all;font-size:12.5px}
 .fractions{font-size:12px;color:#444}
 .metadata{font-size:12px;color:#333;word-break:break-word}
+.subpart{font-size:12.5px;color:#333;word-break:break-all}
 .bar{display:flex;height:6px;margin-top:2px;border-radius:3px;overflow:hidden}
 .bar span{display:block;height:6px}
 .legend{font-size:12px;color:#555}
@@ -222,6 +238,7 @@ def sheet_html(title: str, query: SheetPart, hits: list[SheetHit], meta: list[st
                if hit.words else "")
             + _picture(hit.part, 160, lazy=k >= 12)
             + _link(hit.part)
+            + _sub_part_html(hit.extra)
             + _metadata_html(hit.extra.get("metadata"))
             + fractions_html(hit.part.signature)
             + overlay_svg(query.signature, hit.part.signature)
@@ -279,22 +296,31 @@ def _picture_of(render, label: str) -> tuple[bytes | None, str]:
         return None, f"no picture: {exc.strerror or exc}"
 
 
-def answer_sheet(searcher, answer, query, output: str | os.PathLike, thumbnails: int = DEFAULT_THUMBNAILS) -> Path:
-    """Write the sheet of a search's answer (:class:`~shapeidx.search.Answer` of ``query`` by
-    ``searcher``): the very hits, distances and metadata the command line printed, drawn.
+def _thumbnails_of(searcher):
+    """The thumbnails of a searcher's entries; a sub-entry ``FILE#n`` has no file of its own:
+    its picture is its file's, cached with the whole store's (``STORE/thumbs``)."""
+    from .thumbcache import StoreThumbnails, cache_dir_of_store
 
-    Raises StoreError when ``output``'s folder does not exist.
-    """
-    from ..errors import StoreError
-    from .similarity import SimilarityScale, closer_than
-    from .thumbcache import StoreThumbnails, ThumbnailCache
+    sub_parts = bool(getattr(searcher, "parts", False))
+    return StoreThumbnails(searcher, folder=cache_dir_of_store(searcher.store.parent) if sub_parts else None)
 
-    if not Path(output).absolute().parent.is_dir():
-        raise StoreError(f"{output}: no folder {Path(output).absolute().parent} to write the sheet in")
-    thumbs = StoreThumbnails(searcher)
+
+def _query_part(searcher, thumbs, query, signature) -> tuple[SheetPart, dict]:
+    """The query of a sheet, with its picture; and, for a sub-entry, its ``parent`` and ``count``."""
+    from .thumbcache import ThumbnailCache
+
+    sub_parts = bool(getattr(searcher, "parts", False))
+    header_extra: dict = {}
     if query.entry is not None:
-        png, note = _picture_of(lambda: thumbs.png(query.entry), query.entry)
-        part = SheetPart(query.entry, thumbs.file_of(query.entry), answer.signature, png, note)
+        shown = query.entry
+        if sub_parts:
+            found = searcher.view.find(query.entry)
+            if found is not None:
+                parent, count = searcher.parent_at(searcher.view.position_of(found))
+                shown = parent or query.entry
+                header_extra = {"parent": parent, "count": count}
+        png, note = _picture_of(lambda: thumbs.png(shown, record=query.entry), query.entry)
+        part = SheetPart(query.entry, thumbs.file_of(shown), signature, png, note)
     else:
         from .render import render_solid_png
 
@@ -306,32 +332,102 @@ def answer_sheet(searcher, answer, query, output: str | os.PathLike, thumbnails:
             png, note = _picture_of(lambda: render_solid_png(query.solid), query.label)
         else:
             png, note = None, "no picture (the query was a signature)"
-        part = SheetPart(query.label, Path(source) if source else None, answer.signature, png, note)
+        part = SheetPart(query.label, Path(source) if source else None, signature, png, note)
+    return part, header_extra
+
+
+def answer_sheet(searcher, answer, query, output: str | os.PathLike, thumbnails: int = DEFAULT_THUMBNAILS) -> Path:
+    """Write the sheet of a search's answer (:class:`~shapeidx.search.Answer` of ``query`` by
+    ``searcher``): the very hits, distances and metadata the command line printed, drawn.
+
+    Raises StoreError when ``output``'s folder does not exist.
+    """
+    from ..errors import StoreError
+    from .similarity import SimilarityScale, closer_than
+
+    if not Path(output).absolute().parent.is_dir():
+        raise StoreError(f"{output}: no folder {Path(output).absolute().parent} to write the sheet in")
+    sub_parts = bool(getattr(searcher, "parts", False))
+    thumbs = _thumbnails_of(searcher)
+    part, header_extra = _query_part(searcher, thumbs, query, answer.signature)
     scale = SimilarityScale.cached(searcher, answer.metric, thumbs.cache.folder)
     sheet_hits = []
     for k, hit in enumerate(answer.hits):
         position = searcher.view.position_of(searcher.view.find(hit.relative_path))
+        shown = hit.parent or hit.relative_path  # a sub-part: the picture of the whole file holding it
         if k < thumbnails:
-            png, note = _picture_of(lambda: thumbs.png(hit.relative_path), hit.relative_path)
+            png, note = _picture_of(lambda: thumbs.png(shown, record=hit.relative_path), hit.relative_path)
         else:
             png, note = None, f"no picture beyond the first {thumbnails} hits (--thumbnails)"
         words = scale.words(hit.distance)
         share = scale.share(hit.distance)
         extra = {"share": closer_than(share)} if share is not None and hit.distance > 0 else {}
         extra["metadata"] = hit.metadata
-        hit_part = SheetPart(hit.relative_path, thumbs.file_of(hit.relative_path), searcher.signature_at(position),
-                             png, note)
+        if hit.parent is not None:
+            extra.update(parent=hit.parent, count=hit.count, title=hit.metadata.get("title", ""))
+        hit_part = SheetPart(hit.relative_path, thumbs.file_of(shown), searcher.signature_at(position), png, note)
         sheet_hits.append(SheetHit(hit_part, hit.rank, hit.distance, words, extra))
     filters = "; ".join(answer.filters)
+    what = "sub-parts" if sub_parts else "parts"
     meta = [
-        f"Store <code>{_esc(answer.store)}</code>: {answer.entries:,} parts (root <code>{_esc(answer.root)}</code>).",
+        f"Store <code>{_esc(answer.store)}</code>: {answer.entries:,} {what} (root <code>{_esc(answer.root)}</code>).",
         f"Metric {_esc(metric_label(answer.metric))}, top {len(answer.hits)}"
-        + (f", filters {_esc(filters)} ({answer.considered:,} parts left)" if filters else "")
+        + (f", filters {_esc(filters)} ({answer.considered:,} {what} left)" if filters else "")
         + f". Made {datetime.datetime.now():%Y-%m-%d %H:%M}.",
     ]
+    if sub_parts:
+        meta.append("Sub-parts of the files (<code>build --parts</code>): each is shown by the picture of the whole file"
+                    " that holds it."
+                    + (f" The query is a sub-part of <b>{_esc(header_extra['parent'])}</b>,"
+                       f" {_times(header_extra['count'])} there." if header_extra.get("parent") else ""))
     if answer.reason:
         meta.append(f"No hit: {_esc(answer.reason)}.")
-    return write_sheet(output, f"Parts nearest to {Path(part.label).name}", part, sheet_hits, meta, scale.describe())
+    title = f"{'Sub-parts' if sub_parts else 'Parts'} nearest to {Path(part.label).name}"
+    return write_sheet(output, title, part, sheet_hits, meta, scale.describe())
+
+
+def where_used_sheet(searcher, answer, query, output: str | os.PathLike, thumbnails: int = DEFAULT_THUMBNAILS) -> Path:
+    """Write the sheet of ``where-used`` (:class:`~shapeidx.search.where_used.WhereUsed` of
+    ``query`` by ``searcher``, opened with ``parts=True``): one card per file holding a
+    sub-part like the query, with the file's picture, its nearest sub-part (whose histograms
+    are drawn over the query's) and how many times the file holds it.
+
+    Raises StoreError when ``output``'s folder does not exist.
+    """
+    from ..errors import StoreError
+    from .similarity import SimilarityScale, closer_than
+
+    if not Path(output).absolute().parent.is_dir():
+        raise StoreError(f"{output}: no folder {Path(output).absolute().parent} to write the sheet in")
+    thumbs = _thumbnails_of(searcher)
+    part, header_extra = _query_part(searcher, thumbs, query, query.signature)
+    scale = SimilarityScale.cached(searcher, answer.metric, thumbs.cache.folder)
+    cards = []
+    for k, use in enumerate(answer.uses):
+        position = searcher.view.position_of(searcher.view.find(use.part))
+        if k < thumbnails:
+            png, note = _picture_of(lambda: thumbs.png(use.relative_path, record=use.part), use.relative_path)
+        else:
+            png, note = None, f"no picture beyond the first {thumbnails} files"
+        share = scale.share(use.distance)
+        extra = {"share": closer_than(share)} if share is not None and use.distance > 0 else {}
+        extra.update(parent=use.relative_path, count=use.count, title=use.title, part=use.part)
+        cards.append(SheetHit(SheetPart(use.part, Path(use.path), searcher.signature_at(position), png, note),
+                              use.rank, use.distance, scale.words(use.distance), extra))
+    meta = [
+        f"Store <code>{_esc(answer.store)}</code>: {answer.sub_entries:,} sub-parts of {answer.files:,} files"
+        f" (root <code>{_esc(answer.root)}</code>).",
+        f"Metric {_esc(metric_label(answer.metric))}, the {len(answer.uses)} nearest files"
+        + (f" within {answer.max_distance:g}" if answer.max_distance is not None else "")
+        + f"; each card: the file's nearest sub-part and how many times the file holds it"
+        f" (its histograms over the query's). Made {datetime.datetime.now():%Y-%m-%d %H:%M}.",
+    ]
+    if header_extra.get("parent"):
+        meta.append(f"The query is a sub-part of <b>{_esc(header_extra['parent'])}</b>,"
+                    f" {_times(header_extra['count'])} there.")
+    if answer.reason:
+        meta.append(f"No file: {_esc(answer.reason)}.")
+    return write_sheet(output, f"Where {Path(part.label).name} is used", part, cards, meta, scale.describe())
 
 
 def compare_sheet(output, a, b, sig_a: Signature, sig_b: Signature, distances: dict, metric: str = "weighted") -> Path:

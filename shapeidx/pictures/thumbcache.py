@@ -119,10 +119,11 @@ class StoreThumbnails:
         """The absolute path of an entry's part file."""
         return self.root / entry
 
-    def png(self, entry: str) -> bytes:
-        """The thumbnail of the entry with relative path ``entry`` (LoadError if unreadable)."""
+    def png(self, entry: str, record: str | None = None) -> bytes:
+        """The thumbnail of the entry with relative path ``entry`` (LoadError if unreadable);
+        ``record``: the entry whose stored hash is the file's (a sub-entry ``FILE#n`` of ``entry``)."""
         absolute = self.file_of(entry)
-        return self.cache.png(absolute, self._digest(entry, absolute))
+        return self.cache.png(absolute, self._digest(record or entry, absolute))
 
     def _digest(self, entry: str, absolute: Path) -> str | None:
         """The entry's stored SHA-256 when its file is unchanged since the build (else None: hash it)."""

@@ -28,7 +28,7 @@ import os
 import tempfile
 import threading
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 
@@ -128,9 +128,15 @@ class StoreService:
 
         if len(self.searcher) >= WARM_MIN:  # a big store: every query prunes in blocks from the first
             self.searcher.warm()
+        from ..store.files import parts_store
+
+        #: The store's sub-parts (``build --parts``; ``parts=1`` ranks them), or None.
+        self.parts = Searcher(self.store, parts=True) if parts_store(self.store).is_dir() else None
 
     def close(self) -> None:
         self.searcher.close()
+        if self.parts is not None:
+            self.parts.close()
 
     # -- facts
     def info(self) -> dict:
@@ -151,6 +157,8 @@ class StoreService:
             "metadata_keys": list(self.searcher.metadata_keys()),
             "points": self.searcher.params.points,
             "max_upload": self.max_upload,
+            "parts": self.parts is not None,
+            "sub_parts": len(self.parts) if self.parts is not None else 0,
         }
 
     def listing(self) -> dict:
@@ -166,11 +174,31 @@ class StoreService:
                                  "fractions": self.reader.column("entries/fractions")}
             return self._listing
 
-    def scale(self, metric: str) -> SimilarityScale:
+    def scale(self, metric: str, parts: bool = False) -> SimilarityScale:
+        """The similarity words of ``metric``, calibrated on the files (or on the sub-parts)."""
+        searcher = self.parts if parts else self.searcher
         with self._lock:
-            if metric not in self._scales:
-                self._scales[metric] = SimilarityScale.cached(self.searcher, metric, self.thumbs.cache.folder)
-            return self._scales[metric]
+            if (metric, parts) not in self._scales:
+                self._scales[metric, parts] = SimilarityScale.cached(searcher, metric, self.thumbs.cache.folder)
+            return self._scales[metric, parts]
+
+    def parts_searcher(self):
+        """The searcher of the sub-parts, or 409 when the store was built without ``--parts``."""
+        if self.parts is None:
+            raise RequestError(409, f"the store {self.store} has no sub-parts: build it with 'shapeidx build DIR"
+                                    f" --store {self.store} --parts' (docs/assemblies.md)")
+        return self.parts
+
+    def sub_entry(self, entry: str):
+        """``(position, parent, count)`` of a sub-entry ``FILE#n`` of an ok sub-part, else None."""
+        if self.parts is None or "#" not in entry:
+            return None
+        with self._lock:
+            found = self.parts.view.find(entry)
+            position = self.parts.view.position_of(found) if found is not None else None
+            if position is None:
+                return None
+            return (position, *self.parts.parent_at(position))
 
     def entries(self, offset: int, limit: int, status: str, contains: str) -> dict:
         listing = self.listing()
@@ -204,6 +232,8 @@ class StoreService:
     def position_of(self, entry: str) -> int:
         """The ranked position of an ok entry (404 for an unknown id, 409 for a failed one)."""
         found = self.searcher.view.find(entry)
+        if found is None and self.sub_entry(entry) is not None:
+            raise RequestError(409, f"{entry!r} is a sub-part: ask with parts=1")
         if found is None:
             raise RequestError(404, f"no entry {entry!r} in the store")
         position = self.searcher.view.position_of(found)
@@ -236,6 +266,9 @@ class StoreService:
         """The search query of an entry id or of a kept upload."""
         if query_id.startswith(UPLOAD_PREFIX):
             return self.upload(query_id).query
+        if self.searcher.view.find(query_id) is None and self.sub_entry(query_id) is not None:
+            with self._lock:  # a sub-part FILE#n: its own signature, from the sub-parts
+                return self.parts.query_of_entry(query_id)
         self.position_of(query_id)
         with self._lock:
             return self.searcher.query_of_entry(query_id)
@@ -259,6 +292,12 @@ class StoreService:
             upload = self.upload(query_id)
             out.update(name=upload.name, path=None, note=upload.note, metadata={},
                        thumbnail=f"/api/thumbnail?id={_quote(query_id)}" if upload.png else None)
+        elif (sub := self.sub_entry(query_id)) is not None and self.searcher.view.find(query_id) is None:
+            position, parent, count = sub
+            with self._lock:
+                metadata = self.parts.metadata_at(position)
+            out.update(name=query_id, path=str(self.root / parent), metadata=metadata, parent=parent, count=count,
+                       thumbnail=f"/api/thumbnail?id={_quote(parent)}")
         else:
             with self._lock:
                 metadata = self.searcher.metadata_at(self.position_of(query_id))
@@ -266,28 +305,32 @@ class StoreService:
                        thumbnail=f"/api/thumbnail?id={_quote(query_id)}")
         return out
 
-    def query(self, query_id: str, top: int, metric: str, where=()) -> dict:
+    def query(self, query_id: str, top: int, metric: str, where=(), parts: bool = False) -> dict:
+        """Rank the store's files (or, ``parts``, its sub-parts: hits with ``parent`` and ``count``)."""
         from ..search import Filters, parse_where
 
+        searcher = self.parts_searcher() if parts else self.searcher
         filters = Filters(where=parse_where(where))
         query = self.query_of(query_id)
+        if parts != (query.entry is not None and "#" in query.entry and self.searcher.view.find(query.entry) is None):
+            query = replace(query, own=None)  # its own position is in the other store
         with self._lock:
-            answer = self.searcher.search(query, top, metric, filters)
-            fractions = [self.searcher.view.gather("fractions", np.array([self.position_of(h.relative_path)]))[0]
-                         for h in answer.hits]
-        scale = self.scale(metric)
+            answer = searcher.search(query, top, metric, filters)
+            fractions = [searcher.view.gather("fractions", np.array([searcher.view.position_of(
+                searcher.view.find(h.relative_path))]))[0] for h in answer.hits]
+        scale = self.scale(metric, parts)
         hits = []
         for hit, hit_fractions in zip(answer.hits, fractions):
             share = scale.share(hit.distance)
             hits.append({**hit.to_dict(), "id": hit.relative_path, "words": scale.words(hit.distance), "share": share,
                          "closer_than": closer_than(share) if share is not None and hit.distance > 0 else "",
-                         "fractions": _fractions_json(hit_fractions),
-                         "thumbnail": f"/api/thumbnail?id={_quote(hit.relative_path)}"})
+                         "fractions": _fractions_json(hit_fractions),  # a sub-part's picture: its file's
+                         "thumbnail": f"/api/thumbnail?id={_quote(hit.parent or hit.relative_path)}"})
         return {"query": self.describe(query_id, query), "metric": metric, "top": top, "entries": answer.entries,
                 "considered": answer.considered, "filters": answer.filters, "reason": answer.reason,
-                "calibration": scale.describe(), "hits": hits}
+                "parts": parts, "calibration": scale.describe(), "hits": hits}
 
-    def query_upload(self, filename: str, data: bytes, top: int, metric: str, where=()) -> dict:
+    def query_upload(self, filename: str, data: bytes, top: int, metric: str, where=(), parts: bool = False) -> dict:
         """Sign an uploaded part file and rank the store against it (422 for a bad part)."""
         from ..pictures.render import render_solid_png
 
@@ -314,7 +357,7 @@ class StoreService:
                 self._uploads[query_id] = Upload(name, query, png, note)
                 while len(self._uploads) > UPLOADS_KEPT:
                     self._uploads.popitem(last=False)
-        return self.query(query_id, top, metric, where)
+        return self.query(query_id, top, metric, where, parts)
 
     def thumbnail(self, query_id: str) -> bytes:
         if query_id.startswith(UPLOAD_PREFIX):
@@ -322,6 +365,8 @@ class StoreService:
             if png is None:
                 raise RequestError(404, "no picture of this upload")
             return png
+        if self.searcher.view.find(query_id) is None and (sub := self.sub_entry(query_id)) is not None:
+            query_id = sub[1]  # a sub-part FILE#n: the picture of its file (a whole-file entry)
         self.regular_file_of(query_id)  # a known entry inside the root, a regular file, or an error
         try:
             return self.thumbs.png(query_id)
@@ -357,6 +402,16 @@ def _int(params, name: str, default: int, lo: int, hi: int) -> int:
     if not lo <= value <= hi:
         raise RequestError(400, f"{name} must be between {lo} and {hi}")
     return value
+
+
+def _flag(params, name: str) -> bool:
+    """A yes/no parameter: 1/true/yes/on or 0/false/no/off/absent (else 400)."""
+    value = str(params.get(name) or "0").strip().lower()
+    if value in ("1", "true", "yes", "on"):
+        return True
+    if value in ("0", "false", "no", "off", ""):
+        return False
+    raise RequestError(400, f"{name} must be 1 or 0, not {value[:40]!r}")
 
 
 def _metric(params) -> str:
@@ -458,7 +513,8 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD, host: str = 
 
     async def query_get(request):
         q = request.query_params
-        result = await run_in_threadpool(service.query, _id(q), _int(q, "top", 10, 1, MAX_TOP), _metric(q), _where(q))
+        result = await run_in_threadpool(service.query, _id(q), _int(q, "top", 10, 1, MAX_TOP), _metric(q), _where(q),
+                                         _flag(q, "parts"))
         return JSONResponse(result)
 
     async def query_post(request):
@@ -498,9 +554,11 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD, host: str = 
                     raise RequestError(413, f"upload is over the limit of {max_upload:,} bytes")
                 if not data:
                     raise RequestError(422, f"{upload.filename or 'upload'}: the file is empty")
-                top, metric = _int(form, "top", 10, 1, MAX_TOP), _metric(form)
+                top, metric, parts = _int(form, "top", 10, 1, MAX_TOP), _metric(form), _flag(form, "parts")
+                if parts:
+                    service.parts_searcher()  # 409 before signing, when the store has no sub-parts
                 result = await anyio.to_thread.run_sync(service.query_upload, upload.filename or "upload", data, top,
-                                                        metric, _where(form))
+                                                        metric, _where(form), parts)
             finally:
                 await form.close()
         finally:

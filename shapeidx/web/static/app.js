@@ -49,9 +49,16 @@ function params() { return new URLSearchParams(location.hash.split("?")[1] || ""
 function metricValue() { return document.getElementById("metric").value || "weighted"; }
 function topValue() { return document.getElementById("top").value || "10"; }
 // the where field: conditions separated by ";" (KEY=VALUE, KEY>=N, KEY~GLOB, ...)
+// "1" when the sub-parts are ranked (the checkbox, shown only when the store has them)
+function partsValue() { return state.info && state.info.parts && document.getElementById("parts").checked ? "1" : ""; }
+function subPartLine(part) {
+  if (!part.parent) return null;
+  return h("div", {class: "subpart", dataset: {testid: "sub-part"}, text: `sub-part of ${part.parent} (×${part.count})`});
+}
 function whereValue() { return document.getElementById("where").value.split(";").map(s => s.trim()).filter(s => s); }
 function withWhere(values) {
   const search = new URLSearchParams(values);
+  if (partsValue()) search.set("parts", "1");
   for (const w of whereValue()) search.append("where", w);
   return search;
 }
@@ -64,6 +71,7 @@ function metadataLine(metadata) {
 function go(view, values) {
   const search = new URLSearchParams(values);
   if (view === "query" && !search.has("where")) for (const w of whereValue()) search.append("where", w);
+  if (view === "query" && partsValue()) search.set("parts", "1");
   location.hash = `#/${view}?` + search.toString();
 }
 
@@ -108,15 +116,16 @@ function queryCard(q, extra) {
   return h("section", {class: "query", dataset: {testid: "query-card"}},
     thumb(q.thumbnail, 180, q.name, null, false),
     h("div", {}, h("h2", {text: q.name}), q.path ? h("div", {class: "path", text: q.path}) : null,
-      metadataLine(q.metadata), fractions(q.fractions), extra || null));
+      subPartLine(q), metadataLine(q.metadata), fractions(q.fractions), extra || null));
 }
 
 function renderQuery(result) {
   const view = document.getElementById("view");
   const q = result.query;
-  const filtered = result.filters && result.filters.length ? ` (${result.filters.join(", ")}: ${result.considered.toLocaleString()} parts left)` : "";
+  const what = result.parts ? "sub-parts" : "parts";
+  const filtered = result.filters && result.filters.length ? ` (${result.filters.join(", ")}: ${result.considered.toLocaleString()} ${what} left)` : "";
   const info = h("div", {class: "muted"},
-    `${metricLabel(result.metric)}, top ${result.hits.length} of ${result.entries.toLocaleString()} parts${filtered}. `,
+    `${metricLabel(result.metric)}, top ${result.hits.length} of ${result.entries.toLocaleString()} ${what}${filtered}. `,
     result.reason ? h("div", {class: "reason", dataset: {testid: "no-answer"}, text: `No hit: ${result.reason}.`}) : null,
     h("details", {}, h("summary", {text: "How the similarity words are calibrated"}), result.calibration));
   const hits = h("div", {class: "hits", dataset: {testid: "hits"}});
@@ -128,6 +137,7 @@ function renderQuery(result) {
       h("div", {class: far ? "words far" : "words", text: hit.words + share}),
       thumb(hit.thumbnail, 160, hit.id, () => go("query", {id: hit.id, metric: result.metric, top: result.top}), k >= 12),
       h("div", {class: "path", text: hit.id}),
+      subPartLine(hit),
       metadataLine(hit.metadata),
       fractions(hit.fractions),
       h("div", {class: "actions"},
@@ -190,6 +200,7 @@ async function route() {
   const p = params();
   if (p.get("metric")) document.getElementById("metric").value = p.get("metric");
   if (p.get("top")) document.getElementById("top").value = p.get("top");
+  if (view === "query") document.getElementById("parts").checked = p.get("parts") === "1";
   const key = location.hash;
   busy(true);
   try {
@@ -197,6 +208,7 @@ async function route() {
       if (p.getAll("where").length) document.getElementById("where").value = p.getAll("where").join("; ");
       const search = new URLSearchParams({id: p.get("id") || "", metric: metricValue(), top: topValue()});
       for (const w of p.getAll("where")) search.append("where", w);
+      if (partsValue()) search.set("parts", "1");
       const url = "/api/query?" + search;
       renderQuery(state.cache.get(key) || await api(url));
     } else if (view === "compare") {
@@ -225,6 +237,7 @@ async function upload(file) {
   form.append("file", file, file.name);
   form.append("top", topValue());
   form.append("metric", metricValue());
+  form.append("parts", partsValue() || "0");
   for (const w of whereValue()) form.append("where", w);
   busy(true);
   try {
@@ -257,7 +270,9 @@ async function start() {
     document.getElementById("file").setAttribute("accept", state.info.suffixes.concat(state.info.suffixes.map(s => s + ".gz"), [".gz"]).join(","));
     document.getElementById("where").title = "metadata conditions, separated by ';' (keys: " + state.info.metadata_keys.join(", ") + ")";
     document.getElementById("store-info").textContent =
-      `${state.info.store}: ${state.info.ok.toLocaleString()} parts, ${state.info.failed.toLocaleString()} failed`;
+      `${state.info.store}: ${state.info.ok.toLocaleString()} parts, ${state.info.failed.toLocaleString()} failed` +
+      (state.info.parts ? `, ${state.info.sub_parts.toLocaleString()} sub-parts` : "");
+    document.getElementById("parts-label").hidden = !state.info.parts;
   } catch (e) {
     showError(`cannot read the store: ${e.message}`);
   }
@@ -265,6 +280,7 @@ async function start() {
   select.addEventListener("change", requery);
   document.getElementById("top").addEventListener("change", requery);
   document.getElementById("where").addEventListener("change", requery);
+  document.getElementById("parts").addEventListener("change", requery);
   const drop = document.getElementById("drop");
   drop.addEventListener("dragover", (ev) => { ev.preventDefault(); drop.classList.add("over"); });
   drop.addEventListener("dragleave", () => drop.classList.remove("over"));
