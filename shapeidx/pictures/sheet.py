@@ -342,15 +342,10 @@ def answer_sheet(searcher, answer, query, output: str | os.PathLike, thumbnails:
 
     Raises StoreError when ``output``'s folder does not exist.
     """
-    from ..errors import StoreError
-    from .similarity import SimilarityScale, closer_than
+    from .similarity import closer_than
 
-    if not Path(output).absolute().parent.is_dir():
-        raise StoreError(f"{output}: no folder {Path(output).absolute().parent} to write the sheet in")
+    thumbs, part, header_extra, scale = _sheet_start(searcher, output, query, answer.signature, answer.metric)
     sub_parts = bool(getattr(searcher, "parts", False))
-    thumbs = _thumbnails_of(searcher)
-    part, header_extra = _query_part(searcher, thumbs, query, answer.signature)
-    scale = SimilarityScale.cached(searcher, answer.metric, thumbs.cache.folder)
     sheet_hits = []
     for k, hit in enumerate(answer.hits):
         position = searcher.view.position_of(searcher.view.find(hit.relative_path))
@@ -386,6 +381,20 @@ def answer_sheet(searcher, answer, query, output: str | os.PathLike, thumbnails:
     return write_sheet(output, title, part, sheet_hits, meta, scale.describe())
 
 
+def _sheet_start(searcher, output, query, signature, metric: str):
+    """What both sheets of a searcher begin with: ``output``'s folder checked (StoreError when
+    it does not exist), the store's thumbnails, the query's part and header, the metric's
+    similarity scale."""
+    from ..errors import StoreError
+    from .similarity import SimilarityScale
+
+    if not Path(output).absolute().parent.is_dir():
+        raise StoreError(f"{output}: no folder {Path(output).absolute().parent} to write the sheet in")
+    thumbs = _thumbnails_of(searcher)
+    part, header_extra = _query_part(searcher, thumbs, query, signature)
+    return thumbs, part, header_extra, SimilarityScale.cached(searcher, metric, thumbs.cache.folder)
+
+
 def where_used_sheet(searcher, answer, query, output: str | os.PathLike, thumbnails: int = DEFAULT_THUMBNAILS) -> Path:
     """Write the sheet of ``where-used`` (:class:`~shapeidx.search.where_used.WhereUsed` of
     ``query`` by ``searcher``, opened with ``parts=True``): one card per file holding a
@@ -394,14 +403,9 @@ def where_used_sheet(searcher, answer, query, output: str | os.PathLike, thumbna
 
     Raises StoreError when ``output``'s folder does not exist.
     """
-    from ..errors import StoreError
-    from .similarity import SimilarityScale, closer_than
+    from .similarity import closer_than
 
-    if not Path(output).absolute().parent.is_dir():
-        raise StoreError(f"{output}: no folder {Path(output).absolute().parent} to write the sheet in")
-    thumbs = _thumbnails_of(searcher)
-    part, header_extra = _query_part(searcher, thumbs, query, query.signature)
-    scale = SimilarityScale.cached(searcher, answer.metric, thumbs.cache.folder)
+    thumbs, part, header_extra, scale = _sheet_start(searcher, output, query, query.signature, answer.metric)
     cards = []
     for k, use in enumerate(answer.uses):
         position = searcher.view.position_of(searcher.view.find(use.part))

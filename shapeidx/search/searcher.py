@@ -98,6 +98,17 @@ class Query:
     solid: object = None
 
 
+def entry_path_in(root, file) -> str | None:
+    """The path of ``file`` relative to a store's ``root`` ('/'-separated), or None when it
+    lies outside it (or there is no root)."""
+    if not root:
+        return None
+    try:
+        return Path(file).resolve().relative_to(root).as_posix()
+    except (ValueError, OSError):
+        return None
+
+
 class Searcher:
     """A store opened to answer queries (see the module docstring).
 
@@ -314,12 +325,7 @@ class Searcher:
 
     def entry_path_of(self, file) -> str | None:
         """The relative path ``file`` has in the store when it lies inside the indexed root."""
-        if not self.root:
-            return None
-        try:
-            return Path(file).resolve().relative_to(self.root).as_posix()
-        except (ValueError, OSError):
-            return None
+        return entry_path_in(self.root, file)
 
     def resolve_entry(self, entry) -> str:
         """``entry`` if the store has it; else its path relative to the root when it names a

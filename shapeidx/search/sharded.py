@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import StoreError
 from ..store.shards import shard_of_paths, shard_paths
 from .hits import Answer, Hit, absolute
-from .searcher import Filters, Query, Searcher
+from .searcher import Filters, Query, Searcher, entry_path_in
 
 
 def open_searcher(store, scheduler: str | None = None, parts: bool = False):
@@ -173,12 +173,7 @@ class ShardedSearcher:
         return tuple(keys)
 
     def entry_path_of(self, file) -> str | None:
-        if not self.root:
-            return None
-        try:
-            return Path(file).resolve().relative_to(self.root).as_posix()
-        except (ValueError, OSError):
-            return None
+        return entry_path_in(self.root, file)
 
     def resolve_entry(self, entry) -> str:
         """``entry`` as the store names it: a path relative to the root is taken as it is; a file
