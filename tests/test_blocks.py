@@ -16,7 +16,7 @@ import pytest
 from storetools import build, load_script, small_kicad
 
 from shapeidx.distance import compare
-from shapeidx.distance.metrics import METRICS
+from shapeidx.distance.metrics import METRICS, REGISTRY
 from shapeidx.search import Filters, Searcher
 from shapeidx.search.blocks import BlockIndex, tree_order
 from shapeidx.search.distances import distances
@@ -110,3 +110,34 @@ def test_a_searcher_of_a_big_store_builds_its_blocks_on_its_second_query(store, 
         second = searcher.search(query, 10, "weighted")
         assert searcher._blocks is not None
         assert [(h.relative_path, h.distance) for h in first.hits] == [(h.relative_path, h.distance) for h in second.hits]
+
+
+@pytest.mark.parametrize("metric", METRICS)
+def test_every_bound_lies_below_the_exact_distances(store, metric):
+    """Each block's bound under the nearest of its entries, each entry's own bound (the float16
+    probabilities kept at the finer level, less their slack) under its exact distance."""
+    with Searcher(store) as searcher:
+        index = BlockIndex(searcher.view, block=64)
+        assert any(len(levels) == 2 for levels in index.levels.values())  # finer than the store's level
+        for position in (3, 1500, SIZE - 1):
+            query = searcher.query_of_entry(searcher.path_at(position)).signature
+            exact = distances(searcher.view, query, metric)[index.perm]  # in block order
+            assert (index.bounds(query, metric) <= np.minimum.reduceat(exact, index.starts)).all()
+            own = index._entry_bounds(query, metric, np.arange(SIZE), 1)
+            assert (own <= exact).all()
+            if REGISTRY[metric].histograms and not REGISTRY[metric].angles:  # and they bound: not near 0
+                assert np.median(own / np.maximum(exact, 1e-300)) > 0.3
+
+
+def test_the_float16_slack_covers_the_rounding():
+    from shapeidx.search.blocks import float16_slack
+
+    rng = np.random.default_rng(3)
+    for columns in (1, 7, 48, 200):
+        for alpha in (0.01, 1.0, 50.0):  # spiky (many subnormal float16 values) to flat
+            p = rng.dirichlet(np.full(columns, alpha), 2000)
+            p[::7] = np.eye(columns)[rng.integers(0, columns, len(p[::7]))]
+            error = np.abs(p.astype(np.float16).astype(np.float64) - p).sum(axis=1)
+            assert error.max() <= float16_slack(columns)
+            if columns > 1 and alpha >= 1:  # nor absurdly large
+                assert error.max() > float16_slack(columns) / 10

@@ -49,10 +49,19 @@ BLOCK = 256
 WARM_MIN = 50_000
 #: Leading principal components of each histogram's coarse probabilities in the ordering.
 COMPONENTS = 4
-#: Histograms whose coarse probabilities the index keeps per entry (float32, block order: 88
-#: bytes an entry for ALL at 1024 points): ALL's coarse bound is loose on near-alike parts, so
-#: the metrics of ALL alone (``all``, ``all-angle``) bound tens of thousands of entries one by one.
-CACHED = ("all",)
+#: Histograms whose coarse probabilities the index keeps per entry, in block order, as float16
+#: (2 bytes a coarse bin: 240 bytes an entry for the four at 1024 points), with each entry's bin
+#: count, class fractions and class scales: each entry's own bound of every metric that reads
+#: D2 histograms is then computed from memory in block order, without a gather from the mapped
+#: arrays (the coarse bounds are loose on near-alike parts, so a query bounds tens of thousands
+#: of entries one by one).
+CACHED = HISTOGRAMS
+#: Bins summed into one of the probabilities the index keeps per entry (and bounds blocks by,
+#: besides the store's coarse histograms), per histogram: finer than the store's coarse
+#: histograms (8 bins), so an entry's own bound is tighter and fewer entries are measured
+#: exactly (ALL finest: the metrics of ALL alone have no other term to prune by); read from the
+#: counts once, when the index is built.
+FINE = {"all": 2, "in": 4, "out": 4, "mixed": 4}
 #: Entries whose exact distances the first round measures (then as the bounds require).
 FIRST_ROUND = 1024
 
@@ -64,17 +73,20 @@ def _to_view(view, i: int) -> np.ndarray:
     return out
 
 
-def coarse_probabilities(view, h: str) -> tuple[np.ndarray, np.ndarray]:
-    """Every live entry's coarse probabilities of histogram ``h`` ((n, W) float64, zero-padded:
-    ``rank/H/coarse`` over the entry's total, as ranking divides them) and its bin count (n,)."""
+def coarse_probabilities(view, h: str, factor: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every live entry's probabilities of histogram ``h`` summed ``factor`` bins at a time
+    ((n, W) float64, zero-padded: the counts over the entry's total, as ranking divides them;
+    from ``rank/H/coarse`` when ``factor`` is the store's coarse factor, else from the counts)
+    and its bin count (n,)."""
     n = len(view)
-    width = max([-(-int(b) // s.coarse) for s in view.sections for b in s.groups[h][:, 0].tolist()] or [0])
+    stored = all(s.coarse == factor for s in view.sections)
+    width = max([-(-int(b) // factor) for s in view.sections for b in s.groups[h][:, 0].tolist()] or [0])
     p = np.zeros((n, width))
     bins = np.zeros(n, dtype=np.int64)
     for i, section in enumerate(view.sections):
         to_view = _to_view(view, i)
         with view.checked(i):
-            for b, block, totals, rank_positions in section.blocks(h, "coarse"):
+            for b, block, totals, rank_positions in section.blocks(h, "coarse" if stored else "counts"):
                 at = to_view[rank_positions]
                 live = at >= 0
                 if not live.any():
@@ -82,6 +94,10 @@ def coarse_probabilities(view, h: str) -> tuple[np.ndarray, np.ndarray]:
                 rows = np.asarray(block[live])
                 if rows.shape[1] and not np.array_equal(np.maximum(rows.sum(axis=1, dtype=np.int64), 1), totals[live]):
                     raise ValueError("histogram counts disagree with their totals")
+                if not stored and rows.shape[1]:
+                    padded = np.zeros((len(rows), -(-rows.shape[1] // factor) * factor), dtype=np.int64)
+                    padded[:, : rows.shape[1]] = rows
+                    rows = padded.reshape(len(rows), -1, factor).sum(axis=2)
                 p[at[live], : rows.shape[1]] = rows / totals[live, None]
                 bins[at[live]] = b
     return p, bins
@@ -141,6 +157,22 @@ def entry_bounds(view, signature, metric: str, positions: np.ndarray, threads: i
     return np.asarray(record.value(features), dtype=np.float64) * (1 - 1e-9) - 1e-15
 
 
+def _l1_rows(p: np.ndarray, at: np.ndarray, q: np.ndarray, step: int = 4096) -> np.ndarray:
+    """Float32 L1 distances from ``q`` to the rows ``at`` of ``p`` (float16), a few thousand rows
+    at a time (each step's rows stay in the CPU cache through the conversion, the difference and
+    the sum)."""
+    out = np.empty(len(at), dtype=np.float32)
+    work = np.empty((min(step, len(at)), p.shape[1]), dtype=np.float32)
+    ones = np.ones(p.shape[1], dtype=np.float32)
+    for start in range(0, len(at), step):
+        rows = work[: len(at[start : start + step])]
+        np.copyto(rows, p[at[start : start + step]], casting="unsafe")  # float16 -> float32: exact
+        np.subtract(rows, q, out=rows)
+        np.abs(rows, out=rows)
+        out[start : start + len(rows)] = rows @ ones
+    return out
+
+
 def _monotone(name: str) -> bool:
     """Whether the block bound holds for the metric: its formula grows with every feature
     (the paper's four do; a learned one when none of its weights is negative)."""
@@ -150,12 +182,20 @@ def _monotone(name: str) -> bool:
     return True
 
 
+def float16_slack(columns: int) -> float:
+    """What keeping probabilities (summing to 1) in float16 may take off their L1 distance to
+    anything: each is off by at most half a unit in the last place, ``2^-11`` of it when
+    normal, ``2^-25`` when subnormal, so all ``columns`` of them by ``2^-11 + columns 2^-25``."""
+    return (2.0**-11 + columns * 2.0**-25) * 1.01
+
+
 class BlockIndex:
     """The blocks of a view (see the module docstring)."""
 
-    def __init__(self, view, block: int = BLOCK):
+    def __init__(self, view, block: int = BLOCK, fine: dict | None = None):
         self.view = view
         self.block = block
+        self.fine = dict(FINE if fine is None else fine)
         n = len(view)
         self.n = n
         rng = np.random.default_rng(0)
@@ -165,10 +205,11 @@ class BlockIndex:
         self.angles_known = bool(np.isfinite(angle_p).all())
         roots = np.sqrt(angle_p).reshape(n, -1) if self.angles_known else None
         ordering = [fractions.astype(np.float32), scales.astype(np.float32)]
+        stored = view.sections[0].coarse if view.sections else 8
+        coarse = {}
         for h in HISTOGRAMS:
-            p, _ = coarse_probabilities(view, h)
-            ordering.append(_components(p, COMPONENTS, rng))
-            del p
+            coarse[h] = coarse_probabilities(view, h, stored)
+            ordering.append(_components(coarse[h][0], COMPONENTS, rng))
         if roots is not None:
             ordering.append(_components(roots, 2 * COMPONENTS, rng))
         points = np.concatenate(ordering, axis=1)
@@ -179,15 +220,21 @@ class BlockIndex:
         self.starts = np.arange(0, n, block)
         self.ends = np.minimum(self.starts + block, n)
         self.intervals: dict = {}
+        self.levels: dict = {}  # histogram -> [(bins summed, per-block lowest, highest), ...]
         self.max_bins: dict = {}
         self.cached: dict = {}
         for h in HISTOGRAMS:
-            p, bins = coarse_probabilities(view, h)
-            self.intervals[h] = self._span(p)
+            p, bins = coarse.pop(h)
+            self.levels[h] = [(stored, *self._span(p))]
+            if self.fine[h] != stored:
+                p, _ = coarse_probabilities(view, h, self.fine[h])
+                self.levels[h].append((self.fine[h], *self._span(p)))
             self.max_bins[h] = np.maximum.reduceat(bins[self.perm], self.starts) if n else np.zeros(0, np.int64)
-            if h in CACHED:  # in block order, float32: each entry's own bound without a gather
-                self.cached[h] = (p[self.perm].astype(np.float32), bins[self.perm])
+            if h in CACHED:  # in block order: each entry's own bound without a gather
+                self.cached[h] = (p[self.perm].astype(np.float16), bins[self.perm].astype(np.int32))
             del p
+        self.fractions = fractions[self.perm]  # float64, the very values the exact features read
+        self.scales = scales[self.perm]
         self.intervals["fractions"] = self._span(fractions)
         self.intervals["scales"] = self._span(scales)
         if roots is not None:
@@ -224,14 +271,15 @@ class BlockIndex:
         features = {f"d_{h}": np.zeros(blocks) for h in HISTOGRAMS}
         for h in record.histograms:
             query_p = np.asarray(signature.histograms[h].p, dtype=np.float64)
-            lo, hi = self.intervals[h]
-            coarse = _coarse(query_p, self.view.sections[0].coarse) if len(query_p) else np.zeros(0)
-            width = max(lo.shape[1], len(coarse))
-            q = np.zeros(width)
-            q[: len(coarse)] = coarse
-            lo = np.pad(lo, ((0, 0), (0, width - lo.shape[1])))
-            hi = np.pad(hi, ((0, 0), (0, width - hi.shape[1])))
-            l1 = np.maximum(np.maximum(lo - q, q - hi), 0).sum(axis=1)
+            l1 = np.zeros(blocks)
+            for factor, lo, hi in self.levels[h]:  # each level's bound holds: the larger one
+                coarse = _coarse(query_p, factor) if len(query_p) else np.zeros(0)
+                width = max(lo.shape[1], len(coarse))
+                q = np.zeros(width)
+                q[: len(coarse)] = coarse
+                lo = np.pad(lo, ((0, 0), (0, width - lo.shape[1])))
+                hi = np.pad(hi, ((0, 0), (0, width - hi.shape[1])))
+                np.maximum(l1, np.maximum(np.maximum(lo - q, q - hi), 0).sum(axis=1), out=l1)
             bins = np.maximum(self.max_bins[h], len(query_p))
             features[f"d_{h}"] = np.divide(l1, bins, out=np.zeros(blocks), where=bins > 0)
         fractions = signature.fractions
@@ -255,29 +303,36 @@ class BlockIndex:
 
     def _entry_bounds(self, signature, metric: str, at: np.ndarray, threads: int) -> np.ndarray:
         """:func:`entry_bounds` of the entries at block-order places ``at``: from the kept coarse
-        probabilities when the metric reads only kept histograms (its angle terms bounded by 0),
-        else from the mapped arrays."""
+        probabilities, fractions and scales when the metric reads kept histograms (its angle
+        terms bounded by 0, as :func:`entry_bounds` bounds them), else from the mapped arrays."""
         from ..distance.combined import ANGLE_FEATURES
         from .distances import float32_slack
 
         record = metric_record(metric)
-        if not record.histograms or not set(record.histograms) <= set(self.cached) or any(
-                f.startswith(("gap_", "scale_")) for f in record.features):
+        if not record.histograms or not set(record.histograms) <= set(self.cached):
             return entry_bounds(self.view, signature, metric, self.perm[at], threads)
         features = {f"d_{h}": 0.0 for h in HISTOGRAMS}
         features.update(dict.fromkeys(ANGLE_FEATURES, 0.0))
         for h in record.histograms:
             p, bins = self.cached[h]
             query_p = np.asarray(signature.histograms[h].p, dtype=np.float64)
-            coarse = _coarse(query_p, self.view.sections[0].coarse) if len(query_p) else np.zeros(0)
+            coarse = _coarse(query_p, self.fine[h]) if len(query_p) else np.zeros(0)
             width = max(p.shape[1], len(coarse))
             q = np.zeros(width, dtype=np.float32)
             q[: len(coarse)] = coarse
             tail = float(q[p.shape[1]:].sum(dtype=np.float64))  # bins only the query has
-            l1 = np.abs(p[at] - q[: p.shape[1]]) @ np.ones(p.shape[1], dtype=np.float32)
+            l1 = _l1_rows(p, at, q[: p.shape[1]])
             widths = np.maximum(bins[at], len(query_p))
-            features[f"d_{h}"] = np.divide(np.maximum(l1 + tail - float32_slack(width), 0), widths,
+            slack = float32_slack(width) + float16_slack(p.shape[1])
+            features[f"d_{h}"] = np.divide(np.maximum(l1 + tail - slack, 0), widths,
                                            out=np.zeros(len(at)), where=widths > 0)
+        fractions = self.fractions[at]  # the class features exactly as features_to_many has them
+        for i, c in enumerate(CLASS_NAMES):
+            features[f"gap_{c}"] = np.abs(fractions[:, i] - signature.fractions[c])
+        if any(f.startswith("scale_") for f in record.features):
+            scale_gap = np.abs(self.scales[at] - class_scales(signature_means(signature)))
+            for i, c in enumerate(CLASS_NAMES):
+                features[f"scale_{c}"] = scale_gap[:, i]
         return np.asarray(record.value(features), dtype=np.float64) * (1 - 1e-9) - 1e-15
 
     def nearest(self, signature, metric: str, top: int, keep: np.ndarray | None = None,
@@ -311,7 +366,7 @@ class BlockIndex:
                 at = at[keep[self.perm[at]]]
             if len(at) and np.isfinite(reach):  # each entry's own coarse bound first
                 at = at[self._entry_bounds(signature, metric, at, threads) <= reach]
-            chosen = self.perm[at]
+            chosen = np.sort(self.perm[at])  # in store order: the mapped rows are read in turn
             if len(chosen):
                 positions.append(chosen)
                 exact.append(distances(self.view, signature, metric, chosen, threads))

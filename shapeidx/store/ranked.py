@@ -123,8 +123,9 @@ class RankedView:
     def angle_probabilities(self, positions: np.ndarray | None = None) -> np.ndarray:
         """(n, 4, ANGLE_BINS) normal-angle probabilities of the live entries at ``positions``
         (default all, kept); NaN where unknown (entries of a store built before them)."""
-        if positions is None and "angle_p" in self._gathered:
-            return self._gathered["angle_p"]
+        if "angle_p" in self._gathered:  # kept: each row is its own counts over their total, as below
+            kept = self._gathered["angle_p"]
+            return kept if positions is None else kept[np.asarray(positions, dtype=np.int64)]
         counts = self.gather("angles", positions)
         p = angle_probabilities(counts.reshape(len(counts), len(ANGLE_HISTOGRAMS), ANGLE_BINS))
         if positions is None:
