@@ -18,7 +18,8 @@ tree's hits (paths and distances) must agree, query by query; the script stops o
 
 Printed: per metric and tree, the median and worst time of one ``search`` call (what
 ``serve`` spends on the ranking), the ratio of each tree's to the first tree's, the index
-build time and each process's resident memory after warming and at the end.
+build time and each process's resident memory after warming and at the end (anonymous, i.e. its
+own, and the pages of the store's mapped files, which are the page cache's and shared).
 """
 
 from __future__ import annotations
@@ -42,9 +43,10 @@ from _common import REPO, machine  # noqa: E402
 WORKER = r"""
 import json, sys, time
 from shapeidx.search import Searcher
-def rss():
+def rss():  # MiB resident: anonymous (the process's own), and file pages mapped (the page cache's)
     with open("/proc/self/status") as status:
-        return next(int(l.split()[1]) // 1024 for l in status if l.startswith("VmRSS"))
+        fields = {l.split(":")[0]: int(l.split()[1]) // 1024 for l in status if l.startswith(("RssAnon", "RssFile"))}
+    return [fields["RssAnon"], fields["RssFile"]]
 store, top, positions = sys.argv[1], int(sys.argv[2]), [int(p) for p in sys.argv[3].split(",")]
 searcher = Searcher(store)
 started = time.perf_counter()
@@ -100,7 +102,8 @@ def main() -> int:
                                   text=True, env=env, cwd="/")
         started.append(json.loads(worker.stdout.readline()))
         workers.append(worker)
-        print(f"{tree}: index built in {started[-1]['build']:.1f} s, {started[-1]['rss']} MiB resident", flush=True)
+        print(f"{tree}: index built in {started[-1]['build']:.1f} s, resident {started[-1]['rss'][0]} MiB"
+              f" anonymous + {started[-1]['rss'][1]} MiB of mapped files", flush=True)
     times = {(k, m): [] for k in range(len(workers)) for m in args.metrics}
     last_rss = [s["rss"] for s in started]
     turn = 0
@@ -137,9 +140,11 @@ def main() -> int:
         cells += [f"{np.median(times[k, metric]) / base_median:.2f} / {max(times[k, metric]) / base_worst:.2f}"
                   for k in range(1, len(workers))]
         print(f"| {metric} | " + " | ".join(cells) + " |")
-    print("\n| tree | index build (s) | resident after warming (MiB) | at the end (MiB) |\n|---|---|---|---|")
+    print("\n| tree | index build (s) | resident after warming, MiB: anonymous + mapped files | at the end |"
+          "\n|---|---|---|---|")
     for k, tree in enumerate(args.code):
-        print(f"| {tree} | {started[k]['build']:.1f} | {started[k]['rss']} | {last_rss[k]} |")
+        print(f"| {tree} | {started[k]['build']:.1f} | {started[k]['rss'][0]} + {started[k]['rss'][1]} |"
+              f" {last_rss[k][0]} + {last_rss[k][1]} |")
     print(f"\nload average after: {os.getloadavg()[0]:.2f}")
     return 0
 

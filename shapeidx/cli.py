@@ -453,7 +453,6 @@ def query(files, store, top, metric, entries, file_type, where, exclude_self, ma
     from .console.queries import query_inputs
     from .errors import LoadError, NoAnswer, ShapeidxError, StoreDamagedError
     from .search import Filters, open_searcher, parse_where
-    from .store.shards import is_sharded
     from .system import available_cores
 
     fmt = chosen_format(output_format, as_json)
@@ -470,8 +469,6 @@ def query(files, store, top, metric, entries, file_type, where, exclude_self, ma
         raise ShapeidxError(f"{sheet}: no folder {os.path.dirname(os.path.abspath(sheet))} to write the sheet in")
     filters = Filters(exclude_self, max_distance, scale, parse_where(where))
     store_path = _store_path(store)
-    if sheet and is_sharded(store_path):
-        raise click.UsageError("--sheet draws from one store: give a shard (STORE/shards/K) or leave --sheet out")
     failures = empty = 0
     blocks = []
     with open_searcher(store_path, scheduler or None, parts=parts) as searcher:

@@ -152,3 +152,25 @@ def test_an_incremental_build_changes_only_the_shard_of_each_changed_path(trees,
     answer = cli_json("query", "--id", parts[0], "--store", store, "--top", len(parts))
     assert gone not in [h["relative_path"] for h in answer["hits"]] and len(answer["hits"]) == len(parts) - 1
     assert "has 3 shards" in build(tree2, store, "--shards", 2).output
+
+
+def test_a_sheet_of_a_sharded_store_draws_the_answer_of_one_store(trees, cluster, tmp_path):
+    """``query --sheet`` of a sharded store, here and on the cluster: the cards are the one
+    store's hits in its order, with their distances and pictures; the words are calibrated on a shard."""
+    from test_pictures_sheet import Page
+
+    tree, table, parts, one, sharded = trees
+    args = ["--id", parts[9], "--top", 5, "--metric", "weighted"]
+    expected = cli_json("query", "--store", one, *args)["hits"]
+    for scheduler in ([], ["--scheduler", cluster.address]):
+        out = tmp_path / f"sheet-{len(scheduler)}.html"
+        run = subprocess.run(shapeidx_command("query", "--store", sharded, *args, *scheduler, "--sheet", out),
+                             capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0, run.stderr
+        text = out.read_text()
+        page = Page(text)
+        cards = page.all("article")
+        assert [c["data-path"] for c in cards] == [h["relative_path"] for h in expected]
+        assert all(f"distance {h['distance']:.4g}" in text for h in expected[1:])
+        assert len(page.all("img")) == len(expected) + 1  # the query and every hit, rendered here
+        assert "identical signature" in text and f"shard 0 of the {SHARDS}" in text

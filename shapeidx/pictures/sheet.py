@@ -348,7 +348,6 @@ def answer_sheet(searcher, answer, query, output: str | os.PathLike, thumbnails:
     sub_parts = bool(getattr(searcher, "parts", False))
     sheet_hits = []
     for k, hit in enumerate(answer.hits):
-        position = searcher.view.position_of(searcher.view.find(hit.relative_path))
         shown = hit.parent or hit.relative_path  # a sub-part: the picture of the whole file holding it
         if k < thumbnails:
             png, note = _picture_of(lambda: thumbs.png(shown, record=hit.relative_path), hit.relative_path)
@@ -360,7 +359,7 @@ def answer_sheet(searcher, answer, query, output: str | os.PathLike, thumbnails:
         extra["metadata"] = hit.metadata
         if hit.parent is not None:
             extra.update(parent=hit.parent, count=hit.count, title=hit.metadata.get("title", ""))
-        hit_part = SheetPart(hit.relative_path, thumbs.file_of(shown), searcher.signature_at(position), png, note)
+        hit_part = SheetPart(hit.relative_path, thumbs.file_of(shown), searcher.signature_of(hit.relative_path), png, note)
         sheet_hits.append(SheetHit(hit_part, hit.rank, hit.distance, words, extra))
     filters = "; ".join(answer.filters)
     what = "sub-parts" if sub_parts else "parts"
@@ -392,6 +391,10 @@ def _sheet_start(searcher, output, query, signature, metric: str):
         raise StoreError(f"{output}: no folder {Path(output).absolute().parent} to write the sheet in")
     thumbs = _thumbnails_of(searcher)
     part, header_extra = _query_part(searcher, thumbs, query, signature)
+    if hasattr(searcher, "shards"):  # a sharded store: calibrated on its first shard, where it is
+        from .similarity import shard_scale
+
+        return thumbs, part, header_extra, searcher.on_shard(0, shard_scale, metric, 0, len(searcher.shards))
     return thumbs, part, header_extra, SimilarityScale.cached(searcher, metric, thumbs.cache.folder)
 
 

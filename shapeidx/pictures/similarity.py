@@ -56,6 +56,8 @@ class SimilarityScale:
     distances: np.ndarray
     pairs: int
     draws: int
+    #: Where the pairs were drawn: the store, or one shard of a sharded store.
+    within: str = "the store"
 
     @classmethod
     def of_store(cls, searcher, metric: str, seed: int = 0) -> "SimilarityScale":
@@ -143,7 +145,7 @@ class SimilarityScale:
         q = {p: np.quantile(self.distances, p) for p in (0.01, 0.05, 0.5)}
         return (
             f"Words calibrated on {self.pairs:,} {self.metric} distances between {self.draws} entries drawn at random"
-            f" and every other entry of the store: 1% of pairs are closer than {q[0.01]:.3g}, 5% closer than"
+            f" and every other entry of {self.within}: 1% of pairs are closer than {q[0.01]:.3g}, 5% closer than"
             f" {q[0.05]:.3g}, half closer than {q[0.5]:.3g}. " + "; ".join(
                 f"{w}: closer than {100 * (1 - limit):.1f}% of pairs" if limit < 1 else f"{w}: the rest"
                 for limit, w in WORDS
@@ -161,3 +163,15 @@ def closer_than(share: float) -> str:
     if text == "100.0":
         text = "99.9"
     return f"closer than {text}% of the store's pairs"
+
+
+def shard_scale(path: str, metric: str, shard: int, shards: int) -> SimilarityScale:
+    """The scale of a sharded store, calibrated on one of its shards (run where the shard is,
+    kept in the shard's own thumbnail folder). Shards hold the entries of their path keys, a
+    uniform draw of the store, so the pairs of one shard are distributed as the store's are."""
+    from ..search.sharded import held_searcher
+    from .thumbcache import cache_dir_of_store
+
+    scale = SimilarityScale.cached(held_searcher(path), metric, cache_dir_of_store(path))
+    scale.within = f"shard {shard} of the {shards} (a uniform draw of the store's entries by path key)"
+    return scale

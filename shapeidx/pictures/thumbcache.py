@@ -127,7 +127,8 @@ class StoreThumbnails:
 
     def _digest(self, entry: str, absolute: Path) -> str | None:
         """The entry's stored SHA-256 when its file is unchanged since the build (else None: hash it)."""
-        found = self.searcher.view.find(entry)
+        view = getattr(self.searcher, "view", None)  # a sharded store's rows are in its shards: hash the file
+        found = view.find(entry) if view is not None else None
         if found is None:
             return None
         try:

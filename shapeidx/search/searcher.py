@@ -343,6 +343,10 @@ class Searcher:
     def path_at(self, position: int) -> str:
         return self.view.path_at(position)
 
+    def signature_of(self, entry: str):
+        """The stored signature of the ranked entry named ``entry`` (a hit's relative path)."""
+        return self.signature_at(self.view.position_of(self.view.find(entry)))
+
     # -- the answer
     def keep(self, query: Query, filters: Filters) -> tuple[np.ndarray | None, str | None]:
         """The keep-mask of ``filters`` for ``query`` (None: every entry), and, when it keeps

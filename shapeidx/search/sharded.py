@@ -64,6 +64,11 @@ def _state(path: str):
         return None
 
 
+def held_searcher(path: str) -> Searcher:
+    """The shard at ``path`` as this process holds it open (opened again after a commit)."""
+    return _searcher(path)
+
+
 def _searcher(path: str) -> Searcher:
     state = _state(path)
     held = _OPEN.get(path)
@@ -187,6 +192,14 @@ class ShardedSearcher:
         k = self.shard_of(name)
         signature = self._each(shard_entry, [(self.shards[k], name)], [k])[0]
         return Query(os.fspath(entry), signature, None, name)
+
+    def signature_of(self, entry: str):
+        """The stored signature of the entry named ``entry`` (its path relative to the root)."""
+        return self.query_of_entry(entry).signature
+
+    def on_shard(self, k: int, function, *arguments):
+        """``function(shard k's path, *arguments)``, where shard ``k`` is."""
+        return self._each(function, [(self.shards[k], *arguments)], [k])[0]
 
     def query_of_part(self, part, file_type: str | None = None, label: str | None = None,
                       threads: int | None = None) -> Query:
