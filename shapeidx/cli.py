@@ -740,23 +740,27 @@ def stats(store, list_failed, output_format, as_json):
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on (the default: this machine only).")
 @click.option("--port", default=8765, show_default=True, type=click.IntRange(1, 65535), help="Port to listen on.")
 @click.option("--max-upload", default=64, show_default=True, type=click.IntRange(1), help="Largest part file accepted, MB.")
-def serve(store, host, port, max_upload):
+@click.option("--scheduler", metavar="ADDRESS",
+              help="A sharded store (build --shards): rank each shard on a worker of this dask.distributed"
+                   " cluster, kept open and warm there [default: here].")
+def serve(store, host, port, max_upload, scheduler):
     """A local web page and JSON API over the store: query by example, compare, browse.
 
     \b
     Example:
       shapeidx serve --store parts.shapeidx                 # then open http://127.0.0.1:8765/
       shapeidx serve --store parts.shapeidx --port 9000 --max-upload 200
+      shapeidx serve --store sharded.shapeidx --scheduler tcp://10.0.0.5:8786
     """
     from .errors import ShapeidxError
 
     try:
         import uvicorn
 
-        from .web.app import StoreService, create_app
+        from .web.app import create_app, open_service
     except ImportError as exc:
         raise ShapeidxError(f"shapeidx serve needs the web extra ({exc.name} is missing): pip install 'shapeidx[web]'") from None
-    service = StoreService(_store_path(store))
+    service = open_service(_store_path(store), scheduler or None)
     from .web.guard import header_timeout_protocol
 
     app = create_app(service, max_upload * 1024 * 1024, host=host)

@@ -174,3 +174,60 @@ def test_a_sheet_of_a_sharded_store_draws_the_answer_of_one_store(trees, cluster
         assert all(f"distance {h['distance']:.4g}" in text for h in expected[1:])
         assert len(page.all("img")) == len(expected) + 1  # the query and every hit, rendered here
         assert "identical signature" in text and f"shard 0 of the {SHARDS}" in text
+
+
+def test_serve_answers_a_sharded_store_as_one_store(trees, cluster):
+    """The web API over a sharded store (here, and with every shard on the cluster's workers)
+    answers as over one store: the same hits, distances, metadata and fractions, the same entry
+    facts, listing and comparisons; only the words' calibration (on a shard) may differ."""
+    pytest.importorskip("starlette")
+    pytest.importorskip("httpx")
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        from starlette.testclient import TestClient
+
+    from shapeidx.web.app import ShardedStoreService, StoreService, create_app, open_service
+
+    tree, table, parts, one, sharded = trees
+
+    def answers(client):
+        out = []
+        for metric in ("weighted", "all-angle"):
+            for where in ([], WHERE):
+                got = client.get("/api/query", params={"id": parts[9], "top": 6, "metric": metric,
+                                                       "where": where}).json()
+                out.append([(h["rank"], h["id"], h["distance"], h["metadata"], h["fractions"]) for h in got["hits"]])
+        with open(tree / parts[4], "rb") as f:
+            upload = client.post("/api/query", files={"file": (parts[4], f.read())}, data={"top": "4"}).json()
+        out.append([(h["id"], h["distance"]) for h in upload["hits"]])
+        info = client.get("/api/store").json()
+        out.append({k: info[k] for k in ("entries", "ok", "failed", "metadata_keys", "points")})
+        listing = client.get("/api/entries", params={"limit": 1000}).json()
+        out.append([(e["id"], e["status"], e["fractions"]) for e in listing["entries"]])
+        entry = client.get("/api/entry", params={"id": parts[2]}).json()
+        out.append({k: entry[k] for k in ("name", "path", "fractions", "metadata")})
+        out.append(client.get("/api/compare", params={"a": parts[1], "b": parts[7]}).json()["distances"])
+        out.append(client.get("/api/entry", params={"id": "no/such.wrl"}).status_code)
+        assert client.get("/api/thumbnail", params={"id": parts[3]}).content[:4] == b"\x89PNG"
+        return out
+
+    reference = StoreService(one)
+    try:
+        expected = answers(TestClient(create_app(reference), base_url="http://127.0.0.1:8765"))
+    finally:
+        reference.close()
+    assert expected[-1] == 404
+    for scheduler in (None, cluster.address):
+        service = open_service(sharded, scheduler)
+        assert isinstance(service, ShardedStoreService)
+        try:
+            client = TestClient(create_app(service), base_url="http://127.0.0.1:8765")
+            assert answers(client) == expected
+            assert client.get("/api/store").json()["shards"] == SHARDS
+            assert f"shard 0 of the {SHARDS}" in client.get("/api/query", params={"id": parts[0]}).json()["calibration"]
+        finally:
+            service.close()
+    with pytest.raises(Exception, match="not a sharded store"):
+        open_service(one, cluster.address)

@@ -91,7 +91,41 @@ def close_shards() -> None:
 def shard_info(path: str) -> dict:
     """A shard's parameters, root and ok entries (run where the shard is)."""
     searcher = _searcher(path)
-    return {"params": searcher.params, "root": searcher.root, "entries": len(searcher)}
+    return {"params": searcher.params, "root": searcher.root, "entries": len(searcher), "rows": len(searcher.paths),
+            "metadata_keys": searcher.metadata_keys()}
+
+
+def shard_facts(path: str, entry: str) -> dict | None:
+    """What a page shows of ``entry`` (run where its shard is): ok or not, the reason, its
+    metadata and class fractions; None when the shard has no such entry."""
+    searcher = _searcher(path)
+    found = searcher.view.find(entry)
+    if found is None:
+        return None
+    position = searcher.view.position_of(found)
+    if position is None:
+        return {"ok": False, "reason": searcher.view.status_of(found)[1], "metadata": {}, "fractions": None}
+    return {"ok": True, "reason": "", "metadata": searcher.metadata_at(position),
+            "fractions": searcher.view.gather("fractions", np.array([position]))[0]}
+
+
+def shard_listing(path: str) -> dict:
+    """Every entry of the shard, failed ones too: path, ok, reason, triangles, fractions."""
+    from ..store import STATUS_OK
+
+    reader = _searcher(path).reader
+    return {"paths": np.asarray(reader.paths), "ok": reader.column("entries/status") == STATUS_OK,
+            "reasons": reader.column("entries/reason"), "triangles": reader.column("entries/triangles"),
+            "fractions": reader.column("entries/fractions")}
+
+
+def warm_shard(path: str) -> None:
+    """Build the shard's block index where it is, if it is big enough to want one."""
+    from .blocks import WARM_MIN
+
+    searcher = _searcher(path)
+    if len(searcher) >= WARM_MIN:
+        searcher.warm()
 
 
 def shard_entry(path: str, entry: str):
@@ -138,6 +172,8 @@ class ShardedSearcher:
             if info["params"] != self.params or info["root"] != self.root:
                 raise StoreError(f"shard {path} was built with other parameters or another root than {self.shards[0]}")
         self.entries = sum(info["entries"] for info in infos)
+        self.rows = sum(info["rows"] for info in infos)  # failed entries too
+        self._metadata_keys = tuple(dict.fromkeys(k for info in infos for k in info["metadata_keys"]))
 
     def __len__(self) -> int:
         return self.entries
@@ -168,6 +204,24 @@ class ShardedSearcher:
 
     def shard_of(self, entry: str) -> int:
         return int(shard_of_paths([entry], len(self.shards))[0])
+
+    def metadata_keys(self) -> tuple:
+        return self._metadata_keys
+
+    def warm(self) -> None:
+        """Each big shard's block index, built where the shard is (as :meth:`Searcher.warm`)."""
+        self._each(warm_shard, [(path,) for path in self.shards])
+
+    def entry_facts(self, entry: str) -> dict | None:
+        """:func:`shard_facts` of ``entry`` from the shard its path key names."""
+        return self.on_shard(self.shard_of(entry), shard_facts, entry)
+
+    def listing(self) -> dict:
+        """Every shard's :func:`shard_listing`, in one list sorted by path."""
+        parts = self._each(shard_listing, [(path,) for path in self.shards])
+        joined = {key: np.concatenate([part[key] for part in parts]) for key in parts[0]}
+        order = np.argsort(joined["paths"], kind="stable")
+        return {key: values[order] for key, values in joined.items()}
 
     def present_metadata_keys(self) -> tuple:
         if self.client is not None:

@@ -144,7 +144,7 @@ class StoreService:
         from ..io.formats import PART_SUFFIXES, SUFFIXES
 
         ok = len(self.searcher)  # the ranked entries: the ok ones
-        entries = len(self.reader.column("entries/status")) if self._listing is None else len(self._listing["paths"])
+        entries = self._rows() if self._listing is None else len(self._listing["paths"])
         return {
             "store": str(self.store),
             "root": str(self.root),
@@ -160,6 +160,24 @@ class StoreService:
             "parts": self.parts is not None,
             "sub_parts": len(self.parts) if self.parts is not None else 0,
         }
+
+    def _rows(self) -> int:
+        """Every entry of the store, failed ones too."""
+        return len(self.reader.column("entries/status"))
+
+    def _has_entry(self, entry: str) -> bool:
+        """Whether ``entry`` names a whole-file entry of the store (ok or failed)."""
+        return self.searcher.view.find(entry) is not None
+
+    def _metadata_of(self, entry: str) -> dict:
+        """The metadata of the ok entry ``entry`` (404 / 409 as :meth:`position_of`)."""
+        with self._lock:
+            return self.searcher.metadata_at(self.position_of(entry))
+
+    def _fractions_of(self, searcher, hits) -> list:
+        """The class fractions of each hit (called with the lock held)."""
+        return [searcher.view.gather("fractions", np.array([searcher.view.position_of(
+            searcher.view.find(h.relative_path))]))[0] for h in hits]
 
     def listing(self) -> dict:
         """Every entry's path, status, reason, triangles and fractions (read once, on first use)."""
@@ -266,7 +284,7 @@ class StoreService:
         """The search query of an entry id or of a kept upload."""
         if query_id.startswith(UPLOAD_PREFIX):
             return self.upload(query_id).query
-        if self.searcher.view.find(query_id) is None and self.sub_entry(query_id) is not None:
+        if self.sub_entry(query_id) is not None and not self._has_entry(query_id):
             with self._lock:  # a sub-part FILE#n: its own signature, from the sub-parts
                 return self.parts.query_of_entry(query_id)
         self.position_of(query_id)
@@ -292,15 +310,14 @@ class StoreService:
             upload = self.upload(query_id)
             out.update(name=upload.name, path=None, note=upload.note, metadata={},
                        thumbnail=f"/api/thumbnail?id={_quote(query_id)}" if upload.png else None)
-        elif (sub := self.sub_entry(query_id)) is not None and self.searcher.view.find(query_id) is None:
+        elif (sub := self.sub_entry(query_id)) is not None and not self._has_entry(query_id):
             position, parent, count = sub
             with self._lock:
                 metadata = self.parts.metadata_at(position)
             out.update(name=query_id, path=str(self.root / parent), metadata=metadata, parent=parent, count=count,
                        thumbnail=f"/api/thumbnail?id={_quote(parent)}")
         else:
-            with self._lock:
-                metadata = self.searcher.metadata_at(self.position_of(query_id))
+            metadata = self._metadata_of(query_id)
             out.update(name=query_id, path=str(self.root / query_id), metadata=metadata,
                        thumbnail=f"/api/thumbnail?id={_quote(query_id)}")
         return out
@@ -312,12 +329,11 @@ class StoreService:
         searcher = self.parts_searcher() if parts else self.searcher
         filters = Filters(where=parse_where(where))
         query = self.query_of(query_id)
-        if parts != (query.entry is not None and "#" in query.entry and self.searcher.view.find(query.entry) is None):
+        if parts != (query.entry is not None and "#" in query.entry and not self._has_entry(query.entry)):
             query = replace(query, own=None)  # its own position is in the other store
         with self._lock:
             answer = searcher.search(query, top, metric, filters)
-            fractions = [searcher.view.gather("fractions", np.array([searcher.view.position_of(
-                searcher.view.find(h.relative_path))]))[0] for h in answer.hits]
+            fractions = self._fractions_of(searcher, answer.hits)
         scale = self.scale(metric, parts)
         hits = []
         for hit, hit_fractions in zip(answer.hits, fractions):
@@ -365,7 +381,7 @@ class StoreService:
             if png is None:
                 raise RequestError(404, "no picture of this upload")
             return png
-        if self.searcher.view.find(query_id) is None and (sub := self.sub_entry(query_id)) is not None:
+        if (sub := self.sub_entry(query_id)) is not None and not self._has_entry(query_id):
             query_id = sub[1]  # a sub-part FILE#n: the picture of its file (a whole-file entry)
         self.regular_file_of(query_id)  # a known entry inside the root, a regular file, or an error
         try:
@@ -380,6 +396,88 @@ class StoreService:
         distances = compare(query_a.signature, query_b.signature)
         return {"a": self.describe(a, query_a), "b": self.describe(b, query_b), "distances": distances,
                 "labels": {name: REGISTRY[name].label for name in distances}}
+
+
+class ShardedStoreService(StoreService):
+    """:class:`StoreService` over a sharded store (:mod:`shapeidx.search.sharded`): queries go to
+    every shard (each on a worker of ``scheduler``, else here) and their exact top k are merged;
+    an entry's facts come from the one shard its path key names; the words are calibrated on the
+    first shard. A sharded store has no sub-parts."""
+
+    def __init__(self, store: str | os.PathLike, scheduler: str | None = None):
+        from ..search.sharded import ShardedSearcher
+
+        self.searcher = ShardedSearcher(store, scheduler)
+        self.store = self.searcher.store.absolute()
+        self.reader = None
+        self.thumbs = StoreThumbnails(self.searcher)
+        self.root = Path(self.searcher.root or ".")
+        self.real_root = Path(os.path.realpath(self.root))
+        self._lock = threading.Lock()
+        self._scales: dict = {}
+        self._uploads: OrderedDict = OrderedDict()
+        self._listing = None
+        self.max_upload = MAX_UPLOAD
+        self.parts = None
+        self.scale("weighted")
+        self.searcher.warm()  # each big shard builds its block index where it is
+
+    def info(self) -> dict:
+        return {**super().info(), "shards": len(self.searcher.shards)}
+
+    def _rows(self) -> int:
+        return self.searcher.rows
+
+    def _facts(self, entry: str) -> dict | None:
+        with self._lock:
+            return self.searcher.entry_facts(entry)
+
+    def _has_entry(self, entry: str) -> bool:
+        return self._facts(entry) is not None
+
+    def position_of(self, entry: str) -> int:
+        """0 for an ok entry of its shard (404 for an unknown id, 409 for a failed one)."""
+        facts = self._facts(entry)
+        if facts is None:
+            raise RequestError(404, f"no entry {entry!r} in the store")
+        if not facts["ok"]:
+            raise RequestError(409, f"entry {entry!r} failed to index: {facts['reason']}")
+        return 0
+
+    def _metadata_of(self, entry: str) -> dict:
+        self.position_of(entry)
+        return self._facts(entry)["metadata"]
+
+    def _fractions_of(self, searcher, hits) -> list:
+        return [searcher.entry_facts(h.relative_path)["fractions"] for h in hits]
+
+    def listing(self) -> dict:
+        with self._lock:
+            if self._listing is None:
+                self._listing = self.searcher.listing()
+            return self._listing
+
+    def scale(self, metric: str, parts: bool = False) -> SimilarityScale:
+        from ..pictures.similarity import shard_scale
+
+        with self._lock:
+            if (metric, parts) not in self._scales:
+                self._scales[metric, parts] = self.searcher.on_shard(0, shard_scale, metric, 0, len(self.searcher.shards))
+            return self._scales[metric, parts]
+
+
+def open_service(store: str | os.PathLike, scheduler: str | None = None) -> StoreService:
+    """The service of an ordinary store, or of a sharded one (``scheduler``: its shards ranked
+    on that Dask cluster's workers); ``scheduler`` with an ordinary store is refused in one line."""
+    from ..store.shards import is_sharded
+
+    if is_sharded(store):
+        return ShardedStoreService(store, scheduler)
+    if scheduler:
+        from ..errors import StoreError
+
+        raise StoreError(f"{store} is not a sharded store: --scheduler serves a store built with --shards")
+    return StoreService(store)
 
 
 def _quote(text: str) -> str:
