@@ -57,10 +57,10 @@ queries = {p: searcher.query_of_entry(searcher.path_at(p)) for p in positions}
 print(json.dumps({"build": build, "entries": n, "rss": rss()}), flush=True)
 for line in sys.stdin:
     metric, position = line.split()
-    started = time.perf_counter()
+    started, cpu = time.perf_counter(), time.process_time()
     answer = searcher.search(queries[int(position)], top, metric)
-    seconds = time.perf_counter() - started
-    print(json.dumps({"t": seconds, "hits": [[h.relative_path, h.distance] for h in answer.hits], "rss": rss()}),
+    seconds, cpu = time.perf_counter() - started, time.process_time() - cpu
+    print(json.dumps({"t": seconds, "cpu": cpu, "hits": [[h.relative_path, h.distance] for h in answer.hits], "rss": rss()}),
           flush=True)
 """
 
@@ -105,6 +105,8 @@ def main() -> int:
         print(f"{tree}: index built in {started[-1]['build']:.1f} s, resident {started[-1]['rss'][0]} MiB"
               f" anonymous + {started[-1]['rss'][1]} MiB of mapped files", flush=True)
     times = {(k, m): [] for k in range(len(workers)) for m in args.metrics}
+    cpus = {(k, m): [] for k in range(len(workers)) for m in args.metrics}
+    per_query = {(k, m, p): [] for k in range(len(workers)) for m in args.metrics for p in positions}
     last_rss = [s["rss"] for s in started]
     turn = 0
     for _ in range(args.repeats):
@@ -120,6 +122,8 @@ def main() -> int:
                     workers[k].stdin.flush()
                     reply = json.loads(workers[k].stdout.readline())
                     times[k, metric].append(reply["t"])
+                    cpus[k, metric].append(reply["cpu"])
+                    per_query[k, metric, position].append(reply["t"])
                     last_rss[k] = reply["rss"]
                     answers.append((k, reply["hits"]))
                 if any(hits != answers[0][1] for _, hits in answers):
@@ -129,17 +133,30 @@ def main() -> int:
         worker.wait()
     count = len(positions) * args.repeats
     print(f"\n{n:,} entries; {len(positions)} entries as queries x {args.repeats} = {count} queries per metric;"
-          " every tree's hits identical. Median / worst of one search (s), and over the first tree's:\n")
-    header = " | ".join(f"{tree.name or tree} median / worst" for tree in args.code)
-    ratios = " | ".join(f"{tree.name} / {args.code[0].name}" for tree in args.code[1:])
-    print(f"| metric | {header} |" + (f" {ratios} |" if ratios else ""))
-    print("|---|" + "---|" * (len(args.code) + len(args.code[1:])))
+          " every tree's hits identical.\n\nWall time of one search (s): median / worst of all / worst of the"
+          " queries' own medians (a query slow every time, not a moment of load); CPU seconds of the"
+          " process (both ranking threads): median / worst; then the ratios to the first tree's.\n")
+    names = [tree.name or str(tree) for tree in args.code]
+    cells = [f"{name}: wall median / worst / worst query | {name}: CPU median / worst" for name in names]
+    cells += [f"{name} / {names[0]}: wall median / worst query" for name in names[1:]]
+    print("| metric | " + " | ".join(cells) + " |")
+    print("|---|" + "---|" * (2 * len(names) + len(names) - 1))
+
+    def figures(k, metric):
+        slowest = max(np.median(per_query[k, metric, p]) for p in positions)
+        return np.median(times[k, metric]), max(times[k, metric]), slowest
+
     for metric in args.metrics:
-        cells = [f"{np.median(times[k, metric]):.3f} / {max(times[k, metric]):.3f}" for k in range(len(workers))]
-        base_median, base_worst = np.median(times[0, metric]), max(times[0, metric])
-        cells += [f"{np.median(times[k, metric]) / base_median:.2f} / {max(times[k, metric]) / base_worst:.2f}"
-                  for k in range(1, len(workers))]
-        print(f"| {metric} | " + " | ".join(cells) + " |")
+        row = []
+        for k in range(len(workers)):
+            median, worst, slowest = figures(k, metric)
+            row.append(f"{median:.3f} / {worst:.3f} / {slowest:.3f} | "
+                       f"{np.median(cpus[k, metric]):.3f} / {max(cpus[k, metric]):.3f}")
+        base = figures(0, metric)
+        for k in range(1, len(workers)):
+            median, _, slowest = figures(k, metric)
+            row.append(f"{median / base[0]:.2f} / {slowest / base[2]:.2f}")
+        print(f"| {metric} | " + " | ".join(row) + " |")
     print("\n| tree | index build (s) | resident after warming, MiB: anonymous + mapped files | at the end |"
           "\n|---|---|---|---|")
     for k, tree in enumerate(args.code):

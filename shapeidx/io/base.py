@@ -377,6 +377,30 @@ MAX_COORDINATE = 1e100
 MIN_EXTENT = 1e-100
 
 
+def column_min(points: np.ndarray) -> np.ndarray:
+    """``points.min(axis=0)`` of an (n, d) array, the very values, a column at a time: numpy's
+    reduction over the rows of a narrow array walks them d values at a time, ten times slower
+    than a reduction along one column. Where a column's least value is zero or not finite (the
+    sign of a zero, or which NaN, may depend on the order of comparisons) numpy's own
+    reduction answers, so the result is bit for bit ``points.min(axis=0)``."""
+    return _by_column(points, np.min)
+
+
+def column_max(points: np.ndarray) -> np.ndarray:
+    """``points.max(axis=0)``, as :func:`column_min`."""
+    return _by_column(points, np.max)
+
+
+def _by_column(points: np.ndarray, reduce) -> np.ndarray:
+    points = np.asarray(points)
+    if points.ndim != 2 or len(points) == 0 or points.dtype.kind != "f":
+        return reduce(points, axis=0)
+    out = np.array([reduce(points[:, k]) for k in range(points.shape[1])], dtype=points.dtype)
+    if not (np.isfinite(out).all() and (out != 0).all()):
+        return reduce(points, axis=0)
+    return out
+
+
 def check_coordinate_range(path, points: np.ndarray) -> None:
     """Refuse coordinates that areas and volumes cannot be computed with (LoadError).
 
@@ -391,7 +415,7 @@ def check_coordinate_range(path, points: np.ndarray) -> None:
             f"has coordinates too large to compute with (up to {largest:.3g}; areas and volumes would "
             f"overflow beyond {MAX_COORDINATE:.0e})",
         )
-    extent = float(np.max(points.max(axis=0) - points.min(axis=0)))
+    extent = float(np.max(column_max(points) - column_min(points)))
     if 0 < extent < MIN_EXTENT:
         raise LoadError(
             path, f"is too small to compute with (extent {extent:.3g}; areas and volumes would underflow to zero)"

@@ -46,6 +46,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.spatial.distance import pdist
 
+from ..io.base import column_max, column_min
 from .mesh import unit_normals
 from .occlusion import NativeScene, OcclusionScene, _thread_pool, native_pairs
 from .parameters import CLASS_NAMES, IN, MIXED, OUT  # noqa: F401 (re-exported: the class codes)
@@ -110,7 +111,7 @@ def pair_blocks(count: int, rows: int = BLOCK_ROWS) -> tuple:
 
 def normalise(vertices: np.ndarray, points: np.ndarray):
     """Centre on the bounding box and scale to a unit diagonal; returns (vertices, points, scale)."""
-    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    lo, hi = column_min(vertices), column_max(vertices)
     centre = (lo + hi) / 2
     diagonal = float(np.linalg.norm(hi - lo))
     scale = 1.0 / diagonal if diagonal > 0 else 1.0
@@ -219,7 +220,7 @@ def _float32_ends(points: np.ndarray, normals: np.ndarray):
 def spatial_order(points: np.ndarray) -> np.ndarray:
     """The points' indices in Morton (Z-curve) order of a 1024^3 grid over their bounds:
     points near each other come near each other, so rays to them run side by side."""
-    lo, hi = points.min(axis=0), points.max(axis=0)
+    lo, hi = column_min(points), column_max(points)
     cell = ((points - lo) / np.maximum(hi - lo, 1e-300) * 1023).astype(np.uint64)
     code = np.zeros(len(points), dtype=np.uint64)
     for bit in range(10):

@@ -21,16 +21,37 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from ..ragged import offsets_of
+from ..io.base import column_max, column_min
 
 
 # ----------------------------------------------------------------------------------
 # geometry helpers
 
 
+def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross(a, b)`` of two (k, 3) float64 arrays, by the same products and differences in
+    the same order (so bit for bit the same), without np.cross's copies of both arguments."""
+    if not (a.ndim == b.ndim == 2 and a.shape == b.shape and a.shape[1] == 3 and a.dtype == b.dtype == np.float64):
+        return np.cross(a, b)
+    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
+    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    out = np.empty(a.shape)
+    cp0, cp1, cp2 = out[:, 0], out[:, 1], out[:, 2]
+    np.multiply(a1, b2, out=cp0)
+    cp0 -= a2 * b1
+    tmp = a0 * b2
+    np.multiply(a2, b0, out=cp1)
+    cp1 -= tmp
+    np.multiply(a0, b1, out=cp2)
+    np.multiply(a1, b0, out=tmp)
+    cp2 -= tmp
+    return out
+
+
 def triangle_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Cross products (b - a) x (c - a): normal direction times twice the area, (k, 3)."""
     a = vertices[faces[:, 0]]
-    return np.cross(vertices[faces[:, 1]] - a, vertices[faces[:, 2]] - a)
+    return cross3(vertices[faces[:, 1]] - a, vertices[faces[:, 2]] - a)
 
 
 def unit_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -64,7 +85,7 @@ def signed_volumes(vertices: np.ndarray, faces: np.ndarray, origin=None) -> np.n
     a = vertices[faces[:, 0]] - origin
     b = vertices[faces[:, 1]] - origin
     c = vertices[faces[:, 2]] - origin
-    return np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
+    return np.einsum("ij,ij->i", a, cross3(b, c)) / 6.0
 
 
 def unique_indices(indices: np.ndarray, return_inverse: bool = False):
@@ -251,7 +272,7 @@ def merge_vertices(vertices: np.ndarray, faces: np.ndarray, relative_tolerance: 
     """
     used, inverse = unique_indices(faces, return_inverse=True)
     points = vertices[used]
-    lo, hi = points.min(axis=0), points.max(axis=0)
+    lo, hi = column_min(points), column_max(points)
     step = max(float(np.linalg.norm(hi - lo)), 1e-300) * relative_tolerance
     keys = np.round((points - lo) / step).astype(np.int64)
     first, group = group_rows(keys)
@@ -294,8 +315,10 @@ def far_pieces(vertices: np.ndarray, triangles: np.ndarray):
     if len(triangles) < 2:
         return None, 0.0, 0.0
     corners = vertices[triangles]  # (k, 3, 3)
-    lo, hi = corners.min(axis=1), corners.max(axis=1)  # each triangle's box
-    extent = float(np.max(hi.max(axis=0) - lo.min(axis=0)))
+    # each triangle's box (corner by corner, as numpy's reduction over the corners compares them)
+    lo = np.minimum(np.minimum(corners[:, 0], corners[:, 1]), corners[:, 2])
+    hi = np.maximum(np.maximum(corners[:, 0], corners[:, 1]), corners[:, 2])
+    extent = float(np.max(column_max(hi) - column_min(lo)))
     local = np.max(hi - lo, axis=1)
     if not extent > 0 or float(np.median(local)) >= FAR_CHECK * extent:
         return None, 0.0, 0.0
@@ -423,7 +446,7 @@ def remove_bad_faces(vertices: np.ndarray, faces: np.ndarray, relative_area: flo
     wall = int(copies[walls].sum())
     duplicate = len(faces) - len(first) - (wall - int(walls.sum()))
     faces = faces[np.sort(first[~walls])]
-    diag2 = float(np.sum((vertices.max(axis=0) - vertices.min(axis=0)) ** 2))
+    diag2 = float(np.sum((column_max(vertices) - column_min(vertices)) ** 2))
     flat = int(np.sum(triangle_areas(vertices, faces) <= relative_area * diag2))
     return faces, int(repeated.sum()), int(duplicate), flat, int(wall)
 
@@ -462,14 +485,14 @@ def same_quad_diagonals(vertices: np.ndarray, faces: np.ndarray, tolerance: floa
     b = faces[t2, (slot2 + 2) % 3]  # t2's
     pu, pv, pa, pb = vertices[u], vertices[v], vertices[a], vertices[b]
     scale2 = np.einsum("ij,ij->i", pv - pu, pv - pu)
-    n1 = np.cross(pv - pu, pa - pu)
-    n2 = np.cross(pv - pu, pb - pu)
+    n1 = cross3(pv - pu, pa - pu)
+    n2 = cross3(pv - pu, pb - pu)
     # one plane: b lies on a's plane; convex: a and b on opposite sides of u-v, u and v of a-b
     height = np.abs(np.einsum("ij,ij->i", n1, pb - pu)) / np.maximum(np.linalg.norm(n1, axis=1), 1e-300)
     flat = height <= tolerance * np.sqrt(scale2)
     opposite_ab = np.einsum("ij,ij->i", n1, n2) < 0
-    m1 = np.cross(pb - pa, pu - pa)
-    m2 = np.cross(pb - pa, pv - pa)
+    m1 = cross3(pb - pa, pu - pa)
+    m2 = cross3(pb - pa, pv - pa)
     opposite_uv = np.einsum("ij,ij->i", m1, m2) < 0
     quad = flat & opposite_ab & opposite_uv & (a != b)
     t1, t2, u, v, a, b = t1[quad], t2[quad], u[quad], v[quad], a[quad], b[quad]

@@ -120,10 +120,11 @@ def shape_facts(vertices: np.ndarray, faces: np.ndarray) -> dict:
     vertices = np.asarray(vertices, dtype=np.float64)
     if len(faces) == 0 or len(vertices) == 0:
         return dict(UNKNOWN)
+    from ..io.base import column_max, column_min
     from .mesh import unique_indices  # here: this module is imported without scipy
 
     used = vertices[unique_indices(faces)]
-    bounds = tuple(np.concatenate([used.min(axis=0), used.max(axis=0)]).tolist())
+    bounds = tuple(np.concatenate([column_min(used), column_max(used)]).tolist())
     try:
         _, _, covariance, third = surface_moments(vertices, faces)
     except ValueError:
