@@ -11,24 +11,32 @@ open:
   the leading principal components of each coarse histogram and of the normal-angle
   histograms), and cut into blocks of :data:`BLOCK` entries;
 * each block keeps, per feature a metric reads, the interval its entries span: each coarse
-  bin's probability (``rank/H/coarse`` over the entry's total), the largest bin count, each
-  class fraction, each class scale, the square root of each normal-angle probability.
+  bin's probability at two levels (``rank/H/coarse``, 8 bins summed, and the finer level of
+  :data:`FINE`, read from the counts), the largest bin count, each class fraction, each class
+  scale, the square root of each normal-angle probability;
+* each entry keeps, in block order, its probabilities at the finer level (float16), its bin
+  counts, class fractions and class scales: its own bound without a gather from the mapped
+  arrays.
 
 For a query, every block's distance is bounded from below at once by the metric's own
 formula (:attr:`shapeidx.distance.metrics.Metric.value`) over per-feature lower bounds: a
 bin whose query value lies outside the block's interval contributes at least its gap to it
-(the L1 distance of probabilities, of coarse ones no more than of the full ones; the
+(the L1 distance of probabilities, of summed ones no more than of the full ones; the
 Hellinger distance of the angle histograms term by term), and every formula of the registry
-grows with each feature. Blocks are then taken nearest bound first; the exact distances of
-their entries (:func:`shapeidx.search.distances.distances`, bit for bit those of a full
-ranking) set the current ``top``-th distance, and the search stops when no block left has a
-bound at or below it. Every entry that could be in the answer, or tie with its last hit, has
-been measured exactly: the answer is the full ranking's (tests/test_blocks.py).
+grows with each feature. Blocks are then taken nearest bound first, in rounds; each round's
+entries are bounded one by one (the finer level's L1 in float32, less what float16 and
+float32 rounding can take off it: :func:`float16_slack`, :func:`~shapeidx.search.distances.float32_slack`),
+and those the bound cannot rule out are measured exactly
+(:func:`shapeidx.search.distances.distances`, bit for bit those of a full ranking); the
+exact distances set the current ``top``-th distance, and the search stops when no block left
+has a bound at or below it. Every entry that could be in the answer, or tie with its last
+hit, has been measured exactly: the answer is the full ranking's (tests/test_blocks.py).
 
-The index costs two passes over the coarse histograms and a principal-axis tree to build
-(31-44 s per 10^6 entries on a loaded 2-core machine) and holds about ``2 x features x 8``
-bytes per block, one position per entry (8 MB per 10^6) and the coarse probabilities of the
-histograms of :data:`CACHED` (88 bytes an entry for ALL).
+The index costs a pass over the coarse histograms, one over the counts and a principal-axis
+tree to build (about 50 s per 10^6 entries on a loaded 2-core machine, 12-25 s quieter) and
+holds about 630 bytes an entry (566 of float16 probabilities, 48 of fractions and scales, 16
+of bin counts; 8 of position), plus the blocks' intervals (a few MB per 10^6) and what the
+view keeps (the normal-angle probabilities, 544 bytes an entry).
 """
 
 from __future__ import annotations
