@@ -160,6 +160,98 @@ class TestSplit:
         assert split_parts(single) is None
 
 
+def _kuka_objects(path: Path) -> list[str]:
+    """The objects a KUKA model declares, read from its text: each ``DEF AOBJ_... Transform``
+    whose one Shape has an IndexedFaceSet (the others hold an IndexedLineSet: an axis)."""
+    text = path.read_bytes().decode("latin-1")
+    objects = re.findall(r"DEF\s+(AOBJ_[0-9_]+)\s+Transform\s*\{\s*children\s*\[\s*Shape\s*\{(?:(?!Shape).)*?geometry\s+(\w+)",
+                         text, re.S)
+    return sorted(name for name, geometry in objects if geometry == "IndexedFaceSet")
+
+
+_GROUPED_VRML = """#VRML V2.0 utf8
+DEF Board Transform { children [
+  DEF Body Transform { children [ Shape { geometry Box { size 20 10 5 } } ] }
+  DEF Pin Transform { translation 1 2 3 children [ Shape { geometry Cylinder { radius 0.3 height 4 } } ] }
+  Transform { translation 5 0 0 rotation 0 1 0 0.7 children [ USE Pin ] }
+  Transform { translation 9 1 0 rotation 1 1 0 2.1 children [ USE Pin ] }
+  DEF Colour Group { children [ Shape { geometry IndexedFaceSet {
+    coord Coordinate { point [ 0 0 0, 1 0 0, 1 2 0, 0 0 3,  10 0 0, 11 0 0, 11 2 0, 10 0 3,  0 10 0, 1 10 0, 1 12 0, 0 10 3 ] }
+    coordIndex [ 0 2 1 -1 0 1 3 -1 1 2 3 -1 0 3 2 -1  4 6 5 -1 4 5 7 -1 5 6 7 -1 4 7 6 -1  8 10 9 -1 8 9 11 -1 9 10 11 -1 8 11 10 -1 ]
+  } } ] }
+  Shape { geometry IndexedFaceSet {
+    coord Coordinate { point [ 0 0 20, 2 0 20, 2 4 20, 0 0 26,  30 0 20, 32 0 20, 32 4 20, 30 0 26 ] }
+    coordIndex [ 0 2 1 -1 0 1 3 -1 1 2 3 -1 0 3 2 -1  4 6 5 -1 4 5 7 -1 5 6 7 -1 4 7 6 -1 ]
+  } }
+] }
+"""
+
+
+class TestVrmlGroups:
+    """A VRML file that groups its geometry is split along its groups, then each group
+    into its bodies; a flat one (KiCad) into its bodies, as before."""
+
+    @pytest.mark.parametrize("name", ["kr16.wrl", "kr125_3.wrl", "kr500_1.wrl"])
+    def test_kuka_robot_objects_are_its_parts(self, data_dir, name):
+        from shapeidx.io.vrml.groups import vrml_groups
+
+        path = data_dir / "vrml-wild" / "freecad-kuka" / name
+        declared = _kuka_objects(path)
+        assert len(declared) >= 20
+        assert sorted(n for n, _ in vrml_groups(path)) == declared
+        parts = split_parts(path)
+        assert {p.name for p in parts} <= set(declared)
+        assert sum(p.count for p in parts) >= len(declared)  # an object may hold several bodies
+
+    def test_a_moved_robot_gives_the_same_parts(self, data_dir, tmp_path):
+        """Placement invariance: the whole file under one more Transform (a rotation and a
+        translation) gives the same parts, each at the same distances from its own origin
+        (the vertices themselves where the part's principal axes are defined: a part with an
+        axis of symmetry may turn about it)."""
+        path = data_dir / "vrml-wild" / "freecad-kuka" / "kr16.wrl"
+        body = path.read_text(encoding="latin-1").split("\n", 1)[1]
+        moved = tmp_path / "moved.wrl"
+        moved.write_text("#VRML V2.0 utf8\nTransform { rotation 0.3 -0.5 0.8 1.1 translation 250 -40 900 children [\n"
+                         + body + "\n] }\n", encoding="latin-1")
+        a, b = split_parts(path), split_parts(moved)
+        assert [(p.name, p.count) for p in a] == [(p.name, p.count) for p in b]
+        turned = 0
+        for p, q in zip(a, b):
+            extent = np.ptp(p.mesh.vertices, axis=0).max()
+            norms = [np.linalg.norm(m.mesh.vertices, axis=1) for m in (p, q)]
+            np.testing.assert_allclose(norms[0], norms[1], atol=1e-6 * extent)
+            spread = np.sort(np.linalg.eigvalsh(np.cov(p.mesh.vertices.T)))
+            if np.min(np.diff(spread)) > 0.01 * spread[-1]:
+                np.testing.assert_allclose(p.mesh.vertices, q.mesh.vertices, atol=1e-6 * extent)
+            else:
+                turned += 1
+        assert turned < len(a)  # some parts compared vertex by vertex
+
+    def test_groups_then_bodies_with_def_names(self, tmp_path):
+        path = tmp_path / "board.wrl"
+        path.write_text(_GROUPED_VRML)
+        parts = split_parts(path)
+        # the pin defined once and USEd twice more; the colour group's three tetrahedra;
+        # the two tetrahedra loose in the top group: a body each, named after that group
+        assert sorted((p.name, p.count) for p in parts) == [("Board", 2), ("Body", 1), ("Colour", 3), ("Pin", 3)]
+        assert all(p.mesh.metadata["title"] == p.name for p in parts)
+
+    def test_kicad_flat_file_is_split_into_bodies_as_before(self, data_dir, monkeypatch):
+        from shapeidx.io import load
+        from shapeidx.io.parts import _mesh_parts
+        from shapeidx.io.vrml import fast
+        from shapeidx.io.vrml.groups import vrml_groups
+
+        path = data_dir / "kicad6" / "Transformer_THT" / "Transformer_CHK_EI54-12VA_Neutral.wrl"
+        assert vrml_groups(path) is None
+        parts, bodies = split_parts(path), _mesh_parts(load(path))
+        assert [(p.name, p.count) for p in parts] == [("", p.count) for p in bodies]
+        for p, q in zip(parts, bodies):
+            np.testing.assert_array_equal(p.mesh.vertices, q.mesh.vertices)
+        monkeypatch.setattr(fast, "available", False)  # the Python reader sees no group either
+        assert vrml_groups(path) is None
+
+
 class TestOwnFrame:
     def test_own_frame_undoes_a_rigid_motion(self):
         trimesh = pytest.importorskip("trimesh")
