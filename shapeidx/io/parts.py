@@ -40,8 +40,11 @@ import numpy as np
 from ..errors import LoadError
 from .base import LoadLimits, PolygonMesh, read_bytes
 
-__all__ = ["SubPart", "split_parts", "own_frame", "MAX_PARTS", "SAME_TOLERANCE"]
+__all__ = ["SubPart", "split_parts", "own_frame", "MAX_PARTS", "SAME_TOLERANCE", "PARTS_VERSION"]
 
+#: Raised whenever the same file would split differently (other sub-parts, another order):
+#: pictures of sub-parts are cached under it (2: VRML files split along their groups).
+PARTS_VERSION = 2
 #: Sub-parts a file gives at most (distinct ones; a file with more keeps the largest).
 MAX_PARTS = 200
 #: Two sub-parts are the same part when each invariant agrees to this share.
@@ -89,7 +92,10 @@ def split_parts(path, limits: LoadLimits | None = None, format_name: str | None 
     path = Path(path)
     name = format_name or format_of(path)
     if name in ("step", "iges"):
-        return _solid_model_parts(path, limits)
+        from .step import _contained
+
+        # OpenCASCADE in a child process (a build worker is its own): a crash costs one error line
+        return _contained(_solid_model_parts, path, limits)
     if name == "vrml":
         from .vrml.groups import vrml_groups
 
