@@ -99,7 +99,7 @@ def split_parts(path, limits: LoadLimits | None = None, format_name: str | None 
     if name == "vrml":
         from .vrml.groups import vrml_groups
 
-        grouped = vrml_groups(path, limits)
+        grouped = vrml_groups(path, limits, MIN_AREA_SHARE)
         if grouped is not None:
             return _grouped_parts(grouped)
     return _mesh_parts(mesh if mesh is not None else load(path, limits, name))
@@ -285,12 +285,7 @@ def _mesh_parts(mesh: PolygonMesh) -> list[SubPart] | None:
         return None
     areas = _areas(vertices, triangles)
     total = float(areas.sum())
-    bodies = []
-    for k in range(count):
-        mine = labels == k
-        area = float(areas[mine].sum())
-        if area > MIN_AREA_SHARE * total:
-            bodies.append(np.flatnonzero(mine))
+    bodies = [mine for mine in members_of(labels) if float(areas[mine].sum()) > MIN_AREA_SHARE * total]
     if len(bodies) <= 1:
         return None
     meshes = [_sub_mesh(vertices, triangles[chosen], mesh) for chosen in bodies]
@@ -314,8 +309,7 @@ def _grouped_parts(grouped: list[tuple[str, PolygonMesh]]) -> list[SubPart] | No
         polygon_of = np.repeat(np.arange(len(mesh.face_sizes)), np.asarray(mesh.face_sizes) - 2)
         labels = _components(_merge_coincident(vertices, triangles), len(vertices))
         areas = _areas(vertices, triangles)
-        for body in range(int(labels.max()) + 1):
-            mine = labels == body
+        for mine in members_of(labels):
             piece = _polygons_of(mesh, np.unique(polygon_of[mine]))
             pieces.append((name, piece, _triangles_of(piece), float(areas[mine].sum())))
     total = sum(piece[3] for piece in pieces)
@@ -343,6 +337,17 @@ def _polygons_of(mesh: PolygonMesh, polygons: np.ndarray) -> PolygonMesh:
     used, local = np.unique(np.asarray(mesh.face_indices)[np.repeat(chosen, sizes)], return_inverse=True)
     return PolygonMesh(np.asarray(mesh.vertices, dtype=np.float64)[used], sizes[chosen],
                        local.reshape(-1).astype(np.int64), mesh.format)
+
+
+def members_of(labels: np.ndarray) -> list[np.ndarray]:
+    """The indices holding each label, label by label (one sort: a mesh of a million separate
+    triangles has a million labels)."""
+    labels = np.asarray(labels)
+    if len(labels) == 0:
+        return []
+    order = np.argsort(labels, kind="stable")
+    cuts = np.flatnonzero(np.diff(labels[order])) + 1
+    return np.split(order, cuts)
 
 
 def _triangles_of(mesh: PolygonMesh) -> np.ndarray:

@@ -45,9 +45,11 @@ _GROUPS = {2: V2_GROUPS | {"Switch", "LOD", "Inline"},
 _OWN = -1  # label of geometry outside every part node (Shapes at the top of the file)
 
 
-def vrml_groups(path, limits: LoadLimits | None = None) -> list[tuple[str, PolygonMesh]] | None:
+def vrml_groups(path, limits: LoadLimits | None = None, min_area_share: float = 0.0) -> list[tuple[str, PolygonMesh]] | None:
     """``[(name, mesh)]``, one per part instance in the file's grouping (in world
     coordinates, polygons as read), or None when the file is flat or is one group.
+    Instances whose area is not above ``min_area_share`` of the file's are left out (specks:
+    a file of a hundred thousand tiny groups costs one pass, not one per group).
 
     Raises
     ------
@@ -60,7 +62,7 @@ def vrml_groups(path, limits: LoadLimits | None = None) -> list[tuple[str, Polyg
     if fast.available and fast.load_flat(path, data, limits, lambda *_: None) is not None:
         return None  # top-level Shapes only (the compiled reader refuses any group node)
     load = _GroupsLoad(path, limits, data)
-    return load.run_groups()
+    return load.run_groups(min_area_share)
 
 
 class _MarkingWalker(SceneWalker):
@@ -115,7 +117,7 @@ class _GroupsLoad(_VrmlLoad):
         self.walker = _MarkingWalker(self.resolve_inline, self.warnings, self.where)
         self.walker.marks = {}
 
-    def run_groups(self) -> list[tuple[str, PolygonMesh]] | None:
+    def run_groups(self, min_area_share: float = 0.0) -> list[tuple[str, PolygonMesh]] | None:
         top = self.read_scene(self.path)
         self.inline_stack.append(os.path.realpath(self.path))
         triangles = visits = 0
@@ -133,15 +135,22 @@ class _GroupsLoad(_VrmlLoad):
         vertices, sizes, corners = builder.arrays()
         if len(sizes) == 0:
             return None
+        from ..parts import _areas, _triangles_of, members_of
+
         labels = np.repeat(np.array(builder.block_labels, dtype=np.int64), [len(s) for s in builder.size_blocks])
-        corner_labels = np.repeat(labels, sizes)
+        whole = PolygonMesh(vertices, sizes, corners, f"vrml{top.version}")
+        areas = _areas(vertices, _triangles_of(whole))  # of the fans, polygon by polygon
+        areas = np.bincount(np.repeat(np.arange(len(sizes)), sizes - 2), weights=areas, minlength=len(sizes))
         fmt = f"vrml{top.version}"
         found = []
-        for label in np.unique(labels):
-            used, local = np.unique(corners[corner_labels == label], return_inverse=True)
-            mesh = PolygonMesh(vertices[used], sizes[labels == label], local.reshape(-1).astype(np.int64), fmt)
+        for polygons, corner_at in zip(members_of(labels), members_of(np.repeat(labels, sizes))):
+            label = int(labels[polygons[0]])
+            if not areas[polygons].sum() > min_area_share * areas.sum():
+                continue  # a speck
+            used, local = np.unique(corners[corner_at], return_inverse=True)
+            mesh = PolygonMesh(vertices[used], sizes[polygons], local.reshape(-1).astype(np.int64), fmt)
             found.append(("" if label == _OWN else builder.names[label], mesh))
-        return found if len(found) > 1 else None
+        return found or None
 
     def _holds(self, node: Node) -> bool:
         known = self.walker._counts.get(id(node))
