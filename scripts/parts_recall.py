@@ -1,6 +1,8 @@
 """Does a pin or a body taken out of a KiCad STEP file find the files that use it? (docs/assemblies.md)
 
     python scripts/parts_recall.py STORE [--tree ../shared/data/kicad6-step] [--metric weighted ...]
+    python scripts/parts_recall.py STORE --tree /work/debian/step --metric all-angle --scale sensitive \
+        --sample 200 --truth-cache step-truth.json        # a whole library: a random 200 of its solids
 
 STORE must be built from the tree with ``shapeidx build TREE --store STORE --parts``.
 
@@ -17,7 +19,9 @@ Reported per metric and ``--scale`` (sensitive: where-used's default, sub-parts 
 size left out; invariant: the paper's): R-precision (of the R files that hold the part, how
 many are in the top R), recall in the top 10, precision and recall with ``--max-distance``
 at the metric's duplicate thresholds (``same`` and ``near``, shapeidx/distance/thresholds.json),
-and how often the reported count of a relevant file found in the top R is right.
+and how often the reported count of a relevant file found in the top R is right;
+``--show-wrong`` lists each file whose count is wrong (the query's file, the file, our count,
+the truth's), per run.
 """
 
 from __future__ import annotations
@@ -71,6 +75,25 @@ def same(a: np.ndarray, b: np.ndarray) -> bool:
     return bool(np.all(np.abs(a - b) <= TOLERANCE * scale + 1e-9 * np.max(scale)))
 
 
+def same_rows(table: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """The rows of ``table`` that are the same solid as ``inv`` (``same``, vectorised)."""
+    scale = np.maximum(np.abs(table), np.abs(inv))
+    return np.all(np.abs(table - inv) <= TOLERANCE * scale + 1e-9 * scale.max(axis=1, keepdims=True), axis=1)
+
+
+def read_truth(tree: Path, files: list, cache: Path | None) -> dict:
+    """Each file's solids' invariants (relative path -> list of arrays), read with OCCT once."""
+    known = json.loads(cache.read_text()) if cache and cache.exists() else {}
+    if known.get("tree") != str(tree):
+        known = {"tree": str(tree), "files": {}}
+    for name in files:
+        if name not in known["files"]:
+            known["files"][name] = [invariants(s).tolist() for s in solids_of(tree / name)]
+    if cache:
+        cache.write_text(json.dumps(known))
+    return {name: [np.array(v) for v in known["files"][name]] for name in files}
+
+
 def random_rigid(rng):
     from OCP.gp import gp_Quaternion, gp_Trsf, gp_Vec
 
@@ -103,6 +126,9 @@ def main() -> None:
     parser.add_argument("--same-size", action="append", dest="sizes", type=float)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", dest="json_out")
+    parser.add_argument("--show-wrong", action="store_true", help="list the files whose reported count is wrong")
+    parser.add_argument("--sample", type=int, help="ask a random N of the distinct solids (a whole library has thousands)")
+    parser.add_argument("--truth-cache", help="JSON file keeping the solids' invariants between runs")
     args = parser.parse_args()
     metrics = args.metrics or ["weighted", "combined-angle", "all-angle", "all"]
     scales = args.scales or ["sensitive", "invariant"]
@@ -114,29 +140,32 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
 
     started = time.monotonic()
-    files = sorted(p for p in tree.rglob("*") if p.suffix.lower() in (".step", ".stp"))
-    truth = {}  # relative path -> list of (invariants, solid)
-    for path in files:
-        truth[path.relative_to(tree).as_posix()] = [(invariants(s), s) for s in solids_of(path)]
+    files = sorted(p.relative_to(tree).as_posix() for p in tree.rglob("*") if p.suffix.lower() in (".step", ".stp"))
+    truth = read_truth(tree, files, Path(args.truth_cache) if args.truth_cache else None)
     print(f"read {len(files)} files' solids in {time.monotonic() - started:.0f} s", file=sys.stderr)
 
-    queries = []  # (file, solid, invariants, {file: count})
-    for name, solids in truth.items():
-        if len(solids) < 2:
-            continue
+    # every solid of every file in one array: which file, its invariants
+    owner = np.array([i for i, name in enumerate(files) for _ in truth[name]], dtype=np.int64)
+    table = np.array([inv for name in files for inv in truth[name]]).reshape(-1, 5)
+    questions = []  # (file, index of the solid in the file, invariants, {file: count})
+    for name in files:
         distinct: list = []
-        for inv, solid in solids:
-            if not any(same(inv, d[0]) for d in distinct):
-                distinct.append((inv, solid))
-        for inv, solid in distinct:
-            holders = {}
-            for other, their in truth.items():
-                n = sum(same(inv, i) for i, _ in their)
-                if n:
-                    holders[other] = n
-            queries.append((name, solid, inv, holders))
-    multi = sum(len(s) >= 2 for s in truth.values())
-    print(f"{multi} files with several solids, {len(queries)} distinct solids asked", file=sys.stderr)
+        if len(truth[name]) < 2:
+            continue
+        for index, inv in enumerate(truth[name]):
+            if not any(same(inv, truth[name][d]) for d in distinct):
+                distinct.append(index)
+        for index in distinct:
+            inv = truth[name][index]
+            holders = np.bincount(owner[same_rows(table, inv)], minlength=len(files))
+            questions.append((name, index, inv, {files[f]: int(holders[f]) for f in np.flatnonzero(holders)}))
+    multi = sum(len(truth[name]) >= 2 for name in files)
+    print(f"{multi} files with several solids, {len(questions)} distinct solids", file=sys.stderr)
+    distinct_solids = len(questions)
+    if args.sample and args.sample < len(questions):
+        questions = [questions[i] for i in sorted(rng.choice(len(questions), args.sample, replace=False))]
+        print(f"asking a random {len(questions)} of them (--sample, --seed {args.seed})", file=sys.stderr)
+    queries = [(name, solids_of(tree / name)[index], inv, holders) for name, index, inv, holders in questions]
 
     from shapeidx.search import Searcher
     from shapeidx.search.where_used import where_used
@@ -144,7 +173,7 @@ def main() -> None:
     sizes = args.sizes or [0.05]
     runs = [(m, sc, z) for m in metrics for sc in scales for z in sizes]
     limits = {m: duplicate_thresholds(m) for m in metrics}
-    results = {run: {"r_precision": [], "recall_10": [], "count_right": [], "count_right_same": [],
+    results = {run: {"r_precision": [], "recall_10": [], "count_right": [], "count_right_same": [], "wrong": [],
                      "at": {t: [0, 0, 0] for t in limits[run[0]]}} for run in runs}
     with tempfile.TemporaryDirectory() as folder, Searcher(args.store, parts=True) as searcher:
         for k, (name, solid, inv, holders) in enumerate(queries):
@@ -160,6 +189,10 @@ def main() -> None:
                 res["recall_10"].append(len(set(ranked[:10]) & set(holders)) / r)
                 res["count_right"].extend(u.count == holders[u.relative_path] for u in answer.uses[:r]
                                           if u.relative_path in holders)
+                res["wrong"].extend({"query": name, "file": u.relative_path, "part": u.part, "count": u.count,
+                                     "truth": holders[u.relative_path], "distance": u.distance}
+                                    for u in answer.uses[:r]
+                                    if u.relative_path in holders and u.count != holders[u.relative_path])
                 for tier, t in limits[metric].items():
                     within = {u.relative_path for u in where_used(searcher, question, top=10**6, metric=metric,
                                                                    max_distance=t, scale=scale, same_size=size).uses}
@@ -172,7 +205,7 @@ def main() -> None:
                     res["at"][tier][1] += len(within)
                     res["at"][tier][2] += r
     summary = {"machine": machine(), "tree": str(tree), "files": len(files), "multi_solid_files": multi,
-               "queries": len(queries), "relevant_files": int(sum(len(q[3]) for q in queries)), "runs": []}
+               "distinct_solids": distinct_solids, "queries": len(queries), "relevant_files": int(sum(len(q[3]) for q in queries)), "runs": []}
     for (metric, scale, size), res in results.items():
         summary["runs"].append({
             "metric": metric, "scale": scale, "same_size": size,
@@ -180,6 +213,7 @@ def main() -> None:
             "recall_top10": float(np.mean(res["recall_10"])),
             "count_right": f"{sum(res['count_right'])}/{len(res['count_right'])}",
             "count_right_within_same": f"{sum(res['count_right_same'])}/{len(res['count_right_same'])}",
+            "wrong_counts": res["wrong"],
             "max_distance": {tier: {"threshold": limits[metric][tier], "precision": (f / w if w else float("nan")),
                                     "recall": f / r} for tier, (f, w, r) in res["at"].items()},
         })
@@ -190,6 +224,9 @@ def main() -> None:
         print(f"{run['metric']:15s} {run['scale']:9s} same-size {run['same_size']}  R-precision {run['r_precision']:.3f}  recall@10"
               f" {run['recall_top10']:.3f}  count right {run['count_right']} (within same: {run['count_right_within_same']})"
               f"  {tiers}")
+        if args.show_wrong:
+            for w in run["wrong_counts"]:
+                print(f"    wrong count: pin of {w['query']} in {w['file']} ({w['part']}): {w['count']}, truth {w['truth']}")
     if args.json_out:
         Path(args.json_out).write_text(text + "\n")
 
