@@ -483,6 +483,16 @@ def same_quad_diagonals(vertices: np.ndarray, faces: np.ndarray, tolerance: floa
     v = faces[t1, (slot1 + 1) % 3]
     a = faces[t1, (slot1 + 2) % 3]  # t1's corner off the shared edge
     b = faces[t2, (slot2 + 2) % 3]  # t2's
+    # only a pair whose four corners another pair also has can be a repeated quadrilateral:
+    # the geometry is needed for those and for every pair sharing a triangle with them (has
+    # the triangle one partner?); the others are groups of one, which nothing changes
+    repeats = _shared_corner_sets(u, v, a, b)
+    if not repeats.any():
+        return faces
+    involved = np.zeros(len(faces), dtype=bool)
+    involved[t1[repeats]] = involved[t2[repeats]] = True
+    near = involved[t1] | involved[t2]
+    t1, t2, u, v, a, b, repeats = t1[near], t2[near], u[near], v[near], a[near], b[near], repeats[near]
     pu, pv, pa, pb = vertices[u], vertices[v], vertices[a], vertices[b]
     scale2 = np.einsum("ij,ij->i", pv - pu, pv - pu)
     n1 = cross3(pv - pu, pa - pu)
@@ -495,9 +505,9 @@ def same_quad_diagonals(vertices: np.ndarray, faces: np.ndarray, tolerance: floa
     m2 = cross3(pb - pa, pv - pa)
     opposite_uv = np.einsum("ij,ij->i", m1, m2) < 0
     quad = flat & opposite_ab & opposite_uv & (a != b)
-    t1, t2, u, v, a, b = t1[quad], t2[quad], u[quad], v[quad], a[quad], b[quad]
-    partners = np.bincount(np.concatenate([t1, t2]), minlength=len(faces))
-    alone = (partners[t1] == 1) & (partners[t2] == 1)
+    t1, t2, u, v, a, b, repeats = t1[quad], t2[quad], u[quad], v[quad], a[quad], b[quad], repeats[quad]
+    partners = np.bincount(np.concatenate([t1, t2]), minlength=len(faces))  # exact for the involved triangles
+    alone = (partners[t1] == 1) & (partners[t2] == 1) & repeats
     t1, t2, u, v, a, b = t1[alone], t2[alone], u[alone], v[alone], a[alone], b[alone]
     if len(t1) < 2:
         return faces
@@ -512,6 +522,23 @@ def same_quad_diagonals(vertices: np.ndarray, faces: np.ndarray, tolerance: floa
     faces[t1[change]] = faces[t1[lead[change]]]
     faces[t2[change]] = faces[t2[lead[change]]]
     return faces
+
+
+def _shared_corner_sets(*corners: np.ndarray) -> np.ndarray:
+    """Which rows of the corners (one array per corner) may have the same set of corners as
+    another row: a hash of each row's set, the same whatever the order of its corners (a sum
+    of one mixing of each), shared with another row. Rows with equal sets are always marked;
+    a false mark only costs the full test."""
+    mixed = np.zeros(len(corners[0]), dtype=np.uint64)
+    with np.errstate(over="ignore"):
+        for c in corners:
+            x = c.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+            mixed += x ^ (x >> np.uint64(29))
+    order = np.argsort(mixed, kind="stable")
+    same = mixed[order[1:]] == mixed[order[:-1]]
+    marked = np.zeros(len(mixed), dtype=bool)
+    marked[order[1:][same]] = marked[order[:-1][same]] = True
+    return marked
 
 
 def shared_walls(faces: np.ndarray, copies: np.ndarray) -> np.ndarray:
