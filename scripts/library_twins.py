@@ -123,7 +123,7 @@ def origin(path: str) -> tuple[str, str]:
 
 def measure(args) -> int:
     from shapeidx.families.chirality import is_chiral
-    from shapeidx.families.duplicates import find_duplicates, pair_tiers
+    from shapeidx.families.duplicates import TIERS, find_duplicates, pair_tiers
 
     started = time.perf_counter()
     table, n_lib, n_tw = combined_table(args.store, args.twins)
@@ -140,7 +140,7 @@ def measure(args) -> int:
     for g, group in enumerate(groups):
         for m in group["members"]:
             group_of[m] = g
-        entry_of[group["representative"]] = {"tier": "identical", "unit": None, "mirrored": False}
+        entry_of[group["representative"]] = {"tier": "representative", "unit": None, "mirrored": False}
         for pair in group["pairs"]:
             entry_of[pair["b"]] = pair
     chiral = dict(zip(map(str, table.paths), is_chiral(table.handedness)))
@@ -148,7 +148,8 @@ def measure(args) -> int:
              f"`{shlex.join([sys.executable, *sys.argv])}`; {machine()}", "",
              f"{n_lib} library entries, {n_tw} twins; find_duplicates {seconds:.1f} s (table loaded in {load:.1f} s);"
              f" {len(groups)} groups of {sum(len(g['members']) for g in groups)} entries; tiers {', '.join(args.tiers)}", ""]
-    lines += ["| twin | twins | in the original's group | tier: identical, same, near | unit factor reported | mirrored flagged (chiral originals) |",
+    lines += ["| twin | twins | in the original's group | listed in its group as: " + ", ".join(TIERS + ("representative",))
+              + " | unit factor reported | mirrored flagged (chiral originals) |",
               "|---|---|---|---|---|---|"]
     misses = []
     for v in VARIANTS:
@@ -162,12 +163,12 @@ def measure(args) -> int:
         index = {str(p): i for i, p in enumerate(table.paths)}
         said = pair_tiers(table, np.array([index[origin(p)[0]] for p in found], dtype=np.int64),
                           np.array([index[p] for p in found], dtype=np.int64), args.metric, limits=limits)
-        tiers = Counter(said["tier"])
+        tiers = Counter(entry_of[p]["tier"] for p in found)
         units = Counter("none" if not np.isfinite(u) else f"{u:.4g}" for u in said["unit"])
         mirrored = int(sum(bool(m) for p, m in zip(found, said["mirrored"]) if chiral.get(origin(p)[0])))
         chiral_n = sum(bool(chiral.get(origin(p)[0])) for p in twins)
         lines.append(f"| {v} | {len(twins)} | {len(found)} ({len(found) / len(twins):.3f}) |"
-                     f" {tiers.get('identical', 0)}, {tiers.get('same', 0)}, {tiers.get('near', 0)} |"
+                     f" {', '.join(str(tiers.get(t, 0)) for t in TIERS + ('representative',))} |"
                      f" {', '.join(f'{u}: {c}' for u, c in sorted(units.items()))} | {mirrored} of {chiral_n} |")
     total = sum(1 for p in map(str, table.paths) if origin(p)[1] in VARIANTS)
     lines += ["", f"Recall over all twins: {total - len(misses)} of {total} = {(total - len(misses)) / max(total, 1):.4f}", ""]
@@ -249,7 +250,7 @@ def main() -> int:
     q.add_argument("--store", required=True)
     q.add_argument("--twins", required=True)
     q.add_argument("--metric", default="combined-angle")
-    q.add_argument("--tiers", nargs="+", default=["identical", "same"])
+    q.add_argument("--tiers", nargs="+", default=["identical", "same", "converted"])
     q.add_argument("--sample", type=int, default=40)
     q.add_argument("--same-limit", type=float, help="the same tier's distance threshold instead of the metric's")
     q.add_argument("--seed", type=int, default=22)

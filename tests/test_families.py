@@ -473,12 +473,12 @@ def test_one_voter_leave_one_out_is_the_retrieval_nearest_neighbour_score(dup_st
 # ---------------------------------------------------------------------------- issue 22: no chaining, sizes, stored embedding
 
 def test_every_duplicate_member_is_within_the_tier_of_its_representative_and_the_inches_copy_says_its_unit(dup_store):
-    from shapeidx.families.duplicates import EXACT_DISTANCE_FACTOR, find_duplicates, pair_tiers, thresholds
+    from shapeidx.families.duplicates import EXACT_DISTANCE_FACTOR, TIERS, find_duplicates, pair_tiers, thresholds
 
     _, store = dup_store
     with open_store(store) as reader:
         table = FamilyTable.load(reader)
-    groups = find_duplicates(table, "combined-angle", tiers=("identical", "same", "near"))
+    groups = find_duplicates(table, "combined-angle", tiers=TIERS)
     assert groups == sorted(groups, key=lambda g: -g["confidence"])  # most confident first
     limits = thresholds("combined-angle")
     for g in groups:
@@ -486,7 +486,7 @@ def test_every_duplicate_member_is_within_the_tier_of_its_representative_and_the
         a = np.array([table.index_of(g["representative"])] * len(g["pairs"]))
         b = np.array([table.index_of(p["b"]) for p in g["pairs"]])
         said = pair_tiers(table, a, b, "combined-angle")  # asked directly, not through a chain
-        assert all(t in ("identical", "same", "near") for t in said["tier"])
+        assert all(t in TIERS for t in said["tier"])
         assert np.all(said["distance"] <= max(limits["near"], EXACT_DISTANCE_FACTOR * limits["same"]))
     group = next(g for g in groups if CHIRAL in g["members"])
     inches = next(p for p in group["pairs"] if p["b"] == "copies/rgb-inches.stl" or p["a"] == "copies/rgb-inches.stl")
