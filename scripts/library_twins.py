@@ -15,6 +15,17 @@ that is its own mirror image), ``refaceted`` (every triangle split in four, rota
 ``NAME.step``, a link to the library's STEP file of the same package: re-faceted by
 OpenCASCADE, 2.54 times larger (KiCad's VRML unit is 0.1 inch).
 
+``sample`` draws a random sample of the groups ``duplicates`` reports (default tiers) on the
+library's store alone (``--pool all``), or on the library and the twins together, among the
+groups holding a ``converted`` pair (``--pool converted``), and prints each group's members
+with their tier, distance and size (``--sheet DIR``: one PNG of pictures per group), for a
+person to judge.
+
+``formats`` loads a store of VRML files and a store of the STEP files of the same packages
+(same folders and names) as one table and measures ``converted`` with the names as the truth:
+how many STEP files land in the group of their own VRML, and how many pairs listed
+``converted`` join two files of one name.
+
 ``measure`` loads the library's store and the twins' store as one table (the twins' paths
 under ``twins/``), runs :func:`shapeidx.families.duplicates.find_duplicates` on it, and
 reports: recall (a twin in its original's group), the tier, size ratio and unit each lands
@@ -203,6 +214,65 @@ def measure(args) -> int:
     return 0
 
 
+def sample(args) -> int:
+    from shapeidx.families.duplicates import find_duplicates
+    from shapeidx.families.table import FamilyTable
+    from shapeidx.store import open_store
+
+    if args.pool == "all":
+        with open_store(args.store) as reader:
+            table = FamilyTable.load(reader)
+    else:
+        table, _, _ = combined_table(args.store, args.twins)
+    groups = find_duplicates(table, args.metric, threads=args.threads)
+    pool = groups if args.pool == "all" else [g for g in groups if any(p["tier"] == "converted" for p in g["pairs"])]
+    sizes = [len(g["members"]) for g in groups]
+    print(f"`{shlex.join([sys.executable, *sys.argv])}`; {machine()}\n")
+    print(f"{len(groups)} groups of {sum(sizes)} entries (largest {max(sizes, default=0)}, widest"
+          f" {max((len(g['folders']) for g in groups), default=0)} folders; by tier of the weakest member:"
+          f" {dict(Counter(g['tier'] for g in groups))}); {len(pool)} in the pool ({args.pool})\n")
+    rng = np.random.default_rng(args.seed)
+    chosen = [pool[i] for i in sorted(rng.choice(len(pool), min(args.count, len(pool)), replace=False))] if pool else []
+    for g in chosen:
+        print(f"- group {groups.index(g) + 1} (confidence {g['confidence']:.3f}, {g['tier']}, {len(g['members'])} members):"
+              f" `{g['representative']}`; " + "; ".join(
+                  f"`{m['b']}` ({m['tier']}, d {m['distance']:.3g}, size x{m['size_ratio'] or float('nan'):.5g}"
+                  + (f", unit {m['unit']:.4g}" if m.get("unit") else "") + (", mirrored" if m.get("mirrored") else "") + ")"
+                  for m in g["pairs"]))
+    if args.sheet:
+        sheets(chosen, groups, args)
+    return 0
+
+
+def formats(args) -> int:
+    from shapeidx.families.duplicates import find_duplicates
+
+    table, n_vrml, n_step = combined_table(args.store, args.step_store)
+    groups = find_duplicates(table, args.metric, threads=args.threads)
+    paths = [str(p) for p in table.paths]
+    group_of = {m: i for i, g in enumerate(groups) for m in g["members"]}
+    vrml = set(p for p in paths if not p.startswith("twins/"))
+    steps = [p for p in paths if p.startswith("twins/") and str(Path(p[len("twins/"):]).with_suffix(".wrl")) in vrml]
+    together = [p for p in steps if group_of.get(p, -1) == group_of.get(str(Path(p[len("twins/"):]).with_suffix(".wrl")), -2)]
+    converted = [p for g in groups for p in g["pairs"] if p["tier"] == "converted"]
+
+    def stem(path):
+        return str(Path(path[len("twins/"):] if path.startswith("twins/") else path).with_suffix(""))
+
+    other = [p for p in converted if stem(p["a"]) != stem(p["b"])]
+    print(f"`{shlex.join([sys.executable, *sys.argv])}`; {machine()}\n")
+    print(f"{n_vrml} VRML and {n_step} STEP entries; {len(groups)} groups (tiers identical, same, converted)\n")
+    print(f"STEP files whose VRML of the same name is in the store: {len(steps)}; in that VRML's group:"
+          f" {len(together)} ({len(together) / max(len(steps), 1):.3f})")
+    print(f"Pairs listed converted: {len(converted)}; joining two files of one name: {len(converted) - len(other)}")
+    for p in other:
+        print(f"  other names: `{p['a']}` `{p['b']}` (d {p['distance']:.3g})")
+    for p in steps:
+        if p not in together:
+            print(f"  not with its VRML: `{p}`")
+    return 0
+
+
 def sheets(sample, groups, args) -> None:
     """One PNG per sampled group: each member's thumbnail with its name and size."""
     import matplotlib
@@ -259,8 +329,24 @@ def main() -> int:
     q.add_argument("--sheet", help="write one PNG per sampled group into this folder")
     q.add_argument("--library", default="/work/debian/wrl", help="the library's folder (for --sheet)")
     q.add_argument("--twins-root", help="the twins' parts folder (for --sheet)")
+    s = sub.add_parser("sample")
+    s.add_argument("--store", required=True)
+    s.add_argument("--twins", help="the twins' store (for --pool converted)")
+    s.add_argument("--pool", choices=("all", "converted"), default="all")
+    s.add_argument("--metric", default="combined-angle")
+    s.add_argument("--count", type=int, default=30)
+    s.add_argument("--seed", type=int, default=2026)
+    s.add_argument("--threads", type=int, default=2)
+    s.add_argument("--sheet", help="write one PNG per sampled group into this folder")
+    s.add_argument("--library", default="/work/debian/wrl", help="the library's folder (for --sheet)")
+    s.add_argument("--twins-root", help="the twins' parts folder (for --sheet)")
+    f = sub.add_parser("formats")
+    f.add_argument("--store", required=True, help="the VRML files' store")
+    f.add_argument("--step-store", required=True, help="the STEP files' store (same folders and names)")
+    f.add_argument("--metric", default="combined-angle")
+    f.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
-    return make(args) if args.command == "make" else measure(args)
+    return {"make": make, "measure": measure, "sample": sample, "formats": formats}[args.command](args)
 
 
 if __name__ == "__main__":
