@@ -17,7 +17,8 @@ OpenCASCADE, 2.54 times larger (KiCad's VRML unit is 0.1 inch).
 
 ``sample`` draws a random sample of the groups ``duplicates`` reports (default tiers) on the
 library's store alone (``--pool all``), or on the library and the twins together, among the
-groups holding a ``converted`` pair (``--pool converted``), and prints each group's members
+groups holding a ``converted`` pair (``--pool converted``), or of the groups whose weakest
+member is ``similar`` (``duplicates --similar`` on the library, ``--pool similar``), and prints each group's members
 with their tier, distance and size (``--sheet DIR``: one PNG of pictures per group), for a
 person to judge.
 
@@ -219,13 +220,15 @@ def sample(args) -> int:
     from shapeidx.families.table import FamilyTable
     from shapeidx.store import open_store
 
-    if args.pool == "all":
+    if args.pool in ("all", "similar"):
         with open_store(args.store) as reader:
             table = FamilyTable.load(reader)
     else:
         table, _, _ = combined_table(args.store, args.twins)
-    groups = find_duplicates(table, args.metric, threads=args.threads)
-    pool = groups if args.pool == "all" else [g for g in groups if any(p["tier"] == "converted" for p in g["pairs"])]
+    tiers = ("identical", "same", "converted") + (("similar",) if args.pool == "similar" else ())
+    groups = find_duplicates(table, args.metric, threads=args.threads, tiers=tiers)
+    pool = {"all": groups, "converted": [g for g in groups if any(p["tier"] == "converted" for p in g["pairs"])],
+            "similar": [g for g in groups if g["tier"] == "similar"]}[args.pool]
     sizes = [len(g["members"]) for g in groups]
     print(f"`{shlex.join([sys.executable, *sys.argv])}`; {machine()}\n")
     print(f"{len(groups)} groups of {sum(sizes)} entries (largest {max(sizes, default=0)}, widest"
@@ -288,7 +291,7 @@ def sheets(sample, groups, args) -> None:
 
     out = Path(args.sheet)
     out.mkdir(parents=True, exist_ok=True)
-    roots = {"": Path(args.library), "twins/": Path(args.twins_root)}
+    roots = {"": Path(args.library), "twins/": Path(args.twins_root or ".")}
     for g in sample:
         members = [{"path": g["representative"], "tier": "rep", "size_ratio": 1.0}] + [
             {"path": p["b"], "tier": p["tier"], "size_ratio": p["size_ratio"] or float("nan")} for p in g["pairs"]][:7]
@@ -332,7 +335,9 @@ def main() -> int:
     s = sub.add_parser("sample")
     s.add_argument("--store", required=True)
     s.add_argument("--twins", help="the twins' store (for --pool converted)")
-    s.add_argument("--pool", choices=("all", "converted"), default="all")
+    s.add_argument("--pool", choices=("all", "converted", "similar"), default="all",
+                   help="all groups of the library; those holding a converted pair (library and twins);"
+                        " those whose weakest member is similar (library, --similar)")
     s.add_argument("--metric", default="combined-angle")
     s.add_argument("--count", type=int, default=30)
     s.add_argument("--seed", type=int, default=2026)
