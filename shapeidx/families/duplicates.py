@@ -43,11 +43,12 @@ representative, radii of gyration in file units, so a copy saved in inches shows
 other, :func:`shapeidx.families.chirality.mirror_relation`; always false for parts that are
 their own mirror image). With ``scale="sensitive"`` no unit factor is allowed.
 
-Candidates come from :func:`shapeidx.store.candidates.candidate_pairs`, twice: each
+Candidates come from :class:`shapeidx.store.candidates.CandidateIndex`, twice: each
 entry's nearest neighbours in the metric's embedding, and in the space of its exact moments
 (:func:`fingerprint_vectors`), every pair confirmed with the exact distance; entries with one
 exact fingerprint (copies of one surface) are all paired with each other. The work grows as N k,
-not N^2. Nothing is ever deleted or moved.
+not N^2, and is done in blocks of :data:`PAIR_BLOCK` entries, each block's pairs cut to the
+loosest tier's distance before the next. Nothing is ever deleted or moved.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ShapeidxError
-from ..store.candidates import OVERFETCH as OVERFETCH_MOMENTS, candidate_pairs
+from ..store.candidates import OVERFETCH as OVERFETCH_MOMENTS
 from .chirality import mirror_relation
 from ..distance.scale import check_scale
 
@@ -163,32 +164,94 @@ def fingerprint_vectors(table) -> np.ndarray | None:
 ALL_PAIRS_LIMIT = 200
 
 
-def _candidates(table, metric, k, method, threads):
-    """Candidate pairs by the D2 embedding and by the exact moments, confirmed, each once.
+#: Entries per block of the pair stage: the candidate pairs of this many entries are found,
+#: confirmed with the exact distance and cut to the loosest tier's distance before the next
+#: block, so that the pairs held at once are PAIR_BLOCK x (OVERFETCH k), not N x (OVERFETCH k)
+#: (docs/performance-families.md: 10^6 entries).
+PAIR_BLOCK = 20_000
 
-    Copies of one surface share their moments exactly, so they would fill each other's
-    nearest-moment lists; the moment search therefore runs over the distinct fingerprints
-    (each once), pairs the first entry of each with the first of its neighbours, and pairs
-    the entries of one fingerprint among themselves.
+
+def _directed(lists: np.ndarray, lo: int, n: int) -> np.ndarray:
+    """Sorted keys ``row (n + 1) + column`` of candidate lists (rows ``lo`` on), padding as column ``n``."""
+    cols = np.where(lists < 0, n, lists)
+    cols.sort(axis=1)
+    return (np.arange(lo, lo + len(lists), dtype=np.int64)[:, None] * (n + 1) + cols).ravel()
+
+
+def _contains(keys: np.ndarray, a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """Whether ``b`` is in the candidate list of ``a``, for every pair (``keys`` from :func:`_directed`)."""
+    want = a * (n + 1) + b
+    at = np.minimum(np.searchsorted(keys, want), len(keys) - 1) if len(keys) else np.zeros(len(want), np.int64)
+    return (keys[at] == want) if len(keys) else np.zeros(len(want), bool)
+
+
+def _candidates(table, metric, k, method, threads, limit, judge=None) -> dict:
+    """Candidate pairs by the D2 embedding and by the exact moments, confirmed with the exact
+    distance, those within ``limit`` kept, each once: ``{"a", "b", "d"}`` arrays, a < b, and
+    what ``judge(a, b, d)`` says of them (a dict of arrays; its ``keep`` mask, if any, drops
+    pairs: so that each block's pairs are cut before the next).
+
+    Each entry's :data:`~shapeidx.store.candidates.OVERFETCH` k nearest in the embedding;
+    copies of one surface share their moments exactly, so they would fill each other's
+    nearest-moment lists: the moment search runs over the distinct fingerprints (each once),
+    pairs the first entry of each with the first of its neighbours, and pairs the entries of
+    one fingerprint among themselves. All of it in blocks of :data:`PAIR_BLOCK` entries (or
+    fingerprints); a pair in both its entries' lists is confirmed once, in the list of the
+    smaller one, and a moment pair already in the embedding's lists is not confirmed again.
     """
-    from ..store.candidates import CandidateIndex
+    from ..store.candidates import CandidateIndex, embed
 
-    known_a, known_b, known_d, _, _ = candidate_pairs(table, metric, k, method, threads)
-    pieces_a, pieces_b = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    n = len(table)
+    found = []
+    survivors = []
+
+    def confirm(a, b):
+        a, b = np.minimum(a, b), np.maximum(a, b)
+        key = np.unique((a * n + b)[a != b])
+        a, b = key // n, key % n
+        d = table.pair_distances(a, b, metric) if len(key) else np.zeros(0)
+        close = d <= limit
+        part = {"a": a[close], "b": b[close], "d": d[close]}
+        if judge is not None:
+            part.update(judge(part["a"], part["b"], part["d"]))
+            keep = part.pop("keep", None)
+            if keep is not None:
+                part = {name: values[keep] for name, values in part.items()}
+        survivors.append(part)
+
+    index = CandidateIndex(embed(table, metric), method, threads)
+    fetch = min(OVERFETCH_MOMENTS * k, max(n - 1, 0))
+    for lo in range(0, n, PAIR_BLOCK):
+        found.append(_directed(index.neighbours(fetch, lo, lo + PAIR_BLOCK), lo, n))
+    embedded = np.concatenate(found) if found else np.zeros(0, np.int64)
+    del index, found
+    for lo in range(0, len(embedded), PAIR_BLOCK * max(fetch, 1)):
+        keys = embedded[lo:lo + PAIR_BLOCK * max(fetch, 1)]
+        a, b = keys // (n + 1), keys % (n + 1)
+        valid = b < n
+        a, b = a[valid], b[valid]
+        # a pair in both lists: confirmed from the smaller entry's list only
+        mine = (a < b) | ~_contains(embedded, b, a, n)
+        confirm(a[mine], b[mine])
     vectors = fingerprint_vectors(table)
     if vectors is not None:
         unique, first, inverse = np.unique(vectors, axis=0, return_index=True, return_inverse=True)
         inverse = inverse.ravel()
         if len(unique) > 1:
-            index = CandidateIndex(unique, method, threads)
-            _, found = index.search(unique, min(OVERFETCH_MOMENTS * k, len(unique) - 1) + 1)
-            rows = np.repeat(first, found.shape[1])
-            cols = found.ravel()
-            keep = cols >= 0
-            pieces_a.append(rows[keep])
-            pieces_b.append(first[cols[keep]])
+            moments = CandidateIndex(unique, method, threads)
+            width = min(OVERFETCH_MOMENTS * k, len(unique) - 1) + 1
+            for lo in range(0, len(unique), PAIR_BLOCK):
+                _, near = moments.search(unique[lo:lo + PAIR_BLOCK], width)
+                rows = np.repeat(first[lo:lo + PAIR_BLOCK], near.shape[1])
+                cols = near.ravel()
+                keep = cols >= 0
+                a, b = rows[keep], first[cols[keep]]
+                known = _contains(embedded, a, b, n) | _contains(embedded, b, a, n)
+                confirm(a[~known], b[~known])
+            del moments
         order = np.argsort(inverse, kind="stable")
         bounds = np.flatnonzero(np.diff(np.concatenate([[-1], inverse[order], [-2]])))
+        pieces_a, pieces_b = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
         for lo, hi in zip(bounds[:-1], bounds[1:]):
             members = order[lo:hi]
             if len(members) < 2:
@@ -200,15 +263,17 @@ def _candidates(table, metric, k, method, threads):
             else:
                 pieces_a.append(np.full(len(members) - 1, members[0]))
                 pieces_b.append(members[1:])
-    a, b = np.concatenate(pieces_a), np.concatenate(pieces_b)
-    a, b = np.minimum(a, b), np.maximum(a, b)
-    n = len(table)
-    # the exact distance of each new pair once (the embedding's pairs already have theirs)
-    key = np.unique((a * n + b)[a != b])
-    key = key[~np.isin(key, known_a * n + known_b, assume_unique=True)]
-    a, b = key // n, key % n
-    return (np.concatenate([known_a, a]), np.concatenate([known_b, b]),
-            np.concatenate([known_d, table.pair_distances(a, b, metric)]))
+        a, b = np.concatenate(pieces_a), np.concatenate(pieces_b)
+        for lo in range(0, len(a), PAIR_BLOCK * max(fetch, 1)):
+            x, y = a[lo:lo + PAIR_BLOCK * max(fetch, 1)], b[lo:lo + PAIR_BLOCK * max(fetch, 1)]
+            known = _contains(embedded, x, y, n) | _contains(embedded, y, x, n)
+            confirm(x[~known], y[~known])
+    if not survivors:
+        confirm(np.zeros(0, np.int64), np.zeros(0, np.int64))
+    out = {name: np.concatenate([part[name] for part in survivors]) for name in survivors[0]}
+    # a pair confirmed twice (by the moments and by a fingerprint's set): once
+    _, first = np.unique(out["a"] * n + out["b"], return_index=True)
+    return {name: values[first] for name, values in out.items()}
 
 
 def unit_factor(ratios: np.ndarray, scale: str = "invariant") -> tuple[np.ndarray, np.ndarray]:
@@ -396,10 +461,14 @@ def find_duplicates(table, metric: str = DEFAULT_METRIC, scale: str = "invariant
     pair_b = np.zeros(0, np.int64)
     facts = {"tier": np.zeros(0, np.int64), "margin": np.zeros(0)}
     if n > 1 and loosest > 0:
-        a, b, d = _candidates(table, metric, min(k, n - 1), method, threads)
-        keep_pairs = (d <= max(limits["near"], EXACT_DISTANCE_FACTOR * limits["same"])) & (atom[a] != atom[b])
-        a, b, d = a[keep_pairs], b[keep_pairs], d[keep_pairs]
-        facts = _pair_facts(table, a, b, d, limits, scale)
+        def judge(a, b, d):  # each block's pairs: their facts, those of a reported tier kept
+            facts = _pair_facts(table, a, b, d, limits, scale)
+            return {**facts, "keep": (atom[a] != atom[b]) & (facts["tier"] <= loosest)}
+
+        facts = _candidates(table, metric, min(k, n - 1), method, threads,
+                            max(limits["near"], EXACT_DISTANCE_FACTOR * limits["same"]), judge)
+        a, b = facts.pop("a"), facts.pop("b")
+        del facts["d"]
         # a pair of two formats stays converted only between closest partners
         facts["tier"] = np.where((facts["tier"] == 2) & ~_closest_across_formats(table, a, b, facts), 3, facts["tier"])
         good = facts["tier"] <= loosest
