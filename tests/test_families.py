@@ -588,3 +588,15 @@ def test_default_duplicates_keep_one_body_with_other_pins_apart_and_pair_each_st
         group = next(g for g in loose if f"{folder}/{one}.wrl" in g["members"])
         assert f"{folder}/{other}.wrl" in group["members"] and group["tier"] == "similar"
         assert group["confidence"] < min(g["confidence"] for g in groups)  # below every default group
+
+
+def test_converted_needs_two_formats_read_from_the_names_endings_and_a_sub_parts_from_its_files():
+    import types
+
+    from shapeidx.families.duplicates import file_formats
+    from shapeidx.io.formats import SUFFIXES
+
+    paths = ["a/b.wrl", "a/b.STEP", "c/x.stp#3", "d/y.stl.gz", "e/noext", "f/v1.2/part", "g/z.wrz#12"]
+    got = list(file_formats(types.SimpleNamespace(paths=np.array(paths, dtype=object))))
+    assert got == ["vrml", "step", "step", "stl", "", "", "vrml"]
+    assert all(set(got) - {""} <= set(SUFFIXES) for _ in [0])

@@ -299,7 +299,8 @@ def unit_factor(ratios: np.ndarray, scale: str = "invariant") -> tuple[np.ndarra
 
 
 def file_formats(table) -> np.ndarray:
-    """Each entry's file format (:data:`shapeidx.io.formats.SUFFIXES`, "" if none), from its path."""
+    """Each entry's file format (:data:`shapeidx.io.formats.SUFFIXES`, "" if none), from its path
+    (a sub-part's, ``FILE#n``, from its file's)."""
     from ..io.formats import SUFFIXES
 
     def formats():
@@ -307,6 +308,7 @@ def file_formats(table) -> np.ndarray:
         out = []
         for path in table.paths:
             name = str(path).lower()
+            name = name.rsplit("#", 1)[0] if "#" in name.rsplit("/", 1)[-1] else name
             name = name[:-3] if name.endswith(".gz") else name
             dot = name.rfind(".")
             out.append(by_suffix.get(name[dot:], "") if dot >= 0 else "")
