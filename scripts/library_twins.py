@@ -15,6 +15,18 @@ that is its own mirror image), ``refaceted`` (every triangle split in four, rota
 ``NAME.step``, a link to the library's STEP file of the same package: re-faceted by
 OpenCASCADE, 2.54 times larger (KiCad's VRML unit is 0.1 inch).
 
+``sample`` draws a random sample of the groups ``duplicates`` reports (default tiers) on the
+library's store alone (``--pool all``), or on the library and the twins together, among the
+groups holding a ``converted`` pair (``--pool converted``), or of the groups whose weakest
+member is ``similar`` (``duplicates --similar`` on the library, ``--pool similar``), and prints each group's members
+with their tier, distance and size (``--sheet DIR``: one PNG of pictures per group), for a
+person to judge.
+
+``formats`` loads a store of VRML files and a store of the STEP files of the same packages
+(same folders and names) as one table and measures ``converted`` with the names as the truth:
+how many STEP files land in the group of their own VRML, and how many pairs listed
+``converted`` join two files of one name.
+
 ``measure`` loads the library's store and the twins' store as one table (the twins' paths
 under ``twins/``), runs :func:`shapeidx.families.duplicates.find_duplicates` on it, and
 reports: recall (a twin in its original's group), the tier, size ratio and unit each lands
@@ -123,7 +135,7 @@ def origin(path: str) -> tuple[str, str]:
 
 def measure(args) -> int:
     from shapeidx.families.chirality import is_chiral
-    from shapeidx.families.duplicates import find_duplicates, pair_tiers
+    from shapeidx.families.duplicates import TIERS, find_duplicates, pair_tiers
 
     started = time.perf_counter()
     table, n_lib, n_tw = combined_table(args.store, args.twins)
@@ -140,7 +152,7 @@ def measure(args) -> int:
     for g, group in enumerate(groups):
         for m in group["members"]:
             group_of[m] = g
-        entry_of[group["representative"]] = {"tier": "identical", "unit": None, "mirrored": False}
+        entry_of[group["representative"]] = {"tier": "representative", "unit": None, "mirrored": False}
         for pair in group["pairs"]:
             entry_of[pair["b"]] = pair
     chiral = dict(zip(map(str, table.paths), is_chiral(table.handedness)))
@@ -148,7 +160,8 @@ def measure(args) -> int:
              f"`{shlex.join([sys.executable, *sys.argv])}`; {machine()}", "",
              f"{n_lib} library entries, {n_tw} twins; find_duplicates {seconds:.1f} s (table loaded in {load:.1f} s);"
              f" {len(groups)} groups of {sum(len(g['members']) for g in groups)} entries; tiers {', '.join(args.tiers)}", ""]
-    lines += ["| twin | twins | in the original's group | tier: identical, same, near | unit factor reported | mirrored flagged (chiral originals) |",
+    lines += ["| twin | twins | in the original's group | listed in its group as: " + ", ".join(TIERS + ("representative",))
+              + " | unit factor reported | mirrored flagged (chiral originals) |",
               "|---|---|---|---|---|---|"]
     misses = []
     for v in VARIANTS:
@@ -162,12 +175,12 @@ def measure(args) -> int:
         index = {str(p): i for i, p in enumerate(table.paths)}
         said = pair_tiers(table, np.array([index[origin(p)[0]] for p in found], dtype=np.int64),
                           np.array([index[p] for p in found], dtype=np.int64), args.metric, limits=limits)
-        tiers = Counter(said["tier"])
+        tiers = Counter(entry_of[p]["tier"] for p in found)
         units = Counter("none" if not np.isfinite(u) else f"{u:.4g}" for u in said["unit"])
         mirrored = int(sum(bool(m) for p, m in zip(found, said["mirrored"]) if chiral.get(origin(p)[0])))
         chiral_n = sum(bool(chiral.get(origin(p)[0])) for p in twins)
         lines.append(f"| {v} | {len(twins)} | {len(found)} ({len(found) / len(twins):.3f}) |"
-                     f" {tiers.get('identical', 0)}, {tiers.get('same', 0)}, {tiers.get('near', 0)} |"
+                     f" {', '.join(str(tiers.get(t, 0)) for t in TIERS + ('representative',))} |"
                      f" {', '.join(f'{u}: {c}' for u, c in sorted(units.items()))} | {mirrored} of {chiral_n} |")
     total = sum(1 for p in map(str, table.paths) if origin(p)[1] in VARIANTS)
     lines += ["", f"Recall over all twins: {total - len(misses)} of {total} = {(total - len(misses)) / max(total, 1):.4f}", ""]
@@ -202,6 +215,67 @@ def measure(args) -> int:
     return 0
 
 
+def sample(args) -> int:
+    from shapeidx.families.duplicates import find_duplicates
+    from shapeidx.families.table import FamilyTable
+    from shapeidx.store import open_store
+
+    if args.pool in ("all", "similar"):
+        with open_store(args.store) as reader:
+            table = FamilyTable.load(reader)
+    else:
+        table, _, _ = combined_table(args.store, args.twins)
+    tiers = ("identical", "same", "converted") + (("similar",) if args.pool == "similar" else ())
+    groups = find_duplicates(table, args.metric, threads=args.threads, tiers=tiers)
+    pool = {"all": groups, "converted": [g for g in groups if any(p["tier"] == "converted" for p in g["pairs"])],
+            "similar": [g for g in groups if g["tier"] == "similar"]}[args.pool]
+    sizes = [len(g["members"]) for g in groups]
+    print(f"`{shlex.join([sys.executable, *sys.argv])}`; {machine()}\n")
+    print(f"{len(groups)} groups of {sum(sizes)} entries (largest {max(sizes, default=0)}, widest"
+          f" {max((len(g['folders']) for g in groups), default=0)} folders; by tier of the weakest member:"
+          f" {dict(Counter(g['tier'] for g in groups))}); {len(pool)} in the pool ({args.pool})\n")
+    rng = np.random.default_rng(args.seed)
+    chosen = [pool[i] for i in sorted(rng.choice(len(pool), min(args.count, len(pool)), replace=False))] if pool else []
+    for g in chosen:
+        print(f"- group {groups.index(g) + 1} (confidence {g['confidence']:.3f}, {g['tier']}, {len(g['members'])} members):"
+              f" `{g['representative']}`; " + "; ".join(
+                  f"`{m['b']}` ({m['tier']}, d {m['distance']:.3g}, size x{m['size_ratio'] or float('nan'):.5g}"
+                  + (f", unit {m['unit']:.4g}" if m.get("unit") else "") + (", mirrored" if m.get("mirrored") else "") + ")"
+                  for m in g["pairs"]))
+    if args.sheet:
+        sheets(chosen, groups, args)
+    return 0
+
+
+def formats(args) -> int:
+    from shapeidx.families.duplicates import find_duplicates
+
+    table, n_vrml, n_step = combined_table(args.store, args.step_store)
+    groups = find_duplicates(table, args.metric, threads=args.threads)
+    paths = [str(p) for p in table.paths]
+    group_of = {m: i for i, g in enumerate(groups) for m in g["members"]}
+    vrml = set(p for p in paths if not p.startswith("twins/"))
+    steps = [p for p in paths if p.startswith("twins/") and str(Path(p[len("twins/"):]).with_suffix(".wrl")) in vrml]
+    together = [p for p in steps if group_of.get(p, -1) == group_of.get(str(Path(p[len("twins/"):]).with_suffix(".wrl")), -2)]
+    converted = [p for g in groups for p in g["pairs"] if p["tier"] == "converted"]
+
+    def stem(path):
+        return str(Path(path[len("twins/"):] if path.startswith("twins/") else path).with_suffix(""))
+
+    other = [p for p in converted if stem(p["a"]) != stem(p["b"])]
+    print(f"`{shlex.join([sys.executable, *sys.argv])}`; {machine()}\n")
+    print(f"{n_vrml} VRML and {n_step} STEP entries; {len(groups)} groups (tiers identical, same, converted)\n")
+    print(f"STEP files whose VRML of the same name is in the store: {len(steps)}; in that VRML's group:"
+          f" {len(together)} ({len(together) / max(len(steps), 1):.3f})")
+    print(f"Pairs listed converted: {len(converted)}; joining two files of one name: {len(converted) - len(other)}")
+    for p in other:
+        print(f"  other names: `{p['a']}` `{p['b']}` (d {p['distance']:.3g})")
+    for p in steps:
+        if p not in together:
+            print(f"  not with its VRML: `{p}`")
+    return 0
+
+
 def sheets(sample, groups, args) -> None:
     """One PNG per sampled group: each member's thumbnail with its name and size."""
     import matplotlib
@@ -217,7 +291,7 @@ def sheets(sample, groups, args) -> None:
 
     out = Path(args.sheet)
     out.mkdir(parents=True, exist_ok=True)
-    roots = {"": Path(args.library), "twins/": Path(args.twins_root)}
+    roots = {"": Path(args.library), "twins/": Path(args.twins_root or ".")}
     for g in sample:
         members = [{"path": g["representative"], "tier": "rep", "size_ratio": 1.0}] + [
             {"path": p["b"], "tier": p["tier"], "size_ratio": p["size_ratio"] or float("nan")} for p in g["pairs"]][:7]
@@ -249,7 +323,7 @@ def main() -> int:
     q.add_argument("--store", required=True)
     q.add_argument("--twins", required=True)
     q.add_argument("--metric", default="combined-angle")
-    q.add_argument("--tiers", nargs="+", default=["identical", "same"])
+    q.add_argument("--tiers", nargs="+", default=["identical", "same", "converted"])
     q.add_argument("--sample", type=int, default=40)
     q.add_argument("--same-limit", type=float, help="the same tier's distance threshold instead of the metric's")
     q.add_argument("--seed", type=int, default=22)
@@ -258,8 +332,26 @@ def main() -> int:
     q.add_argument("--sheet", help="write one PNG per sampled group into this folder")
     q.add_argument("--library", default="/work/debian/wrl", help="the library's folder (for --sheet)")
     q.add_argument("--twins-root", help="the twins' parts folder (for --sheet)")
+    s = sub.add_parser("sample")
+    s.add_argument("--store", required=True)
+    s.add_argument("--twins", help="the twins' store (for --pool converted)")
+    s.add_argument("--pool", choices=("all", "converted", "similar"), default="all",
+                   help="all groups of the library; those holding a converted pair (library and twins);"
+                        " those whose weakest member is similar (library, --similar)")
+    s.add_argument("--metric", default="combined-angle")
+    s.add_argument("--count", type=int, default=30)
+    s.add_argument("--seed", type=int, default=2026)
+    s.add_argument("--threads", type=int, default=2)
+    s.add_argument("--sheet", help="write one PNG per sampled group into this folder")
+    s.add_argument("--library", default="/work/debian/wrl", help="the library's folder (for --sheet)")
+    s.add_argument("--twins-root", help="the twins' parts folder (for --sheet)")
+    f = sub.add_parser("formats")
+    f.add_argument("--store", required=True, help="the VRML files' store")
+    f.add_argument("--step-store", required=True, help="the STEP files' store (same folders and names)")
+    f.add_argument("--metric", default="combined-angle")
+    f.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
-    return make(args) if args.command == "make" else measure(args)
+    return {"make": make, "measure": measure, "sample": sample, "formats": formats}[args.command](args)
 
 
 if __name__ == "__main__":

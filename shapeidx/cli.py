@@ -1103,8 +1103,11 @@ def _no_entry_kept(where):
 @main.command(context_settings=CONTEXT)
 @store_option
 @metric_option("combined-angle", choices=duplicate_metrics())  # only metrics whose duplicate thresholds were measured
+@click.option("--similar", "with_similar", is_flag=True,
+              help="Also report tier similar: one body whose details (pins, pitch) may differ; measured imprecise,"
+                   " docs/duplicates.md.")
 @click.option("--near", "with_near", is_flag=True,
-              help="Also report near duplicates (tier near: measured less precise, docs/duplicates.md).")
+              help="Also report tiers similar and near (near duplicates: measured less precise still).")
 @where_option
 @scale_option
 @click.option("--parts", is_flag=True,
@@ -1112,9 +1115,10 @@ def _no_entry_kept(where):
                    " two connectors; each group names its files.")
 @click.option("--csv", "as_csv", is_flag=True, help="One row per member (same as --format csv).")
 @format_options
-def duplicates(store, metric, with_near, where, scale, parts, as_csv, output_format, as_json):
-    """Groups of entries that are one part: identical files, or the same geometry at one size (or
-    in other units, which each member's row names), most confident groups first.
+def duplicates(store, metric, with_similar, with_near, where, scale, parts, as_csv, output_format, as_json):
+    """Groups of entries that are one part: identical files (tier identical), the same surface at
+    one size or in other units, which each member's row names (same), or one part in two file
+    formats (converted); most confident groups first.
 
     Every member is within the tier's thresholds of its group's first member, the
     representative. Only reports: nothing is deleted or moved.
@@ -1122,7 +1126,7 @@ def duplicates(store, metric, with_near, where, scale, parts, as_csv, output_for
     \b
     Example:
       shapeidx duplicates --store parts.shapeidx
-      shapeidx duplicates --store parts.shapeidx --near --csv > duplicates.csv
+      shapeidx duplicates --store parts.shapeidx --similar --csv > duplicates.csv
       shapeidx duplicates --store parts.shapeidx --scale sensitive --where 'path~Resistor*'
     """
     from .families.duplicates import DEFAULT_TIERS, find_duplicates, shared_sub_parts
@@ -1134,7 +1138,7 @@ def duplicates(store, metric, with_near, where, scale, parts, as_csv, output_for
     keep = _table_keep(store, table, where)
     if len(table) == 0 or (keep is not None and not keep.any()):
         raise _empty_store_error(store) if len(table) == 0 else _no_entry_kept(where)
-    tiers = DEFAULT_TIERS + (("near",) if with_near else ())
+    tiers = DEFAULT_TIERS + (("similar", "near") if with_near else ("similar",) if with_similar else ())
     if parts:
         from .store import open_store
 

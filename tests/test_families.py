@@ -473,12 +473,12 @@ def test_one_voter_leave_one_out_is_the_retrieval_nearest_neighbour_score(dup_st
 # ---------------------------------------------------------------------------- issue 22: no chaining, sizes, stored embedding
 
 def test_every_duplicate_member_is_within_the_tier_of_its_representative_and_the_inches_copy_says_its_unit(dup_store):
-    from shapeidx.families.duplicates import EXACT_DISTANCE_FACTOR, find_duplicates, pair_tiers, thresholds
+    from shapeidx.families.duplicates import EXACT_DISTANCE_FACTOR, TIERS, find_duplicates, pair_tiers, thresholds
 
     _, store = dup_store
     with open_store(store) as reader:
         table = FamilyTable.load(reader)
-    groups = find_duplicates(table, "combined-angle", tiers=("identical", "same", "near"))
+    groups = find_duplicates(table, "combined-angle", tiers=TIERS)
     assert groups == sorted(groups, key=lambda g: -g["confidence"])  # most confident first
     limits = thresholds("combined-angle")
     for g in groups:
@@ -486,7 +486,7 @@ def test_every_duplicate_member_is_within_the_tier_of_its_representative_and_the
         a = np.array([table.index_of(g["representative"])] * len(g["pairs"]))
         b = np.array([table.index_of(p["b"]) for p in g["pairs"]])
         said = pair_tiers(table, a, b, "combined-angle")  # asked directly, not through a chain
-        assert all(t in ("identical", "same", "near") for t in said["tier"])
+        assert all(t in TIERS for t in said["tier"])
         assert np.all(said["distance"] <= max(limits["near"], EXACT_DISTANCE_FACTOR * limits["same"]))
     group = next(g for g in groups if CHIRAL in g["members"])
     inches = next(p for p in group["pairs"] if p["b"] == "copies/rgb-inches.stl" or p["a"] == "copies/rgb-inches.stl")
@@ -539,3 +539,64 @@ def test_the_stored_embedding_rows_are_those_the_counts_make_and_check_verifies_
         assert np.array_equal(embed(table.subset(keep), metric), embed(table, metric)[keep])
     result = cli("check", "--store", store)
     assert result.exit_code == 0, result.output
+
+
+# ---------------------------------------------------------------------------- issue 22: precise default tiers
+
+BODIES = {"Display_7Segment": ("MAN3610A", "MAN72A"),  # one display body, other segments and pins
+          "Transformer_THT": ("Transformer_CHK_EI38-3VA_1xSec", "Transformer_CHK_EI38-3VA_Neutral")}  # other pins
+
+
+@pytest.fixture(scope="module")
+def body_store(tmp_path_factory, data_dir):
+    """kicad6's 7-segment displays and transformers (VRML), with the STEP files of two pairs of
+    parts that share one body: each STEP is faceted by OpenCASCADE, not by the VRML's exporter."""
+    tmp = tmp_path_factory.mktemp("bodies")
+    tree = copy_tree(data_dir / "kicad6", tmp / "parts", tuple(BODIES))
+    for folder, stems in BODIES.items():
+        for stem in stems:
+            (tree / folder / f"{stem}.step").write_bytes((data_dir / "kicad6-step" / folder / f"{stem}.step").read_bytes())
+    store = tmp / "store.h5"
+    result = cli("build", tree, "--store", store, "-q", "--workers", "1")
+    assert result.exit_code == 0, result.output
+    return tree, store
+
+
+def test_default_duplicates_keep_one_body_with_other_pins_apart_and_pair_each_step_file_with_its_own_vrml(body_store):
+    from shapeidx.families.duplicates import DEFAULT_TIERS, FINGERPRINT_SAME, FINGERPRINT_SURFACE, fingerprint_gap, pair_tiers
+
+    _, store = body_store
+    groups = cli_json("duplicates", "--store", store)
+    assert all(p["tier"] in DEFAULT_TIERS for g in groups for p in g["pairs"])
+    group_of = {m: i for i, g in enumerate(groups) for m in g["members"]}
+    for folder, (one, other) in BODIES.items():
+        for stem in (one, other):  # each STEP file with its own VRML (2.54 times larger: KiCad's VRML unit)
+            assert group_of.get(f"{folder}/{stem}.wrl", -1) == group_of.get(f"{folder}/{stem}.step", -2), stem
+        for x in (f"{folder}/{one}.wrl", f"{folder}/{one}.step"):  # never with the other part, in either format
+            for y in (f"{folder}/{other}.wrl", f"{folder}/{other}.step"):
+                assert group_of.get(x, -1) != group_of.get(y, -2), (x, y)
+    # what keeps them apart is the exact moments: within the looser rules, beyond one surface's
+    with open_store(store) as reader:
+        table = FamilyTable.load(reader)
+    for folder, (one, other) in BODIES.items():
+        a, b = np.array([table.index_of(f"{folder}/{one}.wrl")]), np.array([table.index_of(f"{folder}/{other}.wrl")])
+        assert FINGERPRINT_SURFACE < fingerprint_gap(table, a, b)[0] <= FINGERPRINT_SAME
+        assert pair_tiers(table, a, b)["tier"][0] == "similar"
+    # asked for, they are one body: tier similar
+    loose = cli_json("duplicates", "--store", store, "--similar")
+    for folder, (one, other) in BODIES.items():
+        group = next(g for g in loose if f"{folder}/{one}.wrl" in g["members"])
+        assert f"{folder}/{other}.wrl" in group["members"] and group["tier"] == "similar"
+        assert group["confidence"] < min(g["confidence"] for g in groups)  # below every default group
+
+
+def test_converted_needs_two_formats_read_from_the_names_endings_and_a_sub_parts_from_its_files():
+    import types
+
+    from shapeidx.families.duplicates import file_formats
+    from shapeidx.io.formats import SUFFIXES
+
+    paths = ["a/b.wrl", "a/b.STEP", "c/x.stp#3", "d/y.stl.gz", "e/noext", "f/v1.2/part", "g/z.wrz#12"]
+    got = list(file_formats(types.SimpleNamespace(paths=np.array(paths, dtype=object))))
+    assert got == ["vrml", "step", "step", "stl", "", "", "vrml"]
+    assert set(got) - {""} <= set(SUFFIXES)

@@ -3,17 +3,30 @@
 Every pair found is put in one tier:
 
 * ``identical``: the same file content (SHA-256);
-* ``same``: the same geometry: the shape distance is within the noise of signing one part
-  with other random points (``thresholds.json``, measured per metric by
-  ``scripts/duplicates_study.py --noise``, see docs/duplicates.md), the exact surface
-  moments agree (:func:`fingerprint_gap` within :data:`FINGERPRINT_SAME`) and the sizes agree
-  (:func:`unit_factor`: equal within :data:`SIZE_TOLERANCE`, or apart by a unit factor such
-  as 25.4, which the pair reports). The moments are needed because the sampling noise of D2 at
-  1024 points is larger than the distance between many pairs of different parts of one
-  family; the sizes because a shape distance is blind to size (an 0402 and an 0805 resistor);
+* ``same``: the same surface: its exact moments agree to :data:`FINGERPRINT_SURFACE`
+  (:func:`fingerprint_gap`; a rotated, mirrored, rescaled or re-faceted copy keeps them to
+  rounding), the sizes agree (:func:`unit_factor`: equal within :data:`SIZE_TOLERANCE`, or
+  apart by a unit factor such as 25.4, which the pair reports) and the shape distance is
+  within :data:`EXACT_DISTANCE_FACTOR` times the noise of signing one part with other random
+  points (``thresholds.json``, measured per metric by ``scripts/duplicates_study.py
+  --noise``). The sizes are needed because a shape distance is blind to size (an 0402 and an
+  0805 resistor); the moments because the sampling noise of D2 at 1024 points is larger than
+  the distance between many pairs of different parts of one family;
+* ``converted``: one part in two file formats (a VRML and the STEP file it was made from,
+  faceted again by another program, whose moments move by up to :data:`FINGERPRINT_SAME`):
+  the pair meets the ``similar`` rules, its files are of two formats, and each is the other's
+  closest partner of that format (so a STEP file of one package is paired with one VRML, not
+  with every package of the same body);
+* ``similar``: one body, details may differ: distance within the ``same`` noise threshold,
+  moments within :data:`FINGERPRINT_SAME` (or within :data:`FINGERPRINT_EXACT` up to
+  :data:`EXACT_DISTANCE_FACTOR` times that threshold), sizes as for ``same``. On the whole
+  KiCad 6 library most such pairs are one package body with other pins, pin pitch or printed
+  segments (docs/duplicates.md): reported only when asked for (``tiers``);
 * ``near``: a near duplicate: distance within the looser ``near`` threshold, moments within
-  :data:`FINGERPRINT_NEAR`, sizes as for ``same``. Reported only when asked for
-  (``tiers``): docs/duplicates.md measures its precision on the whole KiCad 6 library.
+  :data:`FINGERPRINT_NEAR`, sizes as for ``same``. Reported only when asked for.
+
+Stores without the moments (layout 1) have no :func:`fingerprint_gap`: their pairs are
+``same`` by the distance and the sizes alone, as before the moments existed.
 
 Groups do not chain. Each group has a *representative*, and every other member is within the
 tier's thresholds of the representative itself (so, the metric being a sum of distances, two
@@ -30,11 +43,12 @@ representative, radii of gyration in file units, so a copy saved in inches shows
 other, :func:`shapeidx.families.chirality.mirror_relation`; always false for parts that are
 their own mirror image). With ``scale="sensitive"`` no unit factor is allowed.
 
-Candidates come from :func:`shapeidx.store.candidates.candidate_pairs`, twice: each
+Candidates come from :class:`shapeidx.store.candidates.CandidateIndex`, twice: each
 entry's nearest neighbours in the metric's embedding, and in the space of its exact moments
 (:func:`fingerprint_vectors`), every pair confirmed with the exact distance; entries with one
 exact fingerprint (copies of one surface) are all paired with each other. The work grows as N k,
-not N^2. Nothing is ever deleted or moved.
+not N^2, and is done in blocks of :data:`PAIR_BLOCK` entries, each block's pairs cut to the
+loosest tier's distance before the next. Nothing is ever deleted or moved.
 """
 
 from __future__ import annotations
@@ -43,15 +57,15 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ShapeidxError
-from ..store.candidates import OVERFETCH as OVERFETCH_MOMENTS, candidate_pairs
+from ..store.candidates import OVERFETCH as OVERFETCH_MOMENTS
 from .chirality import mirror_relation
 from ..distance.scale import check_scale
 
-TIERS = ("identical", "same", "near")
+TIERS = ("identical", "same", "converted", "similar", "near")
 DEFAULT_METRIC = "combined-angle"
 #: Tiers reported unless asked otherwise: those whose precision docs/duplicates.md measured
-#: high enough on the whole library.
-DEFAULT_TIERS = ("identical", "same")
+#: high enough (0.9 or more) on the whole library.
+DEFAULT_TIERS = ("identical", "same", "converted")
 #: Largest ``|ln|`` gap between a size ratio and 1 or a unit factor (radii of gyration are
 #: exact integrals: of 1,500 twins injected into the whole library the STL copies keep their
 #: ratio within 0.42% (a part whose touching bodies are cleaned otherwise once it is one STL
@@ -63,11 +77,19 @@ SIZE_TOLERANCE = 0.005
 UNIT_FACTORS = (2.54, 10.0, 25.4, 12.0, 100.0, 304.8, 1000.0)
 #: Candidate neighbours per entry.
 DEFAULT_NEIGHBOURS = 20
-#: Largest :func:`fingerprint_gap` for ``same`` and for ``near`` (docs/duplicates.md).
+#: Largest :func:`fingerprint_gap` for ``same``: one surface. Of 1,200 copies of library parts
+#: (rotated, rescaled, mirrored, re-faceted STL) 1,190 keep their moments within it; of the
+#: library's pairs within :data:`FINGERPRINT_SAME`, those beyond it were nearly all one body
+#: with other pins (docs/duplicates.md).
+FINGERPRINT_SURFACE = 1e-4
+#: Largest :func:`fingerprint_gap` for ``similar`` and ``converted`` (the STEP files of 300
+#: library parts, faceted again by OpenCASCADE: within 0.0057 at the 99th percentile), and
+#: for ``near`` (docs/duplicates.md).
 FINGERPRINT_SAME = 0.01
 FINGERPRINT_NEAR = 0.06
-#: The exact road to ``same``: moments within this and sizes as for ``same`` make a pair
-#: ``same`` up to :data:`EXACT_DISTANCE_FACTOR` times the ``same`` distance. Some parts'
+#: The exact road to ``similar``: moments within this and sizes as for ``same`` make a pair
+#: ``similar`` up to :data:`EXACT_DISTANCE_FACTOR` times the ``same`` distance (as ``same``
+#: is, whose moments agree closer still). Some parts'
 #: signatures move far between two samplings (a box drawn as coincident bodies: 70 between
 #: its VRML and its own mirror image or re-faceted copy), while their exact moments do not;
 #: on the whole library this road added one pair of library parts to ``same`` (two names
@@ -142,32 +164,94 @@ def fingerprint_vectors(table) -> np.ndarray | None:
 ALL_PAIRS_LIMIT = 200
 
 
-def _candidates(table, metric, k, method, threads):
-    """Candidate pairs by the D2 embedding and by the exact moments, confirmed, each once.
+#: Entries per block of the pair stage: the candidate pairs of this many entries are found,
+#: confirmed with the exact distance and cut to the loosest tier's distance before the next
+#: block, so that the pairs held at once are PAIR_BLOCK x (OVERFETCH k), not N x (OVERFETCH k)
+#: (docs/performance-families.md: 10^6 entries).
+PAIR_BLOCK = 20_000
 
-    Copies of one surface share their moments exactly, so they would fill each other's
-    nearest-moment lists; the moment search therefore runs over the distinct fingerprints
-    (each once), pairs the first entry of each with the first of its neighbours, and pairs
-    the entries of one fingerprint among themselves.
+
+def _directed(lists: np.ndarray, lo: int, n: int) -> np.ndarray:
+    """Sorted keys ``row (n + 1) + column`` of candidate lists (rows ``lo`` on), padding as column ``n``."""
+    cols = np.where(lists < 0, n, lists)
+    cols.sort(axis=1)
+    return (np.arange(lo, lo + len(lists), dtype=np.int64)[:, None] * (n + 1) + cols).ravel()
+
+
+def _contains(keys: np.ndarray, a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """Whether ``b`` is in the candidate list of ``a``, for every pair (``keys`` from :func:`_directed`)."""
+    want = a * (n + 1) + b
+    at = np.minimum(np.searchsorted(keys, want), len(keys) - 1) if len(keys) else np.zeros(len(want), np.int64)
+    return (keys[at] == want) if len(keys) else np.zeros(len(want), bool)
+
+
+def _candidates(table, metric, k, method, threads, limit, judge=None) -> dict:
+    """Candidate pairs by the D2 embedding and by the exact moments, confirmed with the exact
+    distance, those within ``limit`` kept, each once: ``{"a", "b", "d"}`` arrays, a < b, and
+    what ``judge(a, b, d)`` says of them (a dict of arrays; its ``keep`` mask, if any, drops
+    pairs: so that each block's pairs are cut before the next).
+
+    Each entry's :data:`~shapeidx.store.candidates.OVERFETCH` k nearest in the embedding;
+    copies of one surface share their moments exactly, so they would fill each other's
+    nearest-moment lists: the moment search runs over the distinct fingerprints (each once),
+    pairs the first entry of each with the first of its neighbours, and pairs the entries of
+    one fingerprint among themselves. All of it in blocks of :data:`PAIR_BLOCK` entries (or
+    fingerprints); a pair in both its entries' lists is confirmed once, in the list of the
+    smaller one, and a moment pair already in the embedding's lists is not confirmed again.
     """
-    from ..store.candidates import CandidateIndex
+    from ..store.candidates import CandidateIndex, embed
 
-    known_a, known_b, known_d, _, _ = candidate_pairs(table, metric, k, method, threads)
-    pieces_a, pieces_b = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    n = len(table)
+    found = []
+    survivors = []
+
+    def confirm(a, b):
+        a, b = np.minimum(a, b), np.maximum(a, b)
+        key = np.unique((a * n + b)[a != b])
+        a, b = key // n, key % n
+        d = table.pair_distances(a, b, metric) if len(key) else np.zeros(0)
+        close = d <= limit
+        part = {"a": a[close], "b": b[close], "d": d[close]}
+        if judge is not None:
+            part.update(judge(part["a"], part["b"], part["d"]))
+            keep = part.pop("keep", None)
+            if keep is not None:
+                part = {name: values[keep] for name, values in part.items()}
+        survivors.append(part)
+
+    index = CandidateIndex(embed(table, metric), method, threads)
+    fetch = min(OVERFETCH_MOMENTS * k, max(n - 1, 0))
+    for lo in range(0, n, PAIR_BLOCK):
+        found.append(_directed(index.neighbours(fetch, lo, lo + PAIR_BLOCK), lo, n))
+    embedded = np.concatenate(found) if found else np.zeros(0, np.int64)
+    del index, found
+    for lo in range(0, len(embedded), PAIR_BLOCK * max(fetch, 1)):
+        keys = embedded[lo:lo + PAIR_BLOCK * max(fetch, 1)]
+        a, b = keys // (n + 1), keys % (n + 1)
+        valid = b < n
+        a, b = a[valid], b[valid]
+        # a pair in both lists: confirmed from the smaller entry's list only
+        mine = (a < b) | ~_contains(embedded, b, a, n)
+        confirm(a[mine], b[mine])
     vectors = fingerprint_vectors(table)
     if vectors is not None:
         unique, first, inverse = np.unique(vectors, axis=0, return_index=True, return_inverse=True)
         inverse = inverse.ravel()
         if len(unique) > 1:
-            index = CandidateIndex(unique, method, threads)
-            _, found = index.search(unique, min(OVERFETCH_MOMENTS * k, len(unique) - 1) + 1)
-            rows = np.repeat(first, found.shape[1])
-            cols = found.ravel()
-            keep = cols >= 0
-            pieces_a.append(rows[keep])
-            pieces_b.append(first[cols[keep]])
+            moments = CandidateIndex(unique, method, threads)
+            width = min(OVERFETCH_MOMENTS * k, len(unique) - 1) + 1
+            for lo in range(0, len(unique), PAIR_BLOCK):
+                _, near = moments.search(unique[lo:lo + PAIR_BLOCK], width)
+                rows = np.repeat(first[lo:lo + PAIR_BLOCK], near.shape[1])
+                cols = near.ravel()
+                keep = cols >= 0
+                a, b = rows[keep], first[cols[keep]]
+                known = _contains(embedded, a, b, n) | _contains(embedded, b, a, n)
+                confirm(a[~known], b[~known])
+            del moments
         order = np.argsort(inverse, kind="stable")
         bounds = np.flatnonzero(np.diff(np.concatenate([[-1], inverse[order], [-2]])))
+        pieces_a, pieces_b = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
         for lo, hi in zip(bounds[:-1], bounds[1:]):
             members = order[lo:hi]
             if len(members) < 2:
@@ -179,15 +263,17 @@ def _candidates(table, metric, k, method, threads):
             else:
                 pieces_a.append(np.full(len(members) - 1, members[0]))
                 pieces_b.append(members[1:])
-    a, b = np.concatenate(pieces_a), np.concatenate(pieces_b)
-    a, b = np.minimum(a, b), np.maximum(a, b)
-    n = len(table)
-    # the exact distance of each new pair once (the embedding's pairs already have theirs)
-    key = np.unique((a * n + b)[a != b])
-    key = key[~np.isin(key, known_a * n + known_b, assume_unique=True)]
-    a, b = key // n, key % n
-    return (np.concatenate([known_a, a]), np.concatenate([known_b, b]),
-            np.concatenate([known_d, table.pair_distances(a, b, metric)]))
+        a, b = np.concatenate(pieces_a), np.concatenate(pieces_b)
+        for lo in range(0, len(a), PAIR_BLOCK * max(fetch, 1)):
+            x, y = a[lo:lo + PAIR_BLOCK * max(fetch, 1)], b[lo:lo + PAIR_BLOCK * max(fetch, 1)]
+            known = _contains(embedded, x, y, n) | _contains(embedded, y, x, n)
+            confirm(x[~known], y[~known])
+    if not survivors:
+        confirm(np.zeros(0, np.int64), np.zeros(0, np.int64))
+    out = {name: np.concatenate([part[name] for part in survivors]) for name in survivors[0]}
+    # a pair confirmed twice (by the moments and by a fingerprint's set): once
+    _, first = np.unique(out["a"] * n + out["b"], return_index=True)
+    return {name: values[first] for name, values in out.items()}
 
 
 def unit_factor(ratios: np.ndarray, scale: str = "invariant") -> tuple[np.ndarray, np.ndarray]:
@@ -212,8 +298,29 @@ def unit_factor(ratios: np.ndarray, scale: str = "invariant") -> tuple[np.ndarra
     return close | unknown, factor
 
 
+def file_formats(table) -> np.ndarray:
+    """Each entry's file format (:data:`shapeidx.io.formats.SUFFIXES`, "" if none), from its path
+    (a sub-part's, ``FILE#n``, from its file's)."""
+    from ..io.formats import SUFFIXES
+
+    def formats():
+        by_suffix = {suffix: name for name, suffixes in SUFFIXES.items() for suffix in suffixes}
+        out = []
+        for path in table.paths:
+            name = str(path).lower()
+            name = name.rsplit("#", 1)[0] if "#" in name.rsplit("/", 1)[-1] else name
+            name = name[:-3] if name.endswith(".gz") else name
+            dot = name.rfind(".")
+            out.append(by_suffix.get(name[dot:], "") if dot >= 0 else "")
+        return np.array(out, dtype=object)
+
+    return table._cached("file_formats", formats) if hasattr(table, "_cached") else formats()
+
+
 def _pair_facts(table, a, b, d, limits: dict, scale: str) -> dict:
-    """Tier codes (0 identical, 1 same, 2 near, 3 none) and what each pair says."""
+    """Tier codes (0 identical, 1 same, 2 converted, 3 similar, 4 near, 5 none) and what each pair
+    says. ``converted`` here is every pair of two formats within the ``similar`` rules:
+    :func:`_closest_across_formats` keeps the closest ones."""
     hashes = table.hashes
     hashed = table._cached("hashed", lambda: np.array([len(h) > 0 for h in hashes], dtype=bool))
     identical = (hashes[a] == hashes[b]) & hashed[a]
@@ -223,34 +330,77 @@ def _pair_facts(table, a, b, d, limits: dict, scale: str) -> dict:
     sized, factor = unit_factor(ratios, scale)
     with np.errstate(invalid="ignore"):
         exact = sized & ~unknown & (gap <= FINGERPRINT_EXACT) & (d <= EXACT_DISTANCE_FACTOR * limits["same"])
-    same = (sized & (d <= limits["same"]) & (unknown | (gap <= FINGERPRINT_SAME))) | exact
-    near = sized & (d <= limits["near"]) & (unknown | (gap <= FINGERPRINT_NEAR))
-    tier = np.where(identical, 0, np.where(same, 1, np.where(near, 2, 3)))
+        surface = sized & ~unknown & (gap <= FINGERPRINT_SURFACE) & (d <= EXACT_DISTANCE_FACTOR * limits["same"])
+        similar = (sized & (d <= limits["same"]) & (unknown | (gap <= FINGERPRINT_SAME))) | exact
+        near = sized & (d <= limits["near"]) & (unknown | (gap <= FINGERPRINT_NEAR))
+    same = surface | (similar & unknown)  # no moments: the distance and sizes alone, as before them
+    formats = file_formats(table)
+    across = formats[a] != formats[b]
+    tier = np.where(identical, 0, np.where(same, 1, np.where(similar, np.where(across, 2, 3), np.where(near, 4, 5))))
     # how deep inside its tier's thresholds the pair lies: 0 at the centre, 1 at the edge
     with np.errstate(divide="ignore", invalid="ignore"):
-        limit = np.where(tier == 1, limits["same"], limits["near"])
-        fp_limit = np.where(tier == 1, FINGERPRINT_SAME, FINGERPRINT_NEAR)
         size_gap = np.nan_to_num(np.abs(np.log(ratios / np.where(np.isnan(factor), 1.0, factor))))
-        margin = np.nanmax(np.stack([d / limit, np.nan_to_num(gap) / fp_limit, size_gap / SIZE_TOLERANCE]), axis=0)
-        by_exact = np.nanmax(np.stack([d / (EXACT_DISTANCE_FACTOR * limits["same"]), np.nan_to_num(gap) / FINGERPRINT_EXACT,
-                                       size_gap / SIZE_TOLERANCE]), axis=0)
-    margin = np.where(exact & (tier == 1), np.minimum(margin, by_exact), margin)
+        fp = np.nan_to_num(gap)
+
+        def edge(distance_limit, fp_limit):
+            return np.nanmax(np.stack([d / distance_limit, fp / fp_limit, size_gap / SIZE_TOLERANCE]), axis=0)
+
+        loose = np.where(exact, np.minimum(edge(limits["same"], FINGERPRINT_SAME),
+                                           edge(EXACT_DISTANCE_FACTOR * limits["same"], FINGERPRINT_EXACT)),
+                         edge(limits["same"], FINGERPRINT_SAME))
+        margin = np.where(tier == 1, np.where(unknown, loose, edge(EXACT_DISTANCE_FACTOR * limits["same"], FINGERPRINT_SURFACE)),
+                          np.where(tier == 4, edge(limits["near"], FINGERPRINT_NEAR), loose))
     margin = np.where(tier == 0, 0.0, np.clip(margin, 0.0, 1.0))
     return {"tier": tier, "distance": np.where(identical, 0.0, d), "size_ratio": ratios,
             "unit": np.where(np.isnan(factor) | (factor == 1.0), np.nan, factor),
-            "mirrored": mirror_relation(table.handedness[a], table.handedness[b]), "margin": margin}
+            "mirrored": mirror_relation(table.handedness[a], table.handedness[b]), "margin": margin,
+            "loose": np.where(tier == 0, 0.0, np.clip(loose, 0.0, np.inf))}
+
+
+def _closest_across_formats(table, a, b, facts) -> np.ndarray:
+    """Which pairs stay ``converted``: those whose two entries are each the other's closest
+    partner of the other's format (by the ``similar`` margin, among the pairs of tier ``same``
+    to ``converted``); the others are ``similar``. A STEP file of a 4 x 4 mm QFN meets the
+    ``similar`` rules with the VRML of every QFN of that body: only its own is closest."""
+    formats = file_formats(table)
+    tier, loose = facts["tier"], facts["loose"]
+    keep = np.zeros(len(a), dtype=bool)
+    pool = np.flatnonzero((tier >= 1) & (tier <= 2) & (formats[a] != formats[b]))
+    if not len(pool):
+        return keep
+    names, codes = np.unique(formats, return_inverse=True)
+    codes = codes.ravel()
+    f = len(names)
+    # both directions: (entry, partner's format) -> the smallest margin
+    src = np.concatenate([a[pool], b[pool]])
+    other = np.concatenate([codes[b[pool]], codes[a[pool]]])
+    score = np.concatenate([loose[pool], loose[pool]])
+    key = src * f + other
+    uniq, inverse = np.unique(key, return_inverse=True)
+    best = np.full(len(uniq), np.inf)
+    np.minimum.at(best, inverse.ravel(), score)
+    lookup = dict(zip(uniq.tolist(), best.tolist()))
+    candidates = pool[tier[pool] == 2]
+    for i in candidates.tolist():
+        x, y = int(a[i]), int(b[i])
+        keep[i] = loose[i] <= lookup[x * f + codes[y]] and loose[i] <= lookup[y * f + codes[x]]
+    return keep
 
 
 def pair_tiers(table, a: np.ndarray, b: np.ndarray, metric: str = DEFAULT_METRIC, scale: str = "invariant",
                limits: dict | None = None) -> dict:
     """The tier :func:`find_duplicates` gives the pairs ``a``-``b`` (rows of ``table``), asked directly.
 
+    ``converted`` is said of every pair of two formats within the ``similar`` rules: whether
+    each is the other's closest partner of that format depends on the other entries, and
+    :func:`find_duplicates` lists the pairs that are not as ``similar``.
+
     Returns
     -------
     dict
-        Arrays aligned with the pairs: ``tier`` ("identical", "same", "near" or "" for
-        none), ``distance``, ``size_ratio`` (b over a), ``unit`` (the ratio's unit factor, NaN
-        for none), ``mirrored``, ``margin`` (0 at the centre of the tier, 1 at its edge).
+        Arrays aligned with the pairs: ``tier`` (one of :data:`TIERS`, or "" for none),
+        ``distance``, ``size_ratio`` (b over a), ``unit`` (the ratio's unit factor, NaN for
+        none), ``mirrored``, ``margin`` (0 at the centre of the tier, 1 at its edge).
     """
     check_scale(scale)
     limits = limits or thresholds(metric)
@@ -262,14 +412,14 @@ def pair_tiers(table, a: np.ndarray, b: np.ndarray, metric: str = DEFAULT_METRIC
 
 
 def group_confidence(tier: int, margin: float) -> float:
-    """A group's place in the report, from its weakest member: identical 1; same from 1 down
-    to 0.5 and near from 0.5 down to 0 as that member's pair nears the edge of its tier
-    (``margin``). An order, not a probability: each tier's measured precision is in
-    docs/duplicates.md."""
+    """A group's place in the report, from its weakest member: identical 1; then each tier in a
+    band of 0.2 (same 0.98 to 0.8, converted 0.78 to 0.6, similar 0.58 to 0.4, near 0.38 to
+    0.2), lower as that member's pair nears the edge of its tier (``margin``). An order, not a
+    probability: each tier's measured precision is in docs/duplicates.md."""
     if tier == 0:
         return 1.0
-    top = 1.0 if tier == 1 else 0.5
-    return float(top - 0.5 * (0.2 + 0.8 * margin))
+    top = 1.0 - 0.2 * (tier - 1)
+    return float(top - 0.2 * (0.1 + 0.9 * margin))
 
 
 def find_duplicates(table, metric: str = DEFAULT_METRIC, scale: str = "invariant", k: int = DEFAULT_NEIGHBOURS,
@@ -313,10 +463,16 @@ def find_duplicates(table, metric: str = DEFAULT_METRIC, scale: str = "invariant
     pair_b = np.zeros(0, np.int64)
     facts = {"tier": np.zeros(0, np.int64), "margin": np.zeros(0)}
     if n > 1 and loosest > 0:
-        a, b, d = _candidates(table, metric, min(k, n - 1), method, threads)
-        keep_pairs = (d <= max(limits["near"], EXACT_DISTANCE_FACTOR * limits["same"])) & (atom[a] != atom[b])
-        a, b, d = a[keep_pairs], b[keep_pairs], d[keep_pairs]
-        facts = _pair_facts(table, a, b, d, limits, scale)
+        def judge(a, b, d):  # each block's pairs: their facts, those of a reported tier kept
+            facts = _pair_facts(table, a, b, d, limits, scale)
+            return {**facts, "keep": (atom[a] != atom[b]) & (facts["tier"] <= loosest)}
+
+        facts = _candidates(table, metric, min(k, n - 1), method, threads,
+                            max(limits["near"], EXACT_DISTANCE_FACTOR * limits["same"]), judge)
+        a, b = facts.pop("a"), facts.pop("b")
+        del facts["d"]
+        # a pair of two formats stays converted only between closest partners
+        facts["tier"] = np.where((facts["tier"] == 2) & ~_closest_across_formats(table, a, b, facts), 3, facts["tier"])
         good = facts["tier"] <= loosest
         pair_a, pair_b = a[good], b[good]
         facts = {key: value[good] for key, value in facts.items()}

@@ -257,12 +257,14 @@ class CandidateIndex:
             return np.zeros((len(queries), 0), np.float32), np.zeros((len(queries), 0), np.int64)
         return self.index.search(queries, k)
 
-    def neighbours(self, k: int) -> np.ndarray:
-        """(N, k) candidate neighbours of every entry, itself left out (-1 where fewer exist)."""
-        _, found = self.search(self.vectors, k + 1)
-        n = len(self)
+    def neighbours(self, k: int, lo: int = 0, hi: int | None = None) -> np.ndarray:
+        """(N, k) candidate neighbours of every entry (or of the entries ``lo`` to ``hi``), itself
+        left out (-1 where fewer exist)."""
+        hi = len(self) if hi is None else min(hi, len(self))
+        _, found = self.search(self.vectors[lo:hi], k + 1)
+        n = hi - lo
         out = np.full((n, k), -1, dtype=np.int64)
-        own = found == np.arange(n)[:, None]
+        own = found == np.arange(lo, hi)[:, None]
         # drop the entry itself (or, among identical vectors, the last column) from each row
         keep = ~own
         drop_last = keep.all(axis=1)
