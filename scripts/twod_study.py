@@ -114,15 +114,153 @@ def extract(cache: Path, names) -> None:
               f"{mismatch}", flush=True)
 
 
+def base(cache: Path) -> None:
+    """Today's per-pair features (FEATURES + ANGLE_FEATURES) through the search road, cached:
+    kicad6 labelled (sorted by path, as the evaluation), the KiCad 2017 queries against the
+    1,000-part store, kicad6-step against kicad6."""
+    from shapeidx.distance.combined import ANGLE_FEATURES, FEATURES
+    from shapeidx.evaluation.evaluate import labelled_features
+    from shapeidx.search.distances import entry_features
+    from shapeidx.signing.parameters import HISTOGRAMS
+
+    out = cache / "base.npz"
+    if out.exists():
+        return
+    names = FEATURES + ANGLE_FEATURES
+    with Searcher(COLLECTIONS["kicad6"][0]) as searcher:
+        data = labelled_features(searcher)
+    saved = dict(names=np.array(names), k6_paths=data.paths.astype(str), k6_labels=data.labels.astype(str),
+                 k6=np.stack([data.named()[n] for n in names]).astype(np.float32))
+    for key, queries, store in (("xexp", "kicad2017", "store1000"), ("step", "kicad6-step", "kicad6")):
+        with Searcher(COLLECTIONS[queries][0]) as q, Searcher(COLLECTIONS[store][0]) as s:
+            rows = []
+            for k in range(len(q)):
+                values = entry_features(s.view, q.signature_at(k), HISTOGRAMS, None, True)
+                rows.append([values[n] for n in names])
+            saved[key] = np.array(rows, dtype=np.float32).transpose(1, 0, 2)
+            saved[key + "_queries"] = np.array([str(p) for p in q.metadata_column("path")])
+            saved[key + "_store"] = np.array([str(p) for p in s.metadata_column("path")])
+    np.savez_compressed(out, **saved)
+
+
+# ---------------------------------------------------------------- the study
+
+
+class Data:
+    """Everything the study ranks, aligned: kicad6 (sorted by path, as the evaluation), the
+    xexp queries against the 1,000-part store, the STEP queries against kicad6."""
+
+    def __init__(self, cache: Path):
+        import twin_study
+
+        b = np.load(cache / "base.npz")
+        self.names = [str(n) for n in b["names"]]
+        self.labels = b["k6_labels"]
+        self.k6 = dict(zip(self.names, b["k6"].astype(np.float64)))
+        self.counts = {name: np.load(cache / f"{name}.npz") for name in COLLECTIONS}
+        order = {name: {str(p): i for i, p in enumerate(c["paths"])} for name, c in self.counts.items()}
+        self.k6_rows = np.array([order["kicad6"][str(p)] for p in b["k6_paths"]])  # counts row of each sorted part
+        # xexp: the kept pairs, halves A / B
+        queries = [str(p) for p in b["xexp_queries"]]
+        store = {str(p): i for i, p in enumerate(b["xexp_store"])}
+        kept = [n for n in queries if n not in twin_study.EXCLUDED and f"twins/{n}" in store]
+        self.half_a, self.half_b = twin_study.halves(kept)
+        self.x_names = queries
+        self.x_twin = np.array([store.get(f"twins/{n}", -1) for n in queries])
+        self.x = dict(zip(self.names, b["xexp"].astype(np.float64)))
+        self.x_qrows = np.array([order["kicad2017"][n] for n in queries])
+        self.x_srows = np.array([order["store1000"][str(p)] for p in b["xexp_store"]])
+        # step
+        squeries = [str(p) for p in b["step_queries"]]
+        sstore = {str(p): i for i, p in enumerate(b["step_store"])}
+        self.s_names = squeries
+        self.s_twin = np.array([sstore.get(str(Path(n).with_suffix(".wrl")), -1) for n in squeries])
+        self.s = dict(zip(self.names, b["step"].astype(np.float64)))
+        self.s_qrows = np.array([order["kicad6-step"][n] for n in squeries])
+        self.s_srows = np.array([order["kicad6"][str(p)] for p in b["step_store"]])
+
+
+def signature_part(counts, kind: str = "angle", dist_factor: int = 4, top: int = DIST_BINS, angle_groups=None,
+                   per_class: bool = False, weights_by_fraction: bool = False):
+    """Probabilities (n, H, B) of a 2-D signature part from the fine counts: distance bins merged by
+    ``dist_factor`` (up to ``top`` fine bins), angle bins merged by ``angle_groups`` (start indices);
+    one histogram of all pairs, or one per class (each normalised on its own)."""
+    c = counts["dist_angle" if kind == "angle" else "dist_end"].astype(np.float64)  # (n, 3, D, A)
+    c = c[:, :, :top]
+    n, _, d, a = c.shape
+    c = c.reshape(n, 3, d // dist_factor, dist_factor, a).sum(axis=3)
+    if angle_groups is not None:
+        c = np.add.reduceat(c, angle_groups, axis=3)
+    c = c.reshape(n, 3, -1)
+    h = c if per_class else c.sum(axis=1, keepdims=True)
+    total = h.sum(axis=2, keepdims=True)
+    return np.divide(h, total, out=np.zeros_like(h), where=total > 0)
+
+
+def pair_distance(a, b, how: str = "hellinger"):
+    """(n, m) distances between probability arrays a (n, H, B) and b (m, H, B), summed over H."""
+    out = np.zeros((len(a), len(b)))
+    for hh in range(a.shape[1]):
+        x, y = a[:, hh], b[:, hh]
+        if how == "hellinger":
+            out += np.sqrt(np.maximum(0.0, 1 - np.sqrt(x) @ np.sqrt(y).T))
+        else:
+            for start in range(0, len(x), 64):
+                xs = x[start:start + 64, None, :]
+                if how == "l1":
+                    out[start:start + 64] += np.abs(xs - y[None]).sum(axis=2)
+                elif how == "chi2":
+                    s = xs + y[None]
+                    out[start:start + 64] += (np.divide((xs - y[None]) ** 2, s, out=np.zeros(np.broadcast_shapes(xs.shape, y[None].shape)), where=s > 0)).sum(axis=2) / 2
+    return out
+
+
+def twod_matrices(data: "Data", how: str, **part) -> tuple:
+    """The 2-D distance on the three questions: kicad6 (n, n) sorted, xexp (80, 1000), step (336, 520)."""
+    k6 = signature_part(data.counts["kicad6"], **part)
+    k = k6[data.k6_rows]
+    x = pair_distance(signature_part(data.counts["kicad2017"], **part)[data.x_qrows],
+                      signature_part(data.counts["store1000"], **part)[data.x_srows], how)
+    st = pair_distance(signature_part(data.counts["kicad6-step"], **part)[data.s_qrows], k6[data.s_srows], how)
+    return pair_distance(k, k, how), x, st
+
+
+def twin_first(d: np.ndarray, twins: np.ndarray, rows) -> float:
+    """Share of query ``rows`` whose twin comes first (ties against it)."""
+    return float(np.mean([int((d[r] <= d[r, twins[r]]).sum()) == 1 for r in rows]))
+
+
+def scores(data: "Data", k6, x, st, cv_folds=None) -> dict:
+    """NN/FT on kicad6 (mean over the folds' matrices when ``k6`` is a list), xexp A/B, step rank 1."""
+    from shapeidx.evaluation.retrieval import retrieval_scores
+
+    mats = k6 if isinstance(k6, list) else [k6]
+    r = [retrieval_scores(m, data.labels) for m in mats]
+    xa = [data.x_names.index(n) for n in data.half_a]
+    xb = [data.x_names.index(n) for n in data.half_b]
+    srows = [i for i in range(len(data.s_names)) if data.s_twin[i] >= 0]
+    return {"nn": float(np.mean([v["nn"] for v in r])), "ft": float(np.mean([v["ft"] for v in r])),
+            "A": twin_first(x, data.x_twin, xa), "B": twin_first(x, data.x_twin, xb),
+            "step": twin_first(st, data.s_twin, srows)}
+
+
+def fmt(name, s) -> str:
+    return f"| {name} | {s['nn']:.3f} | {s['ft']:.3f} | {s['A']:.3f} | {s['B']:.3f} | {s['step']:.3f} |"
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
     e = sub.add_parser("extract")
     e.add_argument("--cache", type=Path, required=True)
     e.add_argument("collections", nargs="*", default=list(COLLECTIONS))
+    b = sub.add_parser("base")
+    b.add_argument("--cache", type=Path, required=True)
     args = parser.parse_args(argv)
     if args.command == "extract":
         extract(args.cache, args.collections)
+    elif args.command == "base":
+        base(args.cache)
     return 0
 
 
