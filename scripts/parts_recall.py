@@ -1,6 +1,8 @@
 """Does a pin or a body taken out of a KiCad STEP file find the files that use it? (docs/assemblies.md)
 
     python scripts/parts_recall.py STORE [--tree ../shared/data/kicad6-step] [--metric weighted ...]
+    python scripts/parts_recall.py STORE --tree /work/debian/step --metric all-angle --scale sensitive \
+        --sample 200 --truth-cache step-truth.json        # a whole library: a random 200 of its solids
 
 STORE must be built from the tree with ``shapeidx build TREE --store STORE --parts``.
 
@@ -71,6 +73,25 @@ def same(a: np.ndarray, b: np.ndarray) -> bool:
     return bool(np.all(np.abs(a - b) <= TOLERANCE * scale + 1e-9 * np.max(scale)))
 
 
+def same_rows(table: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """The rows of ``table`` that are the same solid as ``inv`` (``same``, vectorised)."""
+    scale = np.maximum(np.abs(table), np.abs(inv))
+    return np.all(np.abs(table - inv) <= TOLERANCE * scale + 1e-9 * scale.max(axis=1, keepdims=True), axis=1)
+
+
+def read_truth(tree: Path, files: list, cache: Path | None) -> dict:
+    """Each file's solids' invariants (relative path -> list of arrays), read with OCCT once."""
+    known = json.loads(cache.read_text()) if cache and cache.exists() else {}
+    if known.get("tree") != str(tree):
+        known = {"tree": str(tree), "files": {}}
+    for name in files:
+        if name not in known["files"]:
+            known["files"][name] = [invariants(s).tolist() for s in solids_of(tree / name)]
+    if cache:
+        cache.write_text(json.dumps(known))
+    return {name: [np.array(v) for v in known["files"][name]] for name in files}
+
+
 def random_rigid(rng):
     from OCP.gp import gp_Quaternion, gp_Trsf, gp_Vec
 
@@ -103,6 +124,8 @@ def main() -> None:
     parser.add_argument("--same-size", action="append", dest="sizes", type=float)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", dest="json_out")
+    parser.add_argument("--sample", type=int, help="ask a random N of the distinct solids (a whole library has thousands)")
+    parser.add_argument("--truth-cache", help="JSON file keeping the solids' invariants between runs")
     args = parser.parse_args()
     metrics = args.metrics or ["weighted", "combined-angle", "all-angle", "all"]
     scales = args.scales or ["sensitive", "invariant"]
@@ -114,29 +137,32 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
 
     started = time.monotonic()
-    files = sorted(p for p in tree.rglob("*") if p.suffix.lower() in (".step", ".stp"))
-    truth = {}  # relative path -> list of (invariants, solid)
-    for path in files:
-        truth[path.relative_to(tree).as_posix()] = [(invariants(s), s) for s in solids_of(path)]
+    files = sorted(p.relative_to(tree).as_posix() for p in tree.rglob("*") if p.suffix.lower() in (".step", ".stp"))
+    truth = read_truth(tree, files, Path(args.truth_cache) if args.truth_cache else None)
     print(f"read {len(files)} files' solids in {time.monotonic() - started:.0f} s", file=sys.stderr)
 
-    queries = []  # (file, solid, invariants, {file: count})
-    for name, solids in truth.items():
-        if len(solids) < 2:
-            continue
+    # every solid of every file in one array: which file, its invariants
+    owner = np.array([i for i, name in enumerate(files) for _ in truth[name]], dtype=np.int64)
+    table = np.array([inv for name in files for inv in truth[name]]).reshape(-1, 5)
+    questions = []  # (file, index of the solid in the file, invariants, {file: count})
+    for name in files:
         distinct: list = []
-        for inv, solid in solids:
-            if not any(same(inv, d[0]) for d in distinct):
-                distinct.append((inv, solid))
-        for inv, solid in distinct:
-            holders = {}
-            for other, their in truth.items():
-                n = sum(same(inv, i) for i, _ in their)
-                if n:
-                    holders[other] = n
-            queries.append((name, solid, inv, holders))
-    multi = sum(len(s) >= 2 for s in truth.values())
-    print(f"{multi} files with several solids, {len(queries)} distinct solids asked", file=sys.stderr)
+        if len(truth[name]) < 2:
+            continue
+        for index, inv in enumerate(truth[name]):
+            if not any(same(inv, truth[name][d]) for d in distinct):
+                distinct.append(index)
+        for index in distinct:
+            inv = truth[name][index]
+            holders = np.bincount(owner[same_rows(table, inv)], minlength=len(files))
+            questions.append((name, index, inv, {files[f]: int(holders[f]) for f in np.flatnonzero(holders)}))
+    multi = sum(len(truth[name]) >= 2 for name in files)
+    print(f"{multi} files with several solids, {len(questions)} distinct solids", file=sys.stderr)
+    distinct_solids = len(questions)
+    if args.sample and args.sample < len(questions):
+        questions = [questions[i] for i in sorted(rng.choice(len(questions), args.sample, replace=False))]
+        print(f"asking a random {len(questions)} of them (--sample, --seed {args.seed})", file=sys.stderr)
+    queries = [(name, solids_of(tree / name)[index], inv, holders) for name, index, inv, holders in questions]
 
     from shapeidx.search import Searcher
     from shapeidx.search.where_used import where_used
@@ -172,7 +198,7 @@ def main() -> None:
                     res["at"][tier][1] += len(within)
                     res["at"][tier][2] += r
     summary = {"machine": machine(), "tree": str(tree), "files": len(files), "multi_solid_files": multi,
-               "queries": len(queries), "relevant_files": int(sum(len(q[3]) for q in queries)), "runs": []}
+               "distinct_solids": distinct_solids, "queries": len(queries), "relevant_files": int(sum(len(q[3]) for q in queries)), "runs": []}
     for (metric, scale, size), res in results.items():
         summary["runs"].append({
             "metric": metric, "scale": scale, "same_size": size,

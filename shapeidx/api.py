@@ -34,8 +34,8 @@ def load(part, file_type: str | None = None, limits=None):
     ----------
     part : path, binary file object, (vertices, faces), trimesh.Trimesh or Solid
     file_type : str, optional
-        Format name (``"stl"``, ``"obj"``, ``"off"``, ``"ply"``, ``"vrml"``, ``"step"``,
-        ``"iges"``) for a path or file object whose name or content does not tell it.
+        Format name (one of ``shapeidx.io.formats.FORMAT_NAMES``: ``"stl"``, ``"step"``, ...)
+        for a path or file object whose name or content does not tell it.
     limits : shapeidx.io.LoadLimits, optional
         Bounds on what a hostile file may make the reader do.
 

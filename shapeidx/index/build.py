@@ -120,7 +120,9 @@ class BuildSummary:
 class BuildProfile:
     """CPU seconds of one build, by process and by stage (``build --json``'s ``profile``).
 
-    The parent: ``start`` (the interpreter and its imports, before the build begins),
+    The parent: ``start`` (the calling process's CPU before the build began: for the
+    command line the interpreter and its imports; in a long-lived Python caller all it
+    did before, so compare builds by the other stages there),
     ``setup`` (walk, plan, opening the store: before the first file is handed
     out), ``commit`` (entries written, journal merges), ``progress`` (log and progress
     lines), ``other`` (handing files to workers, waiting for them, the closing counts).
