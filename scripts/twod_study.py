@@ -520,7 +520,9 @@ for kicad6 NN with every signal alike. **No metric was added**: the 2-D histogra
 twin signal than all-angle nor better learned kinds, and the targets (kicad6 cross-validated NN 0.80 /
 FT 0.50, xexp-dev B 0.90, kicad6-step 0.98) stay out of reach of a gate on these pair signals. The
 size gap is the one signal here that found more twins on pairs not tuned on (as a detector: B 0.800 to
-0.857, step 0.949 to 0.967); in a gate its gain is within the noise. Telling the same part from a
+0.857, step 0.949 to 0.967); in a gate its gain is within the noise, and it would break ndr, whose
+pairs from two exporters differ in size by a factor of about 1,000 (boeing_part.wrl against
+boeing_part.hh.sat.wrl: mean pair distances 0.043 and 43.3). Telling the same part from a
 part of the same kind needs what shape distributions lose (exact extents, which the store keeps but a
 query's signature does not). Ranks fused per query do worse than the gates. Not measured on
 vrml-wild and ndr: nothing here was worth landing as a metric.""",
