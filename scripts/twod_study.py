@@ -475,6 +475,46 @@ def study(cache: Path, stores: Path) -> list:
                       f" {s['ft']:.3f} | {s['A']:.3f} | {s['B']:.3f} | {s['step']:.3f} |")
     print("\n".join(fusion), flush=True)
     gates += ["", "TEXT_FUSION"] + fusion
+
+    # one rule chosen on half A of both twin questions: g = all-angle + a proportions + c size + w 2-D
+    import twin_study
+
+    step_a, step_b = twin_study.halves([data.s_names[i] for i in srows])
+    sa = [data.s_names.index(n) for n in step_a]
+    sb = [data.s_names.index(n) for n in step_b]
+    xb = [data.x_names.index(n) for n in data.half_b]
+    candidates = []
+    for a in (0.0, 3e-4, 1e-3):
+        for c in (0.0, 1e-3):
+            for w in (0.0, 3e-3):
+                g = tuple(aa[i] + a * proportion[i] + c * size[i] + w * t9[i] for i in range(3))
+                twin_g = [g[1][r, data.x_twin[r]] for r in xa]
+                for q in QUANTILES:
+                    T = float(np.quantile(twin_g, q))
+                    for p in POWERS:
+                        disc = [np.minimum(1.0, gi / T) ** p for gi in g]
+                        x, st = ca[1] * disc[1], ca[2] * disc[2]
+                        r = [retrieval_scores(f * disc[0], data.labels) for f in folds]
+                        candidates.append(dict(
+                            label=f"a = {a:g}, c = {c:g}, w = {w:g}, T = quantile {q:g} ({T:.3g}), p = {p:g}",
+                            nn=float(np.mean([v["nn"] for v in r])), ft=float(np.mean([v["ft"] for v in r])),
+                            A=twin_first(x, data.x_twin, xa), B=twin_first(x, data.x_twin, xb),
+                            sA=twin_first(st, data.s_twin, sa), sB=twin_first(st, data.s_twin, sb)))
+    today = candidates[0]  # a = c = w = 0: all-angle; unified's own T and p follow
+    unified_d = [np.minimum(1.0, gi / 4e-4) ** 1.5 for gi in aa]
+    r = [retrieval_scores(f * unified_d[0], data.labels) for f in folds]
+    today = dict(label="unified today (all-angle, T = 4e-4, p = 1.5)", nn=float(np.mean([v["nn"] for v in r])),
+                 ft=float(np.mean([v["ft"] for v in r])),
+                 A=twin_first(mx["unified"], data.x_twin, xa), B=twin_first(mx["unified"], data.x_twin, xb),
+                 sA=twin_first(ms["unified"], data.s_twin, sa), sB=twin_first(ms["unified"], data.s_twin, sb))
+    allowed = [k for k in candidates if k["nn"] >= today["nn"] - 0.005]
+    best = max(allowed, key=lambda k: (len(xa) * k["A"] + len(sa) * k["sA"], k["nn"]))
+    rule = ["", "TEXT_RULE", "", "| gate | kicad6 NN (cv) | kicad6 FT (cv) | xexp-dev rank 1, A | B |"
+            " kicad6-step rank 1, A | B |", "|---|---|---|---|---|---|---|"]
+    for k in (today, best):
+        rule.append(f"| {k['label']} | {k['nn']:.3f} | {k['ft']:.3f} | {k['A']:.3f} | {k['B']:.3f} | {k['sA']:.3f} | {k['sB']:.3f} |")
+    print("\n".join(rule), flush=True)
+    gates += rule
     s = scores(data, [unified_cv for unified_cv in (f * np.minimum(1.0, aa[0] / 4e-4) ** 1.5 for f in folds)],
                mx["unified"], ms["unified"])
     today = f"unified today (T = 4e-4, p = 1.5): kicad6 {s['nn']:.3f} / {s['ft']:.3f}, A {s['A']:.3f}, B {s['B']:.3f}, step {s['step']:.3f}"
@@ -498,7 +538,7 @@ def write_section(markdown: Path, results, argv) -> None:
     stores = "--stores STORES --cache CACHE"
     text += [f"Commands: `python scripts/twod_study.py extract {stores}`, `python scripts/twod_study.py base {stores}`"
              f" (10 min together on a loaded machine, 1,936 parts signed again), then `python scripts/twod_study.py "
-             f"{' '.join(argv if argv is not None else sys.argv[1:])}` (6 min; STORES: the --work folder of "
+             f"{' '.join(argv if argv is not None else sys.argv[1:])}` (6 to 15 min, by the load; STORES: the --work folder of "
              f"scripts/unified_study.py), {datetime.date.today()}; "
              f"{platform.machine()}, {os.cpu_count()} cores.", "", END]
     block = "\n".join(text)
@@ -551,6 +591,11 @@ of half A's twin values of g (kicad6 cross-validated as in the table at the top)
     "TEXT_FUSION": """Ranks instead of distances (neither is a distance between two signatures: they need the
 whole store): reciprocal rank fusion of combined-angle and the chosen detector, and a rule that moves
 the detector's nearest part first when its detector value is below T:""",
+    "TEXT_RULE": """Last, one rule for the twin signal chosen as a whole on the halves A of both twin
+questions (the STEP parts dealt into halves as the KiCad 2017 ones): g = all-angle + a x proportions +
+c x size gap + w x 2-D (a in 0, 3e-4, 1e-3; c in 0, 1e-3; w in 0, 3e-3; T and p as above), the most
+twins first on xexp-dev A and kicad6-step A together among the gates that keep kicad6's cross-validated
+NN within 0.005 of unified's (ties by kicad6 NN); the halves B are the check:""",
     "TEXT_END": """No twin signal moves the trade-off by more than a pair or two of 35 (0.029 each) at a given
 quantile: reaching more twins costs kicad6's NN as it does with all-angle, because kicad6 parts of
 other classes (one maker's connector series, BGA against QFN of one size, C_2816 against L_2816) are as
@@ -563,7 +608,11 @@ size gap is the one signal here that found more twins on pairs not tuned on (as 
 pairs from two exporters differ in size by a factor of about 1,000 (boeing_part.wrl against
 boeing_part.hh.sat.wrl: mean pair distances 0.043 and 43.3). Telling the same part from a
 part of the same kind across redrawn models needs more than these pair signals; exact proportions
-would serve STEP against VRML only. Ranks fused per query do worse than the gates. Not measured on
+would serve STEP against VRML only. Ranks fused per query do worse than the gates. The one lead:
+the rule chosen on the halves A (proportions and the size gap added to the twin signal) finds five more
+held-out KiCad 2017 twins of 35 and one more STEP twin than unified, for 0.005 of kicad6's NN; making
+it a metric needs a query to carry its exact moments (the store keeps them, a query's signature does
+not) and a size gap that does not fail ndr. Not measured on
 vrml-wild and ndr: nothing here was worth landing as a metric.""",
 }
 
