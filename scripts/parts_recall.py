@@ -19,7 +19,9 @@ Reported per metric and ``--scale`` (sensitive: where-used's default, sub-parts 
 size left out; invariant: the paper's): R-precision (of the R files that hold the part, how
 many are in the top R), recall in the top 10, precision and recall with ``--max-distance``
 at the metric's duplicate thresholds (``same`` and ``near``, shapeidx/distance/thresholds.json),
-and how often the reported count of a relevant file found in the top R is right.
+and how often the reported count of a relevant file found in the top R is right;
+``--show-wrong`` lists each file whose count is wrong (the query's file, the file, our count,
+the truth's), per run.
 """
 
 from __future__ import annotations
@@ -124,6 +126,7 @@ def main() -> None:
     parser.add_argument("--same-size", action="append", dest="sizes", type=float)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", dest="json_out")
+    parser.add_argument("--show-wrong", action="store_true", help="list the files whose reported count is wrong")
     parser.add_argument("--sample", type=int, help="ask a random N of the distinct solids (a whole library has thousands)")
     parser.add_argument("--truth-cache", help="JSON file keeping the solids' invariants between runs")
     args = parser.parse_args()
@@ -170,7 +173,7 @@ def main() -> None:
     sizes = args.sizes or [0.05]
     runs = [(m, sc, z) for m in metrics for sc in scales for z in sizes]
     limits = {m: duplicate_thresholds(m) for m in metrics}
-    results = {run: {"r_precision": [], "recall_10": [], "count_right": [], "count_right_same": [],
+    results = {run: {"r_precision": [], "recall_10": [], "count_right": [], "count_right_same": [], "wrong": [],
                      "at": {t: [0, 0, 0] for t in limits[run[0]]}} for run in runs}
     with tempfile.TemporaryDirectory() as folder, Searcher(args.store, parts=True) as searcher:
         for k, (name, solid, inv, holders) in enumerate(queries):
@@ -186,6 +189,10 @@ def main() -> None:
                 res["recall_10"].append(len(set(ranked[:10]) & set(holders)) / r)
                 res["count_right"].extend(u.count == holders[u.relative_path] for u in answer.uses[:r]
                                           if u.relative_path in holders)
+                res["wrong"].extend({"query": name, "file": u.relative_path, "part": u.part, "count": u.count,
+                                     "truth": holders[u.relative_path], "distance": u.distance}
+                                    for u in answer.uses[:r]
+                                    if u.relative_path in holders and u.count != holders[u.relative_path])
                 for tier, t in limits[metric].items():
                     within = {u.relative_path for u in where_used(searcher, question, top=10**6, metric=metric,
                                                                    max_distance=t, scale=scale, same_size=size).uses}
@@ -206,6 +213,7 @@ def main() -> None:
             "recall_top10": float(np.mean(res["recall_10"])),
             "count_right": f"{sum(res['count_right'])}/{len(res['count_right'])}",
             "count_right_within_same": f"{sum(res['count_right_same'])}/{len(res['count_right_same'])}",
+            "wrong_counts": res["wrong"],
             "max_distance": {tier: {"threshold": limits[metric][tier], "precision": (f / w if w else float("nan")),
                                     "recall": f / r} for tier, (f, w, r) in res["at"].items()},
         })
@@ -216,6 +224,9 @@ def main() -> None:
         print(f"{run['metric']:15s} {run['scale']:9s} same-size {run['same_size']}  R-precision {run['r_precision']:.3f}  recall@10"
               f" {run['recall_top10']:.3f}  count right {run['count_right']} (within same: {run['count_right_within_same']})"
               f"  {tiers}")
+        if args.show_wrong:
+            for w in run["wrong_counts"]:
+                print(f"    wrong count: pin of {w['query']} in {w['file']} ({w['part']}): {w['count']}, truth {w['truth']}")
     if args.json_out:
         Path(args.json_out).write_text(text + "\n")
 

@@ -160,6 +160,98 @@ class TestSplit:
         assert split_parts(single) is None
 
 
+def _kuka_objects(path: Path) -> list[str]:
+    """The objects a KUKA model declares, read from its text: each ``DEF AOBJ_... Transform``
+    whose one Shape has an IndexedFaceSet (the others hold an IndexedLineSet: an axis)."""
+    text = path.read_bytes().decode("latin-1")
+    objects = re.findall(r"DEF\s+(AOBJ_[0-9_]+)\s+Transform\s*\{\s*children\s*\[\s*Shape\s*\{(?:(?!Shape).)*?geometry\s+(\w+)",
+                         text, re.S)
+    return sorted(name for name, geometry in objects if geometry == "IndexedFaceSet")
+
+
+_GROUPED_VRML = """#VRML V2.0 utf8
+DEF Board Transform { children [
+  DEF Body Transform { children [ Shape { geometry Box { size 20 10 5 } } ] }
+  DEF Pin Transform { translation 1 2 3 children [ Shape { geometry Cylinder { radius 0.3 height 4 } } ] }
+  Transform { translation 5 0 0 rotation 0 1 0 0.7 children [ USE Pin ] }
+  Transform { translation 9 1 0 rotation 1 1 0 2.1 children [ USE Pin ] }
+  DEF Colour Group { children [ Shape { geometry IndexedFaceSet {
+    coord Coordinate { point [ 0 0 0, 1 0 0, 1 2 0, 0 0 3,  10 0 0, 11 0 0, 11 2 0, 10 0 3,  0 10 0, 1 10 0, 1 12 0, 0 10 3 ] }
+    coordIndex [ 0 2 1 -1 0 1 3 -1 1 2 3 -1 0 3 2 -1  4 6 5 -1 4 5 7 -1 5 6 7 -1 4 7 6 -1  8 10 9 -1 8 9 11 -1 9 10 11 -1 8 11 10 -1 ]
+  } } ] }
+  Shape { geometry IndexedFaceSet {
+    coord Coordinate { point [ 0 0 20, 2 0 20, 2 4 20, 0 0 26,  30 0 20, 32 0 20, 32 4 20, 30 0 26 ] }
+    coordIndex [ 0 2 1 -1 0 1 3 -1 1 2 3 -1 0 3 2 -1  4 6 5 -1 4 5 7 -1 5 6 7 -1 4 7 6 -1 ]
+  } }
+] }
+"""
+
+
+class TestVrmlGroups:
+    """A VRML file that groups its geometry is split along its groups, then each group
+    into its bodies; a flat one (KiCad) into its bodies, as before."""
+
+    @pytest.mark.parametrize("name", ["kr16.wrl", "kr125_3.wrl", "kr500_1.wrl"])
+    def test_kuka_robot_objects_are_its_parts(self, data_dir, name):
+        from shapeidx.io.vrml.groups import vrml_groups
+
+        path = data_dir / "vrml-wild" / "freecad-kuka" / name
+        declared = _kuka_objects(path)
+        assert len(declared) >= 20
+        assert sorted(n for n, _ in vrml_groups(path)) == declared
+        parts = split_parts(path)
+        assert {p.name for p in parts} <= set(declared)
+        assert sum(p.count for p in parts) >= len(declared)  # an object may hold several bodies
+
+    def test_a_moved_robot_gives_the_same_parts(self, data_dir, tmp_path):
+        """Placement invariance: the whole file under one more Transform (a rotation and a
+        translation) gives the same parts, each at the same distances from its own origin
+        (the vertices themselves where the part's principal axes are defined: a part with an
+        axis of symmetry may turn about it)."""
+        path = data_dir / "vrml-wild" / "freecad-kuka" / "kr16.wrl"
+        body = path.read_text(encoding="latin-1").split("\n", 1)[1]
+        moved = tmp_path / "moved.wrl"
+        moved.write_text("#VRML V2.0 utf8\nTransform { rotation 0.3 -0.5 0.8 1.1 translation 250 -40 900 children [\n"
+                         + body + "\n] }\n", encoding="latin-1")
+        a, b = split_parts(path), split_parts(moved)
+        assert [(p.name, p.count) for p in a] == [(p.name, p.count) for p in b]
+        turned = 0
+        for p, q in zip(a, b):
+            extent = np.ptp(p.mesh.vertices, axis=0).max()
+            norms = [np.linalg.norm(m.mesh.vertices, axis=1) for m in (p, q)]
+            np.testing.assert_allclose(norms[0], norms[1], atol=1e-6 * extent)
+            spread = np.sort(np.linalg.eigvalsh(np.cov(p.mesh.vertices.T)))
+            if np.min(np.diff(spread)) > 0.01 * spread[-1]:
+                np.testing.assert_allclose(p.mesh.vertices, q.mesh.vertices, atol=1e-6 * extent)
+            else:
+                turned += 1
+        assert turned < len(a)  # some parts compared vertex by vertex
+
+    def test_groups_then_bodies_with_def_names(self, tmp_path):
+        path = tmp_path / "board.wrl"
+        path.write_text(_GROUPED_VRML)
+        parts = split_parts(path)
+        # the pin defined once and USEd twice more; the colour group's three tetrahedra;
+        # the two tetrahedra loose in the top group: a body each, named after that group
+        assert sorted((p.name, p.count) for p in parts) == [("Board", 2), ("Body", 1), ("Colour", 3), ("Pin", 3)]
+        assert all(p.mesh.metadata["title"] == p.name for p in parts)
+
+    def test_kicad_flat_file_is_split_into_bodies_as_before(self, data_dir, monkeypatch):
+        from shapeidx.io import load
+        from shapeidx.io.parts import _mesh_parts
+        from shapeidx.io.vrml import fast
+        from shapeidx.io.vrml.groups import vrml_groups
+
+        path = data_dir / "kicad6" / "Transformer_THT" / "Transformer_CHK_EI54-12VA_Neutral.wrl"
+        assert vrml_groups(path) is None
+        parts, bodies = split_parts(path), _mesh_parts(load(path))
+        assert [(p.name, p.count) for p in parts] == [("", p.count) for p in bodies]
+        for p, q in zip(parts, bodies):
+            np.testing.assert_array_equal(p.mesh.vertices, q.mesh.vertices)
+        monkeypatch.setattr(fast, "available", False)  # the Python reader sees no group either
+        assert vrml_groups(path) is None
+
+
 class TestOwnFrame:
     def test_own_frame_undoes_a_rigid_motion(self):
         trimesh = pytest.importorskip("trimesh")
@@ -358,9 +450,47 @@ def store(library, tmp_path_factory):
     return store
 
 
+def _png_pixels(data: bytes) -> np.ndarray:
+    import io
+
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(data)).convert("RGBA"))
+
+
+def _overlap(a: bytes, b: bytes) -> float:
+    """Intersection over union of two pictures' silhouettes (alpha > 127)."""
+    a, b = (_png_pixels(x)[..., 3] > 127 for x in (a, b))
+    return float((a & b).sum() / max((a | b).sum(), 1))
+
+
+def _sheet_pictures(text: str) -> dict:
+    """{card's data-path: (its picture, its whole file's small picture or None)} of a sheet."""
+    import base64
+
+    found = {}
+    for card in re.findall(r'<article class="hit".*?</article>', text, re.S):
+        path = re.search(r'data-path="([^"]+)"', card).group(1)
+        images = dict((kind, base64.b64decode(src.split(",", 1)[1]))
+                      for kind, src in re.findall(r'<img class="(thumb|context-thumb)" src="([^"]+)"', card))
+        found[path] = (images.get("thumb"), images.get("context-thumb"))
+    return found
+
+
+def _own_frame_picture(path: Path) -> bytes:
+    """A part file drawn in its own frame, without the split: what its sub-part's picture
+    should be when the part lies inside an assembly."""
+    from shapeidx.pictures.render import png_bytes, render_rgba
+    from shapeidx.signing.part import load_part
+
+    solid = load_part(path)
+    return png_bytes(render_rgba(own_frame(solid.vertices, solid.faces), solid.faces))
+
+
 class TestSheetsAndWeb:
     """Sub-parts on the surfaces that draw answers: the sheet and the web page name each hit's
-    parent file and count, the very ones ``query --parts --json`` gives."""
+    parent file and count, the very ones ``query --parts --json`` gives, and draw each
+    sub-part itself (in its own frame) with its whole file small beside it."""
 
     def test_sheet_shows_the_parent_and_count_of_each_hit(self, library, store, tmp_path):
         from html.parser import HTMLParser
@@ -399,13 +529,29 @@ class TestSheetsAndWeb:
         for card, hit in zip(cards.cards, hits):
             times = "once" if hit["count"] == 1 else f"{hit['count']} times"
             assert f"in {hit['parent']}, {times}" in card["line"]
-            assert card["img"]  # the picture of the file holding it (FILE#n is no file to render)
+            assert card["img"]
+        # each sub-part drawn itself: the pin of six.step (XCAF instances) and of four.step
+        # (moved copies) give one picture, the pin written alone put in its own frame too;
+        # the whole file small beside it, except for a file that is one part
+        full = tmp_path / "all.html"
+        assert cli("query", query, "--store", store, "--parts", "--top", "9", "--sheet", full).exit_code == 0
+        pictures = _sheet_pictures(full.read_text())
+        pin = [p for p, h in zip(pictures, hits) if h["parent"] in ("boards/six.step", "boards/four.step")][:2]
+        (six, six_file), (four, four_file) = pictures[pin[0]], pictures[pin[1]]
+        assert _overlap(six, four) > 0.98 and _overlap(six, _own_frame_picture(query)) > 0.95
+        bodies = [pictures[p][0] for p in pictures if p.endswith("#1")]
+        assert len(bodies) == 4 and max(_overlap(six, body) for body in bodies) < 0.8
+        assert six_file is not None and four_file is not None and _overlap(six_file, four_file) < 0.9
+        assert _overlap(six, six_file) < 0.8  # the pin, not the board holding it
+        assert pictures["cube.step#1"][1] is None  # one part: its picture is the file's
         # the query an entry FILE#n: its picture is its file's too, and the header names its file
         entry = hits[0]["relative_path"]
         again = cli("query", "--id", entry, "--store", store, "--parts", "--top", "2", "--sheet", sheet)
         assert again.exit_code == 0, again.output + again.stderr
         assert f"a sub-part of <b>{hits[0]['parent']}</b>" in sheet.read_text()
         assert "no picture" not in sheet.read_text()
+        header = re.search(r"<header>.*?</header>", sheet.read_text(), re.S).group(0)
+        assert 'class="context-thumb"' in header  # the query sub-part drawn itself, its file beside it
 
     def test_where_used_sheet_shows_each_file_its_sub_part_and_count(self, library, store, tmp_path):
         root, query = library
@@ -420,7 +566,10 @@ class TestSheetsAndWeb:
             times = "once" if use["count"] == 1 else f"{use['count']} times"
             assert f'data-path="{use["part"]}"' in card
             assert f'in <b class="parent">{use["relative_path"]}</b>, {times}' in card
-            assert "<img" in card  # the file's picture
+            assert 'class="thumb"' in card  # the sub-part's picture
+        pictures = _sheet_pictures(text)
+        pins = [pictures[use["part"]][0] for use in uses if use["relative_path"] != "cube.step"][:2]
+        assert _overlap(*pins) > 0.98  # the same pin, drawn the same from two assemblies
         missing = cli("where-used", query, "--store", store, "--sheet", tmp_path / "no" / "uses.html")
         assert_one_line_error(missing, tmp_path / "no")
 
@@ -449,11 +598,15 @@ class TestSheetsAndWeb:
             keys = ("relative_path", "parent", "count", "path")
             assert [tuple(h[k] for k in keys) for h in hits] == [tuple(h[k] for k in keys) for h in cli_hits]
             assert [h["distance"] for h in hits] == pytest.approx([h["distance"] for h in cli_hits], rel=1e-9)
-            # a hit's picture is its file's
+            # a hit's picture is the sub-part's own; its whole file's is beside it
             picture = client.get(hits[0]["thumbnail"])
             assert picture.status_code == 200 and picture.content[:4] == b"\x89PNG"
             by_sub_id = client.get("/api/thumbnail", params={"id": hits[0]["id"]})
             assert by_sub_id.status_code == 200 and by_sub_id.content == picture.content
+            whole = client.get(hits[0]["parent_thumbnail"])
+            assert whole.status_code == 200 and _overlap(picture.content, whole.content) < 0.8
+            pins = [client.get(h["thumbnail"]).content for h in hits if h["parent"] in ("boards/six.step", "boards/four.step")][:2]
+            assert len(pins) == 2 and _overlap(*pins) > 0.98 and _overlap(pins[0], _own_frame_picture(query)) > 0.95
             # by a sub-part's id: it first, with its parent; without parts=1 the files are ranked
             by_id = client.get("/api/query", params={"id": hits[0]["id"], "parts": "1", "top": "3"}).json()
             assert by_id["hits"][0]["id"] == hits[0]["id"] and by_id["hits"][0]["distance"] == 0
@@ -484,6 +637,7 @@ class TestSheetsAndWeb:
         says whose; a click on a hit's picture asks by that sub-part."""
         import subprocess
         import time
+        import urllib.parse
         import urllib.request
 
         import test_web_browser as browsing  # skips when chromium or Playwright is missing
@@ -528,10 +682,15 @@ class TestSheetsAndWeb:
                     assert line == f"sub-part of {hit['parent']} (×{hit['count']})"
                 page.wait_for_function("() => [...document.querySelectorAll('[data-testid=hit] img')].every(i => i.complete)")
                 assert browsing.loaded(page, "[data-testid=hit] img")
+                # each card: the sub-part's own picture, and its whole file's small beside the line
+                assert page.locator("[data-testid=hit] [data-testid=parent-thumbnail]").count() == sum(
+                    not h["relative_path"].startswith("cube.step") for h in cli_hits)  # cube.step is one part
+                assert [c.locator("[data-testid=thumbnail]").get_attribute("src") for c in cards.all()] == [
+                    f"/api/thumbnail?id={urllib.parse.quote(h['relative_path'], safe='')}" for h in cli_hits]
                 page.screenshot(path=str(tmp_path / "parts.png"))
                 # ask by the first sub-part: the address keeps parts=1, the query card names its file
                 first = cli_hits[0]
-                cards.nth(0).locator("img").click()
+                cards.nth(0).locator("[data-testid=thumbnail]").click()
                 page.wait_for_function("() => location.hash.includes('parts=1') && location.hash.includes('%23')")
                 page.wait_for_selector(f"[data-testid=query-card] [data-testid=sub-part]:has-text('{first['parent']}')")
                 page.wait_for_selector(f"[data-testid=hit][data-id='{first['relative_path']}']")

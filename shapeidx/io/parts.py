@@ -9,7 +9,10 @@
   every solid of the plain transfer (IGES files rarely hold solids: most are one part).
 * **VRML and meshes**: each connected body (triangles that share vertices, after coincident
   vertices are merged): KiCad's VRML writes the body, the pins and the marking as separate
-  shapes, which are separate bodies.
+  shapes, which are separate bodies. A VRML file that groups its geometry (a robot's links
+  and motors as Transforms of their own, a Wings3D part's pins as named Transforms) is split
+  along its groups first (:mod:`shapeidx.io.vrml.groups`), then each group into its bodies:
+  two touching objects stay two parts, and each part is named after its group's ``DEF``.
 
 Each sub-part is expressed in **its own frame** (centroid of its surface at the origin, its
 principal axes along x, y, z), so the same pin placed anywhere gives the same mesh to
@@ -37,8 +40,11 @@ import numpy as np
 from ..errors import LoadError
 from .base import LoadLimits, PolygonMesh, read_bytes
 
-__all__ = ["SubPart", "split_parts", "own_frame", "MAX_PARTS", "SAME_TOLERANCE"]
+__all__ = ["SubPart", "split_parts", "own_frame", "MAX_PARTS", "SAME_TOLERANCE", "PARTS_VERSION"]
 
+#: Raised whenever the same file would split differently (other sub-parts, another order):
+#: pictures of sub-parts are cached under it (2: VRML files split along their groups).
+PARTS_VERSION = 2
 #: Sub-parts a file gives at most (distinct ones; a file with more keeps the largest).
 MAX_PARTS = 200
 #: Two sub-parts are the same part when each invariant agrees to this share.
@@ -86,7 +92,16 @@ def split_parts(path, limits: LoadLimits | None = None, format_name: str | None 
     path = Path(path)
     name = format_name or format_of(path)
     if name in ("step", "iges"):
-        return _solid_model_parts(path, limits)
+        from .step import _contained
+
+        # OpenCASCADE in a child process (a build worker is its own): a crash costs one error line
+        return _contained(_solid_model_parts, path, limits)
+    if name == "vrml":
+        from .vrml.groups import vrml_groups
+
+        grouped = vrml_groups(path, limits, MIN_AREA_SHARE)
+        if grouped is not None:
+            return _grouped_parts(grouped)
     return _mesh_parts(mesh if mesh is not None else load(path, limits, name))
 
 
@@ -249,8 +264,7 @@ def _same_groups(invariants: list) -> list[list[int]]:
 def _largest(parts: list[SubPart]) -> list[SubPart]:
     """Largest first (by area of one copy), at most :data:`MAX_PARTS`."""
     def area(part):
-        v, t = part.mesh.vertices, part.mesh.face_indices.reshape(-1, 3)
-        return float(np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1).sum())
+        return float(_areas(part.mesh.vertices, _triangles_of(part.mesh)).sum())
 
     return sorted(parts, key=area, reverse=True)[:MAX_PARTS]
 
@@ -271,18 +285,69 @@ def _mesh_parts(mesh: PolygonMesh) -> list[SubPart] | None:
         return None
     areas = _areas(vertices, triangles)
     total = float(areas.sum())
-    bodies = []
-    for k in range(count):
-        mine = labels == k
-        area = float(areas[mine].sum())
-        if area > MIN_AREA_SHARE * total:
-            bodies.append(np.flatnonzero(mine))
+    bodies = [mine for mine in members_of(labels) if float(areas[mine].sum()) > MIN_AREA_SHARE * total]
     if len(bodies) <= 1:
         return None
     meshes = [_sub_mesh(vertices, triangles[chosen], mesh) for chosen in bodies]
     groups = _same_groups([_mesh_invariants(m) for m in meshes])
     parts = [SubPart(meshes[g[0]], "", len(g)) for g in groups]
     return _largest(parts) if len(parts) > 1 or parts[0].count > 1 else None
+
+
+def _grouped_parts(grouped: list[tuple[str, PolygonMesh]]) -> list[SubPart] | None:
+    """The parts of a VRML file whose grouping nodes say what its parts are
+    (:mod:`shapeidx.io.vrml.groups`): the connected bodies of each group (a group may gather
+    several bodies: FreeCAD writes a part's ten pins as one group of their colour), each in
+    its own frame with its polygons as read, named after its group; identical ones counted
+    once."""
+    pieces = []  # (name, mesh, triangles, area)
+    for name, mesh in grouped:
+        vertices = np.asarray(mesh.vertices, dtype=np.float64)
+        triangles = _triangles_of(mesh)
+        if len(triangles) == 0:
+            continue
+        polygon_of = np.repeat(np.arange(len(mesh.face_sizes)), np.asarray(mesh.face_sizes) - 2)
+        labels = _components(_merge_coincident(vertices, triangles), len(vertices))
+        areas = _areas(vertices, triangles)
+        for mine in members_of(labels):
+            piece = _polygons_of(mesh, np.unique(polygon_of[mine]))
+            pieces.append((name, piece, _triangles_of(piece), float(areas[mine].sum())))
+    total = sum(piece[3] for piece in pieces)
+    pieces = [piece for piece in pieces if piece[3] > MIN_AREA_SHARE * total]  # specks left out
+    if not pieces:
+        return None
+    meshes, invariants = [], []
+    for name, mesh, triangles, _ in pieces:
+        vertices = own_frame(mesh.vertices, triangles)
+        moved = PolygonMesh(vertices, mesh.face_sizes, mesh.face_indices, mesh.format)
+        if name:
+            moved.metadata = {"title": name}
+        meshes.append((name, moved))
+        invariants.append(_surface_invariants(vertices, triangles))
+    groups = _same_groups(invariants)
+    parts = [SubPart(meshes[g[0]][1], meshes[g[0]][0], len(g)) for g in groups]
+    return _largest(parts) if len(parts) > 1 or parts[0].count > 1 else None
+
+
+def _polygons_of(mesh: PolygonMesh, polygons: np.ndarray) -> PolygonMesh:
+    """The mesh of some of ``mesh``'s polygons, with only the vertices they use."""
+    sizes = np.asarray(mesh.face_sizes, dtype=np.int64)
+    chosen = np.zeros(len(sizes), dtype=bool)
+    chosen[polygons] = True
+    used, local = np.unique(np.asarray(mesh.face_indices)[np.repeat(chosen, sizes)], return_inverse=True)
+    return PolygonMesh(np.asarray(mesh.vertices, dtype=np.float64)[used], sizes[chosen],
+                       local.reshape(-1).astype(np.int64), mesh.format)
+
+
+def members_of(labels: np.ndarray) -> list[np.ndarray]:
+    """The indices holding each label, label by label (one sort: a mesh of a million separate
+    triangles has a million labels)."""
+    labels = np.asarray(labels)
+    if len(labels) == 0:
+        return []
+    order = np.argsort(labels, kind="stable")
+    cuts = np.flatnonzero(np.diff(labels[order])) + 1
+    return np.split(order, cuts)
 
 
 def _triangles_of(mesh: PolygonMesh) -> np.ndarray:
@@ -331,7 +396,12 @@ def _sub_mesh(vertices: np.ndarray, triangles: np.ndarray, mesh: PolygonMesh) ->
 
 
 def _mesh_invariants(mesh: PolygonMesh) -> np.ndarray:
-    vertices, triangles = mesh.vertices, mesh.face_indices.reshape(-1, 3)
+    return _surface_invariants(mesh.vertices, mesh.face_indices.reshape(-1, 3))
+
+
+def _surface_invariants(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Enclosed volume, area and the principal moments of a triangle surface: unchanged by
+    a rigid motion."""
     a, b, c = (vertices[triangles[:, i]] for i in range(3))
     volume = abs(float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum()) / 6)
     _, covariance, area = _surface_moments(vertices, triangles)

@@ -158,3 +158,28 @@ def render_file_png(path, size: int = DEFAULT_SIZE) -> bytes:
     from ..signing.part import load_part
 
     return render_solid_png(load_part(path), size)
+
+
+def render_sub_part_png(path, number: int, size: int = DEFAULT_SIZE, count: int | None = None,
+                        title: str | None = None) -> bytes:
+    """The PNG thumbnail of sub-part ``number`` (``FILE#number`` of ``build --parts``) of a
+    part file, drawn in its own frame (the frame it is signed in).
+
+    ``count`` and ``title``: what the store says of the sub-part; a file that splits
+    otherwise now (changed rules: :data:`~shapeidx.io.parts.PARTS_VERSION`) is refused
+    rather than drawn as another sub-part. A file that is one part is its own ``FILE#1``.
+    Raises :class:`~shapeidx.errors.LoadError`.
+    """
+    from ..errors import LoadError
+    from ..io.parts import split_parts
+    from ..signing.solid import make_solid
+
+    parts = split_parts(path)
+    if parts is None and number == 1:
+        return render_file_png(path, size)
+    if parts is None or not 1 <= number <= len(parts):
+        raise LoadError(path, f"has no sub-part #{number} now (the split changed since the build: build --parts again)")
+    part = parts[number - 1]
+    if (count is not None and part.count != count) or (title and part.name and part.name != title):
+        raise LoadError(path, f"splits otherwise than when sub-part #{number} was signed (build --parts again)")
+    return render_solid_png(make_solid(part.mesh, path), size)

@@ -48,6 +48,8 @@ class SheetPart:
         The thumbnail; ``None`` shows ``note`` instead.
     note : str
         Why there is no picture.
+    context_png : bytes or None
+        A sub-part's: the picture of the whole file holding it, drawn small beside its own.
     """
 
     label: str
@@ -55,6 +57,7 @@ class SheetPart:
     signature: Signature
     png: bytes | None = None
     note: str = ""
+    context_png: bytes | None = None
 
 
 @dataclass
@@ -152,10 +155,18 @@ def fractions_html(signature: Signature) -> str:
 
 
 def _picture(part: SheetPart, size: int, lazy: bool) -> str:
-    if part.png is None:
-        return f'<div class="nopic" style="width:{size}px;height:{size}px">{_esc(part.note or "no picture")}</div>'
     loading = ' loading="lazy" decoding="async"' if lazy else ""
-    return f'<img class="thumb" src="{data_uri(part.png)}" width="{size}" height="{size}" alt="{_esc(part.label)}"{loading}>'
+    if part.png is None:
+        picture = f'<div class="nopic" style="width:{size}px;height:{size}px">{_esc(part.note or "no picture")}</div>'
+    else:
+        picture = (f'<img class="thumb" src="{data_uri(part.png)}" width="{size}" height="{size}"'
+                   f' alt="{_esc(part.label)}"{loading}>')
+    if part.context_png is None:
+        return picture
+    small = size * 3 // 8
+    return (f'<div class="pictures">{picture}<figure class="context"><img class="context-thumb"'
+            f' src="{data_uri(part.context_png)}" width="{small}" height="{small}" alt="the whole file"{loading}>'
+            f'<figcaption>whole file</figcaption></figure></div>')
 
 
 def _metadata_html(metadata: dict | None) -> str:
@@ -202,6 +213,10 @@ header .thumb,header .nopic{margin:0;flex:none}
 .share{font-weight:400;color:#555;font-size:12px}
 details{font-size:12px;color:#555;margin-top:4px}
 .thumb{display:block;margin:0 auto;background:#fff}
+.pictures{display:flex;align-items:flex-end;justify-content:center;gap:6px}
+.pictures .thumb{margin:0}
+.context{margin:0;text-align:center;font-size:11px;color:#666}
+.context-thumb{display:block;background:#fff;border:1px solid #ddd;border-radius:3px}
 .nopic{display:flex;align-items:center;justify-content:center;margin:0 auto;color:#888;font-size:12px;text-align:center;border:1px dashed #ccc}
 .path{word-break:break-all;font-size:12.5px}
 .fractions{font-size:12px;color:#444}
@@ -297,12 +312,20 @@ def _picture_of(render, label: str) -> tuple[bytes | None, str]:
 
 
 def _thumbnails_of(searcher):
-    """The thumbnails of a searcher's entries; a sub-entry ``FILE#n`` has no file of its own:
-    its picture is its file's, cached with the whole store's (``STORE/thumbs``)."""
+    """The thumbnails of a searcher's entries; a sub-entry ``FILE#n``'s (drawn from its file
+    split again) are cached with the whole store's (``STORE/thumbs``)."""
     from .thumbcache import StoreThumbnails, cache_dir_of_store
 
     sub_parts = bool(getattr(searcher, "parts", False))
     return StoreThumbnails(searcher, folder=cache_dir_of_store(searcher.store.parent) if sub_parts else None)
+
+
+def _sub_part_pictures(thumbs, entry: str, parent: str) -> tuple[bytes | None, str, bytes | None]:
+    """A sub-part's own picture (or why none), and its file's (None when it is the same: a
+    file that is one part)."""
+    png, note = _picture_of(lambda: thumbs.sub_part_png(entry), entry)
+    whole, _ = _picture_of(lambda: thumbs.png(parent, record=entry), parent)
+    return png, note, (None if whole == png else whole)
 
 
 def _query_part(searcher, thumbs, query, signature) -> tuple[SheetPart, dict]:
@@ -312,15 +335,16 @@ def _query_part(searcher, thumbs, query, signature) -> tuple[SheetPart, dict]:
     sub_parts = bool(getattr(searcher, "parts", False))
     header_extra: dict = {}
     if query.entry is not None:
-        shown = query.entry
-        if sub_parts:
-            found = searcher.view.find(query.entry)
-            if found is not None:
-                parent, count = searcher.parent_at(searcher.view.position_of(found))
-                shown = parent or query.entry
-                header_extra = {"parent": parent, "count": count}
-        png, note = _picture_of(lambda: thumbs.png(shown, record=query.entry), query.entry)
-        part = SheetPart(query.entry, thumbs.file_of(shown), signature, png, note)
+        shown, context = query.entry, None
+        found = searcher.view.find(query.entry) if sub_parts else None
+        if found is not None:  # a sub-entry FILE#n: drawn itself, its file beside it
+            parent, count = searcher.parent_at(searcher.view.position_of(found))
+            shown = parent or query.entry
+            header_extra = {"parent": parent, "count": count}
+            png, note, context = _sub_part_pictures(thumbs, query.entry, shown)
+        else:
+            png, note = _picture_of(lambda: thumbs.png(shown, record=query.entry), query.entry)
+        part = SheetPart(query.entry, thumbs.file_of(shown), signature, png, note, context)
     else:
         from .render import render_solid_png
 
@@ -349,18 +373,22 @@ def answer_sheet(searcher, answer, query, output: str | os.PathLike, thumbnails:
     sheet_hits = []
     for k, hit in enumerate(answer.hits):
         position = searcher.view.position_of(searcher.view.find(hit.relative_path))
-        shown = hit.parent or hit.relative_path  # a sub-part: the picture of the whole file holding it
-        if k < thumbnails:
-            png, note = _picture_of(lambda: thumbs.png(shown, record=hit.relative_path), hit.relative_path)
-        else:
+        shown = hit.parent or hit.relative_path  # a sub-part: the link opens the whole file holding it
+        context = None
+        if k >= thumbnails:
             png, note = None, f"no picture beyond the first {thumbnails} hits (--thumbnails)"
+        elif hit.parent is not None:  # a sub-part: drawn itself, its file small beside it
+            png, note, context = _sub_part_pictures(thumbs, hit.relative_path, hit.parent)
+        else:
+            png, note = _picture_of(lambda: thumbs.png(shown, record=hit.relative_path), hit.relative_path)
         words = scale.words(hit.distance)
         share = scale.share(hit.distance)
         extra = {"share": closer_than(share)} if share is not None and hit.distance > 0 else {}
         extra["metadata"] = hit.metadata
         if hit.parent is not None:
             extra.update(parent=hit.parent, count=hit.count, title=hit.metadata.get("title", ""))
-        hit_part = SheetPart(hit.relative_path, thumbs.file_of(shown), searcher.signature_at(position), png, note)
+        hit_part = SheetPart(hit.relative_path, thumbs.file_of(shown), searcher.signature_at(position), png, note,
+                             context)
         sheet_hits.append(SheetHit(hit_part, hit.rank, hit.distance, words, extra))
     filters = "; ".join(answer.filters)
     what = "sub-parts" if sub_parts else "parts"
@@ -371,8 +399,8 @@ def answer_sheet(searcher, answer, query, output: str | os.PathLike, thumbnails:
         + f". Made {datetime.datetime.now():%Y-%m-%d %H:%M}.",
     ]
     if sub_parts:
-        meta.append("Sub-parts of the files (<code>build --parts</code>): each is shown by the picture of the whole file"
-                    " that holds it."
+        meta.append("Sub-parts of the files (<code>build --parts</code>): each is drawn in its own frame, the picture"
+                    " of the whole file that holds it small beside it."
                     + (f" The query is a sub-part of <b>{_esc(header_extra['parent'])}</b>,"
                        f" {_times(header_extra['count'])} there." if header_extra.get("parent") else ""))
     if answer.reason:
@@ -409,22 +437,22 @@ def where_used_sheet(searcher, answer, query, output: str | os.PathLike, thumbna
     cards = []
     for k, use in enumerate(answer.uses):
         position = searcher.view.position_of(searcher.view.find(use.part))
-        if k < thumbnails:
-            png, note = _picture_of(lambda: thumbs.png(use.relative_path, record=use.part), use.relative_path)
+        if k < thumbnails:  # the sub-part itself, the file small beside it
+            png, note, context = _sub_part_pictures(thumbs, use.part, use.relative_path)
         else:
-            png, note = None, f"no picture beyond the first {thumbnails} files"
+            png, note, context = None, f"no picture beyond the first {thumbnails} files", None
         share = scale.share(use.distance)
         extra = {"share": closer_than(share)} if share is not None and use.distance > 0 else {}
         extra.update(parent=use.relative_path, count=use.count, title=use.title, part=use.part)
-        cards.append(SheetHit(SheetPart(use.part, Path(use.path), searcher.signature_at(position), png, note),
+        cards.append(SheetHit(SheetPart(use.part, Path(use.path), searcher.signature_at(position), png, note, context),
                               use.rank, use.distance, scale.words(use.distance), extra))
     meta = [
         f"Store <code>{_esc(answer.store)}</code>: {answer.sub_entries:,} sub-parts of {answer.files:,} files"
         f" (root <code>{_esc(answer.root)}</code>).",
         f"Metric {_esc(metric_label(answer.metric))}, the {len(answer.uses)} nearest files"
         + (f" within {answer.max_distance:g}" if answer.max_distance is not None else "")
-        + f"; each card: the file's nearest sub-part and how many times the file holds it"
-        f" (its histograms over the query's). Made {datetime.datetime.now():%Y-%m-%d %H:%M}.",
+        + f"; each card: the file's nearest sub-part (drawn in its own frame, the whole file small beside it)"
+        f" and how many times the file holds it (its histograms over the query's). Made {datetime.datetime.now():%Y-%m-%d %H:%M}.",
     ]
     if header_extra.get("parent"):
         meta.append(f"The query is a sub-part of <b>{_esc(header_extra['parent'])}</b>,"

@@ -8,6 +8,10 @@ size and :data:`~shapeidx.pictures.render.RENDER_VERSION`:
   store copies its pictures;
 * otherwise ``$XDG_CACHE_HOME/shapeidx/thumbs`` (``~/.cache/shapeidx/thumbs``).
 
+A sub-part ``FILE#n`` of a store built with ``--parts`` is drawn itself, in its own frame
+(:func:`~shapeidx.pictures.render.render_sub_part_png`), cached by its file's SHA-256, its
+number and :data:`~shapeidx.io.parts.PARTS_VERSION` (the rules that numbered it).
+
 A changed file has another hash, so it gets a new picture; a thumbnail is written under a
 temporary name and renamed into place, so a reader never sees half a PNG. A cache folder that
 cannot be written is not an error: the picture is rendered and returned all the same.
@@ -24,7 +28,7 @@ import tempfile
 from pathlib import Path
 
 from ..io.base import file_hash, read_regular
-from .render import DEFAULT_SIZE, RENDER_VERSION, render_file_png, render_solid_png
+from .render import DEFAULT_SIZE, RENDER_VERSION, render_file_png, render_solid_png, render_sub_part_png
 
 
 def cache_dir_of_store(store: str | os.PathLike) -> Path:
@@ -54,8 +58,13 @@ class ThumbnailCache:
         self.size = size
         self.rendered = 0  # pictures rendered (cache misses) by this object, for benchmarks and tests
 
-    def key_path(self, digest: str) -> Path:
-        """Where the thumbnail of a file with SHA-256 ``digest`` is kept."""
+    def key_path(self, digest: str, part: int | None = None) -> Path:
+        """Where the thumbnail of a file with SHA-256 ``digest`` is kept (of its sub-part
+        number ``part``, when given)."""
+        if part is not None:
+            from ..io.parts import PARTS_VERSION
+
+            return self.folder / f"{digest}-part{int(part)}-s{PARTS_VERSION}-{self.size}px-v{RENDER_VERSION}.png"
         return self.folder / f"{digest}-{self.size}px-v{RENDER_VERSION}.png"
 
     def png(self, path: str | os.PathLike, digest: str | None = None, solid=None) -> bytes:
@@ -78,6 +87,27 @@ class ThumbnailCache:
         except OSError:
             pass
         data = render_solid_png(solid, self.size) if solid is not None else render_file_png(path, self.size)
+        self.rendered += 1
+        self._write(target, data)
+        return data
+
+    def part_png(self, path: str | os.PathLike, number: int, digest: str | None = None, count: int | None = None,
+                 title: str | None = None) -> bytes:
+        """The PNG bytes of the thumbnail of sub-part ``number`` of part file ``path``
+        (``FILE#number``; ``count`` and ``title`` as the store has them: see
+        :func:`~shapeidx.pictures.render.render_sub_part_png`). Raises LoadError."""
+        from ..errors import LoadError
+
+        try:
+            digest = digest or file_hash(os.fspath(path))
+        except OSError as exc:
+            raise LoadError(path, f"cannot read the file ({exc.strerror or exc})") from None
+        target = self.key_path(digest, number)
+        try:
+            return read_regular(target, 64 << 20)
+        except OSError:
+            pass
+        data = render_sub_part_png(path, number, self.size, count, title)
         self.rendered += 1
         self._write(target, data)
         return data
@@ -124,6 +154,31 @@ class StoreThumbnails:
         ``record``: the entry whose stored hash is the file's (a sub-entry ``FILE#n`` of ``entry``)."""
         absolute = self.file_of(entry)
         return self.cache.png(absolute, self._digest(record or entry, absolute))
+
+    def sub_part_png(self, entry: str) -> bytes:
+        """The thumbnail of sub-entry ``FILE#n`` itself (``searcher`` opened with
+        ``parts=True``), drawn in its own frame; a file that is one part (its ``FILE#1`` alone,
+        once) shows the whole file's picture, shared with the whole-file thumbnails. Raises
+        LoadError (also for an entry the store does not have)."""
+        from ..errors import LoadError
+
+        found = self.searcher.view.find(entry)
+        if found is None or "#" not in entry:
+            raise LoadError(entry, "is not a sub-part of the store")
+        position = self.searcher.view.position_of(found)
+        parent, count = self.searcher.parent_at(position)
+        number = int(entry.rsplit("#", 1)[1])
+        absolute = self.file_of(parent)
+        digest = self._digest(entry, absolute)
+        if self.is_whole_file(entry, parent, count):
+            return self.cache.png(absolute, digest)  # one part: the whole file
+        title = (self.searcher.metadata_at(position) or {}).get("title") if position is not None else None
+        return self.cache.part_png(absolute, number, digest, count, title)
+
+    def is_whole_file(self, entry: str, parent: str, count: int) -> bool:
+        """Whether sub-entry ``entry`` of ``parent`` is the whole file (a file that is one part:
+        its ``FILE#1`` alone, once), whose picture is the file's."""
+        return entry == f"{parent}#1" and count == 1 and self.searcher.view.find(f"{parent}#2") is None
 
     def _digest(self, entry: str, absolute: Path) -> str | None:
         """The entry's stored SHA-256 when its file is unchanged since the build (else None: hash it)."""

@@ -132,6 +132,8 @@ class StoreService:
 
         #: The store's sub-parts (``build --parts``; ``parts=1`` ranks them), or None.
         self.parts = Searcher(self.store, parts=True) if parts_store(self.store).is_dir() else None
+        #: Their pictures (each drawn itself), cached with the files' in ``STORE/thumbs``.
+        self.part_thumbs = StoreThumbnails(self.parts, folder=self.thumbs.cache.folder) if self.parts else None
 
     def close(self) -> None:
         self.searcher.close()
@@ -297,7 +299,9 @@ class StoreService:
             with self._lock:
                 metadata = self.parts.metadata_at(position)
             out.update(name=query_id, path=str(self.root / parent), metadata=metadata, parent=parent, count=count,
-                       thumbnail=f"/api/thumbnail?id={_quote(parent)}")
+                       thumbnail=f"/api/thumbnail?id={_quote(query_id)}")
+            if not self.part_thumbs.is_whole_file(query_id, parent, count):
+                out["parent_thumbnail"] = f"/api/thumbnail?id={_quote(parent)}"
         else:
             with self._lock:
                 metadata = self.searcher.metadata_at(self.position_of(query_id))
@@ -324,8 +328,10 @@ class StoreService:
             share = scale.share(hit.distance)
             hits.append({**hit.to_dict(), "id": hit.relative_path, "words": scale.words(hit.distance), "share": share,
                          "closer_than": closer_than(share) if share is not None and hit.distance > 0 else "",
-                         "fractions": _fractions_json(hit_fractions),  # a sub-part's picture: its file's
-                         "thumbnail": f"/api/thumbnail?id={_quote(hit.parent or hit.relative_path)}"})
+                         "fractions": _fractions_json(hit_fractions),  # a sub-part: drawn itself
+                         "thumbnail": f"/api/thumbnail?id={_quote(hit.relative_path)}"})
+            if hit.parent is not None and not self.part_thumbs.is_whole_file(hit.relative_path, hit.parent, hit.count):
+                hits[-1]["parent_thumbnail"] = f"/api/thumbnail?id={_quote(hit.parent)}"  # the file holding it
         return {"query": self.describe(query_id, query), "metric": metric, "top": top, "entries": answer.entries,
                 "considered": answer.considered, "filters": answer.filters, "reason": answer.reason,
                 "parts": parts, "calibration": scale.describe(), "hits": hits}
@@ -366,7 +372,11 @@ class StoreService:
                 raise RequestError(404, "no picture of this upload")
             return png
         if self.searcher.view.find(query_id) is None and (sub := self.sub_entry(query_id)) is not None:
-            query_id = sub[1]  # a sub-part FILE#n: the picture of its file (a whole-file entry)
+            self.regular_file_of(sub[1])  # a sub-part FILE#n: its file, a known entry inside the root
+            try:  # drawn itself, from its file split again
+                return self.part_thumbs.sub_part_png(query_id)
+            except LoadError as exc:
+                raise RequestError(404, f"no picture of {query_id!r}: {exc.reason}") from None
         self.regular_file_of(query_id)  # a known entry inside the root, a regular file, or an error
         try:
             return self.thumbs.png(query_id)

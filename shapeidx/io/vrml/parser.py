@@ -89,9 +89,11 @@ class Node:
         True when this node or a node below it holds an IS reference (PROTO templates).
     external : bool
         Set on EXTERNPROTO instances and node types nobody defined.
+    name : str
+        The name ``DEF`` gave the node, or "" (sub-parts are named after it).
     """
 
-    __slots__ = ("children", "external", "fields", "has_is", "source", "token", "type")
+    __slots__ = ("children", "external", "fields", "has_is", "name", "source", "token", "type")
 
     def __init__(self, type: str, token: int, source: Lexer | None = None, external: bool = False):
         self.type = type
@@ -101,6 +103,7 @@ class Node:
         self.children: list[Node] | tuple[()] = ()
         self.has_is = False
         self.external = external
+        self.name = ""
 
     def __repr__(self) -> str:
         return f"Node({self.type!r}, line {self.line}, fields {sorted(self.fields)}, {len(self.children)} children)"
@@ -310,6 +313,8 @@ class _Parser:
             node = self.node(type_index)
             if node is not None:
                 self.scope.defs[name] = node
+                if not node.name:  # the first DEF name a node gets (a shared PROTO body keeps its own)
+                    node.name = name
             return node
         if token == b"NULL":
             self.i += 1

@@ -53,7 +53,12 @@ function topValue() { return document.getElementById("top").value || "10"; }
 function partsValue() { return state.info && state.info.parts && document.getElementById("parts").checked ? "1" : ""; }
 function subPartLine(part) {
   if (!part.parent) return null;
-  return h("div", {class: "subpart", dataset: {testid: "sub-part"}, text: `sub-part of ${part.parent} (×${part.count})`});
+  // the sub-part's own picture is the card's; its whole file is drawn small beside the line
+  const whole = part.parent_thumbnail ? h("img", {class: "parent-thumb", src: part.parent_thumbnail, width: 40, height: 40,
+    alt: `the whole file ${part.parent}`, title: `the whole file: ${part.parent}`, loading: "lazy",
+    dataset: {testid: "parent-thumbnail"}}) : null;
+  return h("div", {class: "subpart"}, whole,
+    h("span", {dataset: {testid: "sub-part"}, text: `sub-part of ${part.parent} (×${part.count})`}));
 }
 function whereValue() { return document.getElementById("where").value.split(";").map(s => s.trim()).filter(s => s); }
 function withWhere(values) {
