@@ -34,6 +34,7 @@ import numpy as np
 
 from _common import DATA, REPO, quiet_build
 import twin_study
+from twod_study import BEGIN as TWOD_SECTION
 from shapeidx.distance import METRICS, PAPER_METRICS, label
 from shapeidx.distance.combined import UNIFIED_POWER, UNIFIED_TWIN_DISTANCE, unified_of
 from shapeidx.evaluation.evaluate import distance_matrices, labelled_features
@@ -221,7 +222,10 @@ def main(argv=None) -> int:
         f" {datetime.date.today()}; {platform.machine()}, {os.cpu_count()} cores.",
         "",
     ]
-    args.markdown.write_text("\n".join(lines))
+    # the 2-D histograms' section (scripts/twod_study.py writes it) is kept as it is
+    old = args.markdown.read_text() if args.markdown.exists() else ""
+    kept = ["", old[old.index(TWOD_SECTION):].rstrip("\n"), ""] if TWOD_SECTION in old else []
+    args.markdown.write_text("\n".join(lines + kept))
     print("\n".join(lines))
     return 0
 
