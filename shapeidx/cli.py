@@ -726,6 +726,10 @@ def stats(store, list_failed, output_format, as_json):
     if facts["journal_batches"]:
         click.echo(f"  journal     {facts['journal_batches']} segment(s) beside the main file"
                    " (folded in as the store grows)")
+    parts = facts.get("parts")
+    if parts:
+        click.echo(f"  sub-parts   {parts['entries']:,} entries ({parts['instances']:,} counted as the files hold them)"
+                   f" of {parts['files']:,} files, {parts['several']:,} with several (build --parts; STORE/parts)")
     table = facts.get("metadata")
     if table:
         click.echo(f"  metadata    {table['rows']:,} rows, keys {', '.join(table['keys'])} (from {table['source']})")

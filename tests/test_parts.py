@@ -332,6 +332,11 @@ class TestBuildAndWhereUsed:
         csv = cli("where-used", "--id", part, "--store", store, "--top", "2", "--format", "csv")
         assert csv.exit_code == 0, csv.output
         assert {line.split(",")[4] for line in csv.stdout.splitlines()[1:]} == {"boards/four.step", "boards/six.step"}
+        # stats counts them: a body and its pin in each board (the pin once, as often as placed), the cube
+        facts = json.loads(cli("stats", "--store", store, "--json").stdout)["parts"]
+        assert facts == {"entries": 7, "files": 4, "several": 3, "instances": 1 + 4 + 1 + 6 + 1 + 3 + 1}
+        assert "sub-parts   7 entries (17 counted as the files hold them) of 4 files, 3 with several" in cli(
+            "stats", "--store", store).stdout
 
     def test_query_ranks_files_by_default_and_sub_parts_with_parts(self, library, tmp_path):
         root, query = library
@@ -387,6 +392,7 @@ class TestBuildAndWhereUsed:
         root, query = library
         store = tmp_path / "s.shapeidx"
         _build(root, store)
+        assert json.loads(cli("stats", "--store", store, "--json").stdout)["parts"] is None
         for args in (("where-used", query), ("query", query, "--parts")):
             result = cli(*args, "--store", store)
             assert_one_line_error(result, store)

@@ -33,9 +33,33 @@ def describe_store(reader: StoreReader) -> dict:
         "journal_batches": reader.journal,
         "build": read_build_state(reader.path),
         "metadata": _metadata_facts(reader.path),
+        "parts": _parts_facts(reader.path),
         "bytes": reader.size_on_disk(),
         "failure_reasons": [{"reason": str(r), "count": int(c)} for c, r in by_count],
     }
+
+
+def _parts_facts(store) -> dict | None:
+    """Sub-entries of the store's sub-parts store (``build --parts``), or None when it has none.
+
+    ``entries``: distinct sub-parts signed; ``files``: whole files they come from;
+    ``several``: files that hold more than one distinct sub-part; ``instances``: sub-parts
+    counted as often as their files hold them (forty identical pins are one entry, 40 here).
+    """
+    from .files import parts_store
+    from .layout import COUNT_COLUMN, PARENT_COLUMN
+    from .reader import open_store
+
+    path = parts_store(store)
+    if not path.is_dir():
+        return None
+    with open_store(path) as parts:
+        ok = parts.column("entries/status") == STATUS_OK
+        parents = parts.column(PARENT_COLUMN)[ok].astype(str)
+        counts = parts.column(COUNT_COLUMN)[ok]
+    files, per_file = np.unique(parents, return_counts=True)
+    return {"entries": int(ok.sum()), "files": int(len(files)),
+            "several": int(np.sum(per_file > 1)), "instances": int(counts.sum())}
 
 
 def _metadata_facts(store) -> dict | None:
