@@ -140,10 +140,15 @@ def test_an_incremental_build_changes_only_the_shard_of_each_changed_path(trees,
     shutil.copytree(sharded, store)
     # a copied store has another root: rebuild from the copy as a new store instead
     shutil.rmtree(store)
+    planned = json.loads(build(tree2, store, "--shards", SHARDS, "--dry-run", "--json").stdout)
+    assert (planned["planned"], planned["unchanged"]) == (len(parts), 0) and not store.exists()
     assert build(tree2, store, "--workers", "1", "--shards", SHARDS).exit_code == 0
     gone = parts[4]
     (tree2 / gone).unlink()
     before = [len(open_store(s)) for s in shard_paths(store)]
+    planned = json.loads(build(tree2, store, "--dry-run", "--json").stdout)  # says it, changes nothing
+    assert (planned["planned"], planned["unchanged"], planned["removed"]) == (0, len(parts) - 1, 1)
+    assert [len(open_store(s)) for s in shard_paths(store)] == before
     result = build(tree2, store, "--workers", "1")  # the manifest says it is sharded: no --shards needed
     assert result.exit_code == 0, result.output
     after = [len(open_store(s)) for s in shard_paths(store)]

@@ -35,9 +35,7 @@ def run_sharded_build(root, store, options: BuildOptions, reporter, shards: int)
     """Build ``store`` as ``shards`` shards of the tree ``root``; the summary of them all."""
     started = time.monotonic()
     store = Path(store)
-    if options.dry_run:
-        raise ShapeidxError("--dry-run does not take --shards yet: dry-run one shard's store (STORE/shards/K)")
-    paths = create_sharded(store, shards)
+    paths = create_sharded(store, shards, create=not options.dry_run)
     if options.scheduler:
         summaries = _on_cluster(root, paths, options, reporter)
     else:

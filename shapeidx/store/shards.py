@@ -59,8 +59,11 @@ def shard_paths(store, count: int | None = None) -> list[Path]:
     return [Path(store) / "shards" / str(k) for k in range(count)]
 
 
-def create_sharded(store, count: int) -> list[Path]:
+def create_sharded(store, count: int, create: bool = True) -> list[Path]:
     """Make ``store`` a sharded store of ``count`` shards (or check that it is one of as many).
+
+    ``create=False`` (a dry run) checks the same and changes nothing: a new store's shard
+    paths are returned without their folders.
 
     Raises
     ------
@@ -76,6 +79,8 @@ def create_sharded(store, count: int) -> list[Path]:
         return shard_paths(store, count)
     if store.exists() and (not store.is_dir() or any(store.iterdir())):
         raise StoreError(f"{store} exists and is not a sharded store: give --shards only for a new store or a sharded one")
+    if not create:
+        return shard_paths(store, count)
     (store / "shards").mkdir(parents=True, exist_ok=True)
     text = json.dumps({"format": FORMAT, "version": VERSION, "shards": count, "key": "blake2b-128"}, indent=1) + "\n"
     tmp = manifest_path(store).with_name(f"{MANIFEST}.tmp-{os.getpid()}")
