@@ -269,3 +269,22 @@ def test_what_the_child_does_becomes_one_line(tmp_path):
         run_contained(int, ("x",), where)
     assert str(caught.value).startswith(f"{where}: cannot be read: it holds a value of the wrong form")
     assert "ValueError" not in str(caught.value)
+
+
+def test_a_long_b_spline_is_read_but_a_long_edge_loop_is_refused(tmp_path):
+    """A B-spline's parameters are control points and knots, which OpenCASCADE reads in linear
+    time: a real solid written out alone by OpenCASCADE has a curve of 36,310 (docs/assemblies.md);
+    topology as long (an edge loop) is what takes it minutes."""
+    from shapeidx.errors import LoadError
+    from shapeidx.io.step import MAX_STEP_PARAMETERS, MAX_STEP_SPLINE_PARAMETERS, _check_step_entities
+
+    refs = ",".join(f"#{k}" for k in range(100, 100 + 36_300))
+    spline = f"#7 = B_SPLINE_CURVE_WITH_KNOTS('',3,({refs}),.UNSPECIFIED.,.F.,.F.,(4,4),(0.,1.),.UNSPECIFIED.);\n"
+    _check_step_entities(tmp_path / "spline.step", spline.encode())
+    loop = f"#7 = EDGE_LOOP('',({refs}));\n"
+    with pytest.raises(LoadError, match=r"#7\) of 36,301 parameters, more than the limit of 20,000"):
+        _check_step_entities(tmp_path / "loop.step", loop.encode())
+    huge = f"#7 = B_SPLINE_CURVE_WITH_KNOTS('',3,({','.join(['#1'] * 250_000)}),.U.,.F.,.F.,(4,4),(0.,1.),.U.);\n"
+    with pytest.raises(LoadError, match=r"more than the limit of 200,000"):
+        _check_step_entities(tmp_path / "huge.step", huge.encode())
+    assert MAX_STEP_PARAMETERS < 36_310 < MAX_STEP_SPLINE_PARAMETERS
