@@ -620,6 +620,23 @@ class TestSheetsAndWeb:
             files = client.get("/api/query", params={"id": hits[0]["id"], "top": "3"}).json()
             assert all("parent" not in h and "#" not in h["id"] for h in files["hits"])
             assert client.get("/api/query", params={"id": "cube.step", "parts": "maybe"}).status_code == 400
+            # where used: the files of `shapeidx where-used`, each once, with its sub-part and count
+            cli_uses = json.loads(cli("where-used", query, "--store", store, "--metric", "weighted", "--json").stdout)["uses"]
+            with open(query, "rb") as f:
+                used = client.post("/api/query", files={"file": (query.name, f.read())},
+                                   data={"uses": "1", "metric": "weighted"})
+            assert used.status_code == 200, used.text
+            assert used.json()["uses"] is True
+            assert [(h["parent"], h["id"], h["count"]) for h in used.json()["hits"]] == [
+                (u["relative_path"], u["part"], u["count"]) for u in cli_uses]
+            assert [h["parent"] for h in used.json()["hits"]] == ["boards/four.step", "boards/six.step"] or [
+                h["parent"] for h in used.json()["hits"]] == ["boards/six.step", "boards/four.step"]
+            pin_of_six = [h["id"] for h in used.json()["hits"] if h["parent"] == "boards/six.step"][0]
+            by_pin = client.get("/api/query", params={"id": pin_of_six, "uses": "1", "metric": "weighted"}).json()
+            assert {h["parent"]: h["count"] for h in by_pin["hits"]} == {"boards/four.step": 4, "boards/six.step": 6}
+            assert client.get(by_pin["hits"][0]["thumbnail"]).status_code == 200
+            refused = client.get("/api/query", params={"id": pin_of_six, "uses": "1", "where": "material=steel"})
+            assert refused.status_code == 400 and "where" in refused.json()["error"]
         finally:
             service.close()
         # a store without sub-parts: parts is false, and parts=1 is a 409 that says how to build them
@@ -630,6 +647,8 @@ class TestSheetsAndWeb:
             client = TestClient(create_app(service), base_url="http://127.0.0.1:8765")
             assert client.get("/api/store").json()["parts"] is False
             refused = client.get("/api/query", params={"id": "cube.step", "parts": "1"})
+            assert refused.status_code == 409 and "--parts" in refused.json()["error"]
+            refused = client.get("/api/query", params={"id": "cube.step", "uses": "1"})
             assert refused.status_code == 409 and "--parts" in refused.json()["error"]
             with open(query, "rb") as f:
                 upload = client.post("/api/query", files={"file": (query.name, f.read())}, data={"parts": "1"})
@@ -705,6 +724,19 @@ class TestSheetsAndWeb:
                 page.uncheck("#parts")
                 page.wait_for_function("() => !location.hash.includes('parts=1')")
                 page.wait_for_selector("[data-testid=hit]:not(:has([data-testid=sub-part]))")
+                # where used, by the pin of six.step: the two boards, each once, with its count
+                assert page.locator("#uses-label").is_visible()
+                pin = [h["relative_path"] for h in cli_hits if h["parent"] == "boards/six.step"][0]
+                page.check("#uses")
+                page.goto(url + "#/query?" + urllib.parse.urlencode({"id": pin, "metric": "weighted", "top": "10",
+                                                                       "uses": "1"}))
+                page.wait_for_selector("[data-testid=hit] [data-testid=sub-part]:has-text('boards/four.step')")
+                lines = sorted(c.inner_text() for c in page.locator("[data-testid=hit] [data-testid=sub-part]").all())
+                assert lines == ["sub-part of boards/four.step (×4)", "sub-part of boards/six.step (×6)"]
+                assert "the files holding a sub-part like it" in page.locator("[data-testid=query-card]").inner_text()
+                page.wait_for_function("() => [...document.querySelectorAll('[data-testid=hit] img')].every(i => i.complete)")
+                assert browsing.loaded(page, "[data-testid=hit] img")
+                page.screenshot(path=str(tmp_path / "where-used.png"))
                 assert not errors, errors
                 context.close()
         finally:

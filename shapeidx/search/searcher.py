@@ -88,6 +88,9 @@ class Query:
         The query's file, absolute (None for standard input, arrays, entries).
     solid : Solid or None
         The part as loaded (when it was signed here), for its picture.
+    extents : ndarray or None
+        The part's principal radii, kept by a caller that lets ``solid`` go (the web page's
+        uploads): where-used's same-size test reads them.
     """
 
     label: str
@@ -96,6 +99,7 @@ class Query:
     entry: str | None = None
     path: str | None = None
     solid: object = None
+    extents: object = None
 
 
 def entry_path_in(root, file) -> str | None:

@@ -164,12 +164,19 @@ def where_used(searcher, query, top: int = 10, metric: str = DEFAULT_METRIC, max
     return answer
 
 
-def _same_size(searcher, query, tolerance: float) -> np.ndarray:
-    """Which ranked sub-entries have principal radii within ``tolerance`` (relative) of the query's."""
+def principal_radii(solid) -> np.ndarray:
+    """A loaded part's principal radii (from its exact surface moments), as the store keeps them."""
     from ..signing.moments import shape_facts
 
-    if query.solid is not None:
-        mine = np.asarray(shape_facts(query.solid.vertices, query.solid.faces)["extents"], dtype=np.float64)
+    return np.asarray(shape_facts(solid.vertices, solid.faces)["extents"], dtype=np.float64)
+
+
+def _same_size(searcher, query, tolerance: float) -> np.ndarray:
+    """Which ranked sub-entries have principal radii within ``tolerance`` (relative) of the query's."""
+    if query.extents is not None:
+        mine = np.asarray(query.extents, dtype=np.float64)
+    elif query.solid is not None:
+        mine = principal_radii(query.solid)
     elif query.own is not None:
         i, row = searcher.view.locate(query.own)
         mine = np.asarray(searcher.view.sources[i].column("entries/extents")[row], dtype=np.float64)

@@ -352,9 +352,44 @@ class StoreService:
                 "considered": answer.considered, "filters": answer.filters, "reason": answer.reason,
                 "parts": parts, "calibration": scale.describe(), "hits": hits}
 
-    def query_upload(self, filename: str, data: bytes, top: int, metric: str, where=(), parts: bool = False) -> dict:
-        """Sign an uploaded part file and rank the store against it (422 for a bad part)."""
+    def where_used(self, query_id: str, top: int, metric: str) -> dict:
+        """The files holding a sub-part like the query, nearest first (``shapeidx where-used``):
+        the answer of :meth:`query` with one hit per file, its nearest sub-part and its count."""
+        from types import SimpleNamespace
+
+        from ..search.where_used import where_used
+
+        searcher = self.parts_searcher()
+        query = self.query_of(query_id)
+        if not (query.entry is not None and "#" in query.entry and not self._has_entry(query.entry)):
+            query = replace(query, own=None)  # its own position is in the whole-file store
+        with self._lock:
+            answer = where_used(searcher, query, top=top, metric=metric)
+            fractions = self._fractions_of(searcher, [SimpleNamespace(relative_path=u.part) for u in answer.uses])
+        scale = self.scale(metric, True)
+        hits = []
+        for use, hit_fractions in zip(answer.uses, fractions):
+            share = scale.share(use.distance)
+            with self._lock:
+                metadata = self.parts.metadata_at(self.parts.view.position_of(self.parts.view.find(use.part)))
+            hits.append({"rank": use.rank, "distance": use.distance, "id": use.part, "relative_path": use.part,
+                         "path": use.path, "parent": use.relative_path, "count": use.count, "title": use.title,
+                         "metadata": metadata, "words": scale.words(use.distance), "share": share,
+                         "closer_than": closer_than(share) if share is not None and use.distance > 0 else "",
+                         "fractions": _fractions_json(hit_fractions),
+                         "thumbnail": f"/api/thumbnail?id={_quote(use.part)}"})
+            if not self.part_thumbs.is_whole_file(use.part, use.relative_path, use.count):
+                hits[-1]["parent_thumbnail"] = f"/api/thumbnail?id={_quote(use.relative_path)}"
+        return {"query": self.describe(query_id, query), "metric": metric, "top": top, "entries": answer.files,
+                "considered": answer.files, "filters": [], "reason": answer.reason, "parts": True, "uses": True,
+                "calibration": scale.describe(), "hits": hits}
+
+    def query_upload(self, filename: str, data: bytes, top: int, metric: str, where=(), parts: bool = False,
+                     uses: bool = False) -> dict:
+        """Sign an uploaded part file and rank the store against it (422 for a bad part);
+        ``uses``: the files that use a part like it (:meth:`where_used`)."""
         from ..pictures.render import render_solid_png
+        from ..search.where_used import principal_radii
 
         name = os.path.basename((filename or "upload").replace("\\", "/")) or "upload"
         digest = hashlib.sha256(data).hexdigest()
@@ -370,6 +405,7 @@ class StoreService:
                 except LoadError as exc:
                     raise RequestError(422, f"{name}: {exc.reason}") from None
                 query.path = query.entry = query.own = None  # a temporary file: not the store's
+                query.extents = principal_radii(query.solid)  # where used's same-size test, once solid is gone
                 try:
                     png, note = render_solid_png(query.solid), ""
                 except Exception as exc:  # a picture is a nicety: the query still answers
@@ -379,6 +415,8 @@ class StoreService:
                 self._uploads[query_id] = Upload(name, query, png, note)
                 while len(self._uploads) > UPLOADS_KEPT:
                     self._uploads.popitem(last=False)
+        if uses:
+            return self.where_used(query_id, top, metric)
         return self.query(query_id, top, metric, where, parts)
 
     def thumbnail(self, query_id: str) -> bytes:
@@ -513,6 +551,14 @@ def _int(params, name: str, default: int, lo: int, hi: int) -> int:
     return value
 
 
+def _uses(params) -> bool:
+    """``uses=1``: where used (the files holding a sub-part like the query); it takes no ``where``."""
+    uses = _flag(params, "uses")
+    if uses and _where(params):
+        raise RequestError(400, "where used takes no 'where' conditions (they select files, not sub-parts)")
+    return uses
+
+
 def _flag(params, name: str) -> bool:
     """A yes/no parameter: 1/true/yes/on or 0/false/no/off/absent (else 400)."""
     value = str(params.get(name) or "0").strip().lower()
@@ -622,8 +668,11 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD, host: str = 
 
     async def query_get(request):
         q = request.query_params
-        result = await run_in_threadpool(service.query, _id(q), _int(q, "top", 10, 1, MAX_TOP), _metric(q), _where(q),
-                                         _flag(q, "parts"))
+        if _uses(q):
+            result = await run_in_threadpool(service.where_used, _id(q), _int(q, "top", 10, 1, MAX_TOP), _metric(q))
+        else:
+            result = await run_in_threadpool(service.query, _id(q), _int(q, "top", 10, 1, MAX_TOP), _metric(q),
+                                             _where(q), _flag(q, "parts"))
         return JSONResponse(result)
 
     async def query_post(request):
@@ -663,11 +712,12 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD, host: str = 
                     raise RequestError(413, f"upload is over the limit of {max_upload:,} bytes")
                 if not data:
                     raise RequestError(422, f"{upload.filename or 'upload'}: the file is empty")
-                top, metric, parts = _int(form, "top", 10, 1, MAX_TOP), _metric(form), _flag(form, "parts")
-                if parts:
+                top, metric, parts, uses = (_int(form, "top", 10, 1, MAX_TOP), _metric(form), _flag(form, "parts"),
+                                            _uses(form))
+                if parts or uses:
                     service.parts_searcher()  # 409 before signing, when the store has no sub-parts
                 result = await anyio.to_thread.run_sync(service.query_upload, upload.filename or "upload", data, top,
-                                                        metric, _where(form), parts)
+                                                        metric, _where(form), parts, uses)
             finally:
                 await form.close()
         finally:

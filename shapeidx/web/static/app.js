@@ -51,6 +51,13 @@ function topValue() { return document.getElementById("top").value || "10"; }
 // the where field: conditions separated by ";" (KEY=VALUE, KEY>=N, KEY~GLOB, ...)
 // "1" when the sub-parts are ranked (the checkbox, shown only when the store has them)
 function partsValue() { return state.info && state.info.parts && document.getElementById("parts").checked ? "1" : ""; }
+// "1" for where used: the files holding a sub-part like the query (no where conditions then)
+function usesValue() { return state.info && state.info.parts && document.getElementById("uses").checked ? "1" : ""; }
+function setSearch(search) {
+  if (usesValue()) { search.set("uses", "1"); search.delete("where"); }
+  else { if (partsValue()) search.set("parts", "1"); for (const w of whereValue()) search.append("where", w); }
+  return search;
+}
 function subPartLine(part) {
   if (!part.parent) return null;
   // the sub-part's own picture is the card's; its whole file is drawn small beside the line
@@ -61,12 +68,7 @@ function subPartLine(part) {
     h("span", {dataset: {testid: "sub-part"}, text: `sub-part of ${part.parent} (×${part.count})`}));
 }
 function whereValue() { return document.getElementById("where").value.split(";").map(s => s.trim()).filter(s => s); }
-function withWhere(values) {
-  const search = new URLSearchParams(values);
-  if (partsValue()) search.set("parts", "1");
-  for (const w of whereValue()) search.append("where", w);
-  return search;
-}
+function withWhere(values) { return setSearch(new URLSearchParams(values)); }
 function metadataLine(metadata) {
   const entries = Object.entries(metadata || {});
   if (!entries.length) return null;
@@ -75,8 +77,7 @@ function metadataLine(metadata) {
 }
 function go(view, values) {
   const search = new URLSearchParams(values);
-  if (view === "query" && !search.has("where")) for (const w of whereValue()) search.append("where", w);
-  if (view === "query" && partsValue()) search.set("parts", "1");
+  if (view === "query") { search.delete("where"); setSearch(search); }
   location.hash = `#/${view}?` + search.toString();
 }
 
@@ -129,8 +130,10 @@ function renderQuery(result) {
   const q = result.query;
   const what = result.parts ? "sub-parts" : "parts";
   const filtered = result.filters && result.filters.length ? ` (${result.filters.join(", ")}: ${result.considered.toLocaleString()} ${what} left)` : "";
-  const info = h("div", {class: "muted"},
-    `${metricLabel(result.metric)}, top ${result.hits.length} of ${result.entries.toLocaleString()} ${what}${filtered}. `,
+  const counted = result.uses
+    ? `${metricLabel(result.metric)}, the files holding a sub-part like it (of its size), nearest first: ${result.hits.length} shown, of ${result.entries.toLocaleString()} files. `
+    : `${metricLabel(result.metric)}, top ${result.hits.length} of ${result.entries.toLocaleString()} ${what}${filtered}. `;
+  const info = h("div", {class: "muted"}, counted,
     result.reason ? h("div", {class: "reason", dataset: {testid: "no-answer"}, text: `No hit: ${result.reason}.`}) : null,
     h("details", {}, h("summary", {text: "How the similarity words are calibrated"}), result.calibration));
   const hits = h("div", {class: "hits", dataset: {testid: "hits"}});
@@ -206,14 +209,15 @@ async function route() {
   if (p.get("metric")) document.getElementById("metric").value = p.get("metric");
   if (p.get("top")) document.getElementById("top").value = p.get("top");
   if (view === "query") document.getElementById("parts").checked = p.get("parts") === "1";
+  if (view === "query") document.getElementById("uses").checked = p.get("uses") === "1";
   const key = location.hash;
   busy(true);
   try {
     if (view === "query") {
       if (p.getAll("where").length) document.getElementById("where").value = p.getAll("where").join("; ");
       const search = new URLSearchParams({id: p.get("id") || "", metric: metricValue(), top: topValue()});
-      for (const w of p.getAll("where")) search.append("where", w);
-      if (partsValue()) search.set("parts", "1");
+      if (usesValue()) search.set("uses", "1");
+      else { for (const w of p.getAll("where")) search.append("where", w); if (partsValue()) search.set("parts", "1"); }
       const url = "/api/query?" + search;
       renderQuery(state.cache.get(key) || await api(url));
     } else if (view === "compare") {
@@ -243,7 +247,8 @@ async function upload(file) {
   form.append("top", topValue());
   form.append("metric", metricValue());
   form.append("parts", partsValue() || "0");
-  for (const w of whereValue()) form.append("where", w);
+  form.append("uses", usesValue() || "0");
+  if (!usesValue()) for (const w of whereValue()) form.append("where", w);
   busy(true);
   try {
     const result = await api("/api/query", {method: "POST", body: form});
@@ -278,6 +283,7 @@ async function start() {
       `${state.info.store}: ${state.info.ok.toLocaleString()} parts, ${state.info.failed.toLocaleString()} failed` +
       (state.info.parts ? `, ${state.info.sub_parts.toLocaleString()} sub-parts` : "");
     document.getElementById("parts-label").hidden = !state.info.parts;
+    document.getElementById("uses-label").hidden = !state.info.parts;
   } catch (e) {
     showError(`cannot read the store: ${e.message}`);
   }
@@ -286,6 +292,7 @@ async function start() {
   document.getElementById("top").addEventListener("change", requery);
   document.getElementById("where").addEventListener("change", requery);
   document.getElementById("parts").addEventListener("change", requery);
+  document.getElementById("uses").addEventListener("change", requery);
   const drop = document.getElementById("drop");
   drop.addEventListener("dragover", (ev) => { ev.preventDefault(); drop.classList.add("over"); });
   drop.addEventListener("dragleave", () => drop.classList.remove("over"));
