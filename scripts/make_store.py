@@ -104,20 +104,37 @@ def perturbed_histograms(base_counts, base_lengths, picks, rng) -> tuple[np.ndar
 def _round_to_totals(flat: np.ndarray, lengths: np.ndarray, totals: np.ndarray) -> np.ndarray:
     """Integer counts proportional to ``flat`` whose sum per histogram is exactly ``totals``.
 
-    The rounding residual (a few pairs) goes to each histogram's fullest bin.
+    Each count is rounded; the residual (a few pairs) goes to each histogram's fullest bin
+    when pairs are missing, and is taken from its fullest bins in turn, down to one pair
+    each, when there are too many: a non-empty bin stays non-empty and no count goes below
+    zero. (Taking it all from the fullest bin drove a count negative when a sparse
+    histogram's many roundings up outweighed that bin: 2 of 500,000 entries of a 5 x 10^6
+    store.)
     """
     segment = _segments(lengths)
+    starts = offsets_of(lengths)[:-1]
     sums = np.bincount(segment, weights=flat, minlength=len(lengths))
     scale = np.divide(totals, sums, out=np.zeros(len(lengths)), where=sums > 0)
     counts = np.rint(flat * scale[segment]).astype(np.int64)
     residual = totals - np.bincount(segment, weights=counts, minlength=len(lengths)).astype(np.int64)
-    nonempty = np.flatnonzero(lengths > 0)
-    fullest_count = np.maximum.reduceat(counts, offsets_of(lengths)[:-1][nonempty]) if len(nonempty) else counts[:0]
-    peak = np.zeros(len(lengths), dtype=np.int64)
-    peak[nonempty] = fullest_count
-    at_peak = np.flatnonzero(counts == peak[segment])
-    histogram, first = np.unique(segment[at_peak], return_index=True)  # the first fullest bin of each
-    counts[at_peak[first]] += residual[histogram]
+    order = np.lexsort((-counts, segment))  # each histogram's bins, fullest first
+    rank = np.arange(len(order)) - np.repeat(starts, lengths)
+    first = order[rank == 0]  # the fullest bin of each non-empty histogram
+    owner = segment[first]
+    more = residual[owner] > 0
+    counts[first[more]] += residual[owner[more]]
+    last = np.zeros(len(counts), dtype=bool)
+    last[offsets_of(lengths)[1:][lengths > 0] - 1] = True
+    excess = np.maximum(-residual, 0)
+    # down to one pair a bin; then, only if that is not enough (a histogram of more bins than
+    # pairs), down to none but the last bin (a real histogram ends on a non-empty bin)
+    for keep in (np.ones(len(counts), dtype=np.int64), last.astype(np.int64)):
+        spare = np.maximum(counts[order] - keep[order], 0)  # what each bin can give, fullest first
+        ends = np.cumsum(spare)
+        before = ends - spare - np.repeat(ends[starts] - spare[starts], lengths) if len(spare) else spare
+        taken = np.clip(excess[segment[order]] - before, 0, spare)
+        counts[order] -= taken
+        excess -= np.bincount(segment[order], weights=taken, minlength=len(lengths)).astype(np.int64)
     return counts
 
 
