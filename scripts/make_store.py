@@ -106,8 +106,8 @@ def _round_to_totals(flat: np.ndarray, lengths: np.ndarray, totals: np.ndarray) 
 
     Each count is rounded; the residual (a few pairs) goes to each histogram's fullest bin
     when pairs are missing, and is taken from its fullest bins in turn, down to one pair
-    each, when there are too many: a non-empty bin stays non-empty and no count goes below
-    zero. (Taking it all from the fullest bin drove a count negative when a sparse
+    each, when there are too many (a histogram of more bins than pairs keeps its last bin
+    non-empty): no count goes below zero. (Taking it all from the fullest bin drove a count negative when a sparse
     histogram's many roundings up outweighed that bin: 2 of 500,000 entries of a 5 x 10^6
     store.)
     """
@@ -131,7 +131,7 @@ def _round_to_totals(flat: np.ndarray, lengths: np.ndarray, totals: np.ndarray) 
     for keep in (np.ones(len(counts), dtype=np.int64), last.astype(np.int64)):
         spare = np.maximum(counts[order] - keep[order], 0)  # what each bin can give, fullest first
         ends = np.cumsum(spare)
-        before = ends - spare - np.repeat(ends[starts] - spare[starts], lengths) if len(spare) else spare
+        before = ends - spare - np.repeat(np.concatenate(([0], ends))[starts], lengths)  # within its histogram
         taken = np.clip(excess[segment[order]] - before, 0, spare)
         counts[order] -= taken
         excess -= np.bincount(segment[order], weights=taken, minlength=len(lengths)).astype(np.int64)

@@ -548,7 +548,8 @@ def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bo
 @click.argument("part", required=False)
 @store_option
 @click.option("--id", "entry", metavar="PATH",
-              help="Ask about an entry of the store instead of PART: a sub-part FILE#n or a file of the indexed folder.")
+              help="Ask about an entry of the store instead of PART: a sub-part FILE#n, or a file of the indexed folder"
+                   " (one part: its FILE#1; several: the whole file).")
 @click.option("--top", "-k", default=10, show_default=True, type=click.IntRange(1), help="How many files.")
 @metric_option("all-angle")
 @click.option("--max-distance", type=FiniteFloat(0), metavar="D",
@@ -577,7 +578,7 @@ def where_used(part, store, entry, top, metric, max_distance, scale, same_size, 
     """
     from .errors import NoAnswer
     from .search import Searcher
-    from .search.where_used import where_used as rank_uses
+    from .search.where_used import question_of_entry, where_used as rank_uses
     from .system import available_cores
 
     fmt = chosen_format(output_format, as_json)
@@ -589,7 +590,7 @@ def where_used(part, store, entry, top, metric, max_distance, scale, same_size, 
         raise ShapeidxError(f"{sheet}: no folder {os.path.dirname(os.path.abspath(sheet))} to write the sheet in")
     with Searcher(_store_path(store), parts=True) as searcher:
         if entry:
-            question = searcher.query_of_entry(searcher.resolve_entry(_part_entry(searcher, entry)))
+            question = question_of_entry(searcher, entry)
         else:
             question = searcher.query_of_part(part, label=part, threads=available_cores())
         answer = rank_uses(searcher, question, top, metric, max_distance, scale, same_size)
@@ -611,18 +612,6 @@ def where_used(part, store, entry, top, metric, max_distance, scale, same_size, 
     for use in answer.uses:
         title = f"  title={printable(use.title)}" if use.title else ""
         click.echo(f"{use.rank:>4}  {use.distance:<11.6g} x{use.count:<4} {printable(use.path)}  part={printable(use.part)}{title}")
-
-
-def _part_entry(searcher, entry: str) -> str:
-    """``--id`` of where-used: a sub-entry ``FILE#n``; a whole file that is one part is its ``FILE#1``."""
-    name = searcher.resolve_entry(entry)
-    if searcher.view.find(name) is None and searcher.view.find(f"{name}#1") is not None:
-        return f"{name}#1"
-    if searcher.view.find(name) is None:
-        inside = searcher.entry_path_of(entry)
-        if inside is not None and searcher.view.find(f"{inside}#1") is not None:
-            return f"{inside}#1"
-    return name
 
 
 @main.command(context_settings=CONTEXT)

@@ -131,3 +131,6 @@ def test_rounding_to_totals_keeps_every_count_at_or_above_zero():
         assert [counts[:10].sum(), counts[10:].sum()] == [totals[0], totals[2]]
     counts = make_store._round_to_totals(flat, lengths, np.array([7, 0, 9]))
     assert counts[:10].tolist() == [0, 0, 0] + [1] * 7 and counts[9] > 0  # the excess from the first bins
+    # a chunk whose last histograms are empty (a convex part's OUT and MIXED) rounds too
+    counts = make_store._round_to_totals(flat[:10], np.array([10, 0, 0]), np.array([7, 0, 0]))
+    assert counts.sum() == 7 and counts.min() >= 0

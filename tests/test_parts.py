@@ -629,8 +629,29 @@ class TestSheetsAndWeb:
             assert used.json()["uses"] is True
             assert [(h["parent"], h["id"], h["count"]) for h in used.json()["hits"]] == [
                 (u["relative_path"], u["part"], u["count"]) for u in cli_uses]
-            assert [h["parent"] for h in used.json()["hits"]] == ["boards/four.step", "boards/six.step"] or [
-                h["parent"] for h in used.json()["hits"]] == ["boards/six.step", "boards/four.step"]
+            # no metric given: where used's own default, as the command's (not query's Weighted)
+            cli_default = json.loads(cli("where-used", query, "--store", store, "--json").stdout)
+            with open(query, "rb") as f:
+                default = client.post("/api/query", files={"file": (query.name, f.read())}, data={"uses": "1"}).json()
+            assert default["metric"] == cli_default["metric"] == "all-angle"
+            assert [(h["parent"], h["id"], h["count"]) for h in default["hits"]] == [
+                (u["relative_path"], u["part"], u["count"]) for u in cli_default["uses"]]
+            # a whole file's id is asked as the command's --id is, the same-size test included: a
+            # file of one part as its one sub-part, a file of several parts whole
+            for entry in ("cube.step", "boards/other.step", "boards/four.step"):
+                by_cli = cli("where-used", "--id", entry, "--store", store, "--json")
+                by_web = client.get("/api/query", params={"id": entry, "uses": "1"}).json()
+                expected = json.loads(by_cli.stdout)["uses"] if by_cli.exit_code == 0 else []
+                assert [(h["parent"], h["id"], h["count"]) for h in by_web["hits"]] == [
+                    (u["relative_path"], u["part"], u["count"]) for u in expected], entry
+                assert (by_web["reason"] is None) == (by_cli.exit_code == 0), entry
+            cube = client.get("/api/query", params={"id": "cube.step", "uses": "1"}).json()
+            assert [h["id"] for h in cube["hits"]] == ["cube.step#1"]  # no other body has its size
+            whole = json.loads(cli("where-used", "--id", "boards/other.step", "--store", store, "--scale", "invariant",
+                                   "--json").stdout)
+            assert whole["entry"] == "boards/other.step"  # asked whole, not as its body (#1)
+            assert client.get("/api/query", params={"id": "cube.step", "uses": "1", "parts": "maybe"}).status_code == 400
+            assert client.get("/api/query", params={"id": "cube.step", "uses": "1", "where": " "}).status_code == 200
             pin_of_six = [h["id"] for h in used.json()["hits"] if h["parent"] == "boards/six.step"][0]
             by_pin = client.get("/api/query", params={"id": pin_of_six, "uses": "1", "metric": "weighted"}).json()
             assert {h["parent"]: h["count"] for h in by_pin["hits"]} == {"boards/four.step": 4, "boards/six.step": 6}
@@ -727,9 +748,15 @@ class TestSheetsAndWeb:
                 # where used, by the pin of six.step: the two boards, each once, with its count
                 assert page.locator("#uses-label").is_visible()
                 pin = [h["relative_path"] for h in cli_hits if h["parent"] == "boards/six.step"][0]
-                page.check("#uses")
+                page.check("#parts")
+                page.check("#uses")  # one way of ranking sub-parts at a time; where used takes no where
+                assert not page.is_checked("#parts") and page.is_disabled("#where")
+                assert page.input_value("#metric") == "all-angle"  # the command's default distance
+                page.wait_for_function("() => location.hash.includes('uses=1') && location.hash.includes('all-angle')")
+                page.wait_for_selector("[data-testid=query-card]:has-text('all-angle, the files holding')")
                 page.goto(url + "#/query?" + urllib.parse.urlencode({"id": pin, "metric": "weighted", "top": "10",
                                                                        "uses": "1"}))
+                page.wait_for_selector("[data-testid=query-card]:has-text('Weighted, the files holding')")
                 page.wait_for_selector("[data-testid=hit] [data-testid=sub-part]:has-text('boards/four.step')")
                 lines = sorted(c.inner_text() for c in page.locator("[data-testid=hit] [data-testid=sub-part]").all())
                 assert lines == ["sub-part of boards/four.step (×4)", "sub-part of boards/six.step (×6)"]

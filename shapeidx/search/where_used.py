@@ -17,6 +17,7 @@ nearest sub-part. A file's ``count`` is how many times it holds that nearest sub
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -162,6 +163,33 @@ def where_used(searcher, query, top: int = 10, metric: str = DEFAULT_METRIC, max
         answer.reason = (f"no sub-part within --max-distance {max_distance:g} (the nearest is at {nearest_at:.6g})"
                          if max_distance is not None and np.isfinite(nearest_at) else "no sub-part could be ranked")
     return answer
+
+
+def question_of_entry(parts, entry, files=None):
+    """Where-used's question for an entry of the store (``--id``; the web page's ids).
+
+    A sub-entry ``FILE#n`` is asked as stored; a file that is one part is its ``FILE#1``
+    (the same entry). A file of several parts is asked whole: its signature from the
+    whole-file store ``files`` (a :class:`~shapeidx.search.searcher.Searcher`, opened here
+    when None), with its principal radii, so that the same-size test holds for it too (a
+    file that holds the same assembly fused into one solid is where it is used).
+    """
+    from .searcher import Searcher
+
+    name = parts.resolve_entry(entry)
+    if parts.view.find(name) is not None:
+        return parts.query_of_entry(name)
+    for whole in dict.fromkeys(w for w in (name, parts.entry_path_of(entry)) if w):
+        if parts.view.find(f"{whole}#1") is not None and parts.view.find(f"{whole}#2") is None:
+            return parts.query_of_entry(f"{whole}#1")
+    if files is None:
+        with Searcher(Path(parts.store).parent) as files:  # the sub-parts' store is STORE/parts
+            return question_of_entry(parts, entry, files)
+    query = files.query_of_entry(entry)  # an unknown or failed entry: StoreError, in words
+    at, row = files.view.locate(query.own)
+    query.extents = np.asarray(files.view.sources[at].column("entries/extents")[row], dtype=np.float64)
+    query.own = None  # its position is in the whole-file store
+    return query
 
 
 def principal_radii(solid) -> np.ndarray:

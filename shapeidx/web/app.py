@@ -18,7 +18,8 @@ Every request is treated as hostile:
   private temporary file with the original name's suffix (so the loader picks the format),
   read, and deleted; a file that is not a usable part is a 422 with the loader's one-line
   reason;
-* ``top``, ``metric`` and ``where`` are checked (400); unknown ids are 404; nothing raises past a handler.
+* ``top``, ``metric``, ``where``, ``parts`` and ``uses`` are checked (400); unknown ids are 404;
+  nothing raises past a handler.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from ..distance.metrics import METRICS
 from ..errors import LoadError, ShapeidxError, UsageError
 from ..pictures.similarity import SimilarityScale, closer_than
 from ..pictures.thumbcache import StoreThumbnails
+from ..search.where_used import DEFAULT_METRIC as WHERE_USED_METRIC
 from ..signing.histogram import Signature
 from ..signing.parameters import HISTOGRAMS
 
@@ -161,6 +163,7 @@ class StoreService:
             "max_upload": self.max_upload,
             "parts": self.parts is not None,
             "sub_parts": len(self.parts) if self.parts is not None else 0,
+            "where_used_metric": WHERE_USED_METRIC,
         }
 
     def _rows(self) -> int:
@@ -176,10 +179,10 @@ class StoreService:
         with self._lock:
             return self.searcher.metadata_at(self.position_of(entry))
 
-    def _fractions_of(self, searcher, hits) -> list:
-        """The class fractions of each hit (called with the lock held)."""
+    def _fractions_of(self, searcher, entries) -> list:
+        """The class fractions of each ranked entry named (called with the lock held)."""
         return [searcher.view.gather("fractions", np.array([searcher.view.position_of(
-            searcher.view.find(h.relative_path))]))[0] for h in hits]
+            searcher.view.find(entry))]))[0] for entry in entries]
 
     def listing(self) -> dict:
         """Every entry's path, status, reason, triangles and fractions (read once, on first use)."""
@@ -333,56 +336,62 @@ class StoreService:
         searcher = self.parts_searcher() if parts else self.searcher
         filters = Filters(where=parse_where(where))
         query = self.query_of(query_id)
-        if parts != (query.entry is not None and "#" in query.entry and not self._has_entry(query.entry)):
+        if parts != self._is_sub_entry(query.entry):
             query = replace(query, own=None)  # its own position is in the other store
         with self._lock:
             answer = searcher.search(query, top, metric, filters)
-            fractions = self._fractions_of(searcher, answer.hits)
+            fractions = self._fractions_of(searcher, [hit.relative_path for hit in answer.hits])
         scale = self.scale(metric, parts)
-        hits = []
-        for hit, hit_fractions in zip(answer.hits, fractions):
-            share = scale.share(hit.distance)
-            hits.append({**hit.to_dict(), "id": hit.relative_path, "words": scale.words(hit.distance), "share": share,
-                         "closer_than": closer_than(share) if share is not None and hit.distance > 0 else "",
-                         "fractions": _fractions_json(hit_fractions),  # a sub-part: drawn itself
-                         "thumbnail": f"/api/thumbnail?id={_quote(hit.relative_path)}"})
-            if hit.parent is not None and not self.part_thumbs.is_whole_file(hit.relative_path, hit.parent, hit.count):
-                hits[-1]["parent_thumbnail"] = f"/api/thumbnail?id={_quote(hit.parent)}"  # the file holding it
+        hits = [self._hit_json(scale, hit.to_dict(), hit.relative_path, hit.distance, hit.parent, hit.count, f)
+                for hit, f in zip(answer.hits, fractions)]
         return {"query": self.describe(query_id, query), "metric": metric, "top": top, "entries": answer.entries,
                 "considered": answer.considered, "filters": answer.filters, "reason": answer.reason,
                 "parts": parts, "calibration": scale.describe(), "hits": hits}
 
     def where_used(self, query_id: str, top: int, metric: str) -> dict:
         """The files holding a sub-part like the query, nearest first (``shapeidx where-used``):
-        the answer of :meth:`query` with one hit per file, its nearest sub-part and its count."""
-        from types import SimpleNamespace
-
-        from ..search.where_used import where_used
+        the answer of :meth:`query` with one hit per file, its nearest sub-part and its count.
+        An id is asked as the command's ``--id`` is (:func:`~shapeidx.search.where_used.question_of_entry`)."""
+        from ..search.where_used import question_of_entry, where_used
 
         searcher = self.parts_searcher()
-        query = self.query_of(query_id)
-        if not (query.entry is not None and "#" in query.entry and not self._has_entry(query.entry)):
-            query = replace(query, own=None)  # its own position is in the whole-file store
+        if query_id.startswith(UPLOAD_PREFIX):
+            query = self.query_of(query_id)
+        else:
+            if self.sub_entry(query_id) is None:
+                self.position_of(query_id)  # 404 for an unknown id, 409 for a failed one
+            with self._lock:
+                query = question_of_entry(searcher, query_id, self.searcher)
         with self._lock:
             answer = where_used(searcher, query, top=top, metric=metric)
-            fractions = self._fractions_of(searcher, [SimpleNamespace(relative_path=u.part) for u in answer.uses])
+            fractions = self._fractions_of(searcher, [use.part for use in answer.uses])
+            metadata = [self.parts.metadata_at(self.parts.view.position_of(self.parts.view.find(use.part)))
+                        for use in answer.uses]
         scale = self.scale(metric, True)
-        hits = []
-        for use, hit_fractions in zip(answer.uses, fractions):
-            share = scale.share(use.distance)
-            with self._lock:
-                metadata = self.parts.metadata_at(self.parts.view.position_of(self.parts.view.find(use.part)))
-            hits.append({"rank": use.rank, "distance": use.distance, "id": use.part, "relative_path": use.part,
-                         "path": use.path, "parent": use.relative_path, "count": use.count, "title": use.title,
-                         "metadata": metadata, "words": scale.words(use.distance), "share": share,
-                         "closer_than": closer_than(share) if share is not None and use.distance > 0 else "",
-                         "fractions": _fractions_json(hit_fractions),
-                         "thumbnail": f"/api/thumbnail?id={_quote(use.part)}"})
-            if not self.part_thumbs.is_whole_file(use.part, use.relative_path, use.count):
-                hits[-1]["parent_thumbnail"] = f"/api/thumbnail?id={_quote(use.relative_path)}"
+        hits = [self._hit_json(scale, {"rank": use.rank, "distance": use.distance, "relative_path": use.part,
+                                       "path": use.path, "title": use.title, "metadata": meta},
+                               use.part, use.distance, use.relative_path, use.count, f)
+                for use, meta, f in zip(answer.uses, metadata, fractions)]
         return {"query": self.describe(query_id, query), "metric": metric, "top": top, "entries": answer.files,
                 "considered": answer.files, "filters": [], "reason": answer.reason, "parts": True, "uses": True,
                 "calibration": scale.describe(), "hits": hits}
+
+    def _hit_json(self, scale, fields: dict, entry: str, distance: float, parent, count, fractions) -> dict:
+        """A hit for the page: ``fields`` with its id, words, share, fractions and pictures
+        (a sub-part drawn itself, and the file holding it beside unless it is the whole file)."""
+        share = scale.share(distance)
+        out = {**fields, "id": entry, "words": scale.words(distance), "share": share,
+               "closer_than": closer_than(share) if share is not None and distance > 0 else "",
+               "fractions": _fractions_json(fractions), "thumbnail": f"/api/thumbnail?id={_quote(entry)}"}
+        if parent is not None:  # a sub-part
+            out.update(parent=parent, count=count)
+            if not self.part_thumbs.is_whole_file(entry, parent, count):
+                out["parent_thumbnail"] = f"/api/thumbnail?id={_quote(parent)}"
+        return out
+
+    def _is_sub_entry(self, entry) -> bool:
+        """Whether ``entry`` names a sub-entry ``FILE#n`` (not a whole file whose name holds '#')."""
+        return entry is not None and "#" in entry and not self._has_entry(entry)
 
     def query_upload(self, filename: str, data: bytes, top: int, metric: str, where=(), parts: bool = False,
                      uses: bool = False) -> dict:
@@ -497,8 +506,8 @@ class ShardedStoreService(StoreService):
         self.position_of(entry)
         return self._facts(entry)["metadata"]
 
-    def _fractions_of(self, searcher, hits) -> list:
-        return [searcher.entry_facts(h.relative_path)["fractions"] for h in hits]
+    def _fractions_of(self, searcher, entries) -> list:
+        return [searcher.entry_facts(entry)["fractions"] for entry in entries]
 
     def listing(self) -> dict:
         with self._lock:
@@ -552,9 +561,11 @@ def _int(params, name: str, default: int, lo: int, hi: int) -> int:
 
 
 def _uses(params) -> bool:
-    """``uses=1``: where used (the files holding a sub-part like the query); it takes no ``where``."""
+    """``uses=1``: where used (the files holding a sub-part like the query); it takes no ``where``
+    and ranks sub-parts, so ``parts`` is checked but says nothing more."""
     uses = _flag(params, "uses")
-    if uses and _where(params):
+    _flag(params, "parts")
+    if uses and any(condition.strip() for condition in _where(params)):
         raise RequestError(400, "where used takes no 'where' conditions (they select files, not sub-parts)")
     return uses
 
@@ -569,8 +580,9 @@ def _flag(params, name: str) -> bool:
     raise RequestError(400, f"{name} must be 1 or 0, not {value[:40]!r}")
 
 
-def _metric(params) -> str:
-    metric = params.get("metric") or "weighted"
+def _metric(params, default: str = "weighted") -> str:
+    """The metric asked for; absent: ``query``'s default (the paper's Weighted), or where-used's."""
+    metric = params.get("metric") or default
     if metric not in METRICS:
         raise RequestError(400, f"unknown metric {str(metric)[:40]!r}; expected one of {', '.join(METRICS)}")
     return metric
@@ -669,7 +681,8 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD, host: str = 
     async def query_get(request):
         q = request.query_params
         if _uses(q):
-            result = await run_in_threadpool(service.where_used, _id(q), _int(q, "top", 10, 1, MAX_TOP), _metric(q))
+            result = await run_in_threadpool(service.where_used, _id(q), _int(q, "top", 10, 1, MAX_TOP),
+                                             _metric(q, WHERE_USED_METRIC))
         else:
             result = await run_in_threadpool(service.query, _id(q), _int(q, "top", 10, 1, MAX_TOP), _metric(q),
                                              _where(q), _flag(q, "parts"))
@@ -712,8 +725,9 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD, host: str = 
                     raise RequestError(413, f"upload is over the limit of {max_upload:,} bytes")
                 if not data:
                     raise RequestError(422, f"{upload.filename or 'upload'}: the file is empty")
-                top, metric, parts, uses = (_int(form, "top", 10, 1, MAX_TOP), _metric(form), _flag(form, "parts"),
-                                            _uses(form))
+                uses = _uses(form)
+                top, metric, parts = (_int(form, "top", 10, 1, MAX_TOP),
+                                      _metric(form, WHERE_USED_METRIC if uses else "weighted"), _flag(form, "parts"))
                 if parts or uses:
                     service.parts_searcher()  # 409 before signing, when the store has no sub-parts
                 result = await anyio.to_thread.run_sync(service.query_upload, upload.filename or "upload", data, top,

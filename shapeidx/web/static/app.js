@@ -69,6 +69,17 @@ function subPartLine(part) {
 }
 function whereValue() { return document.getElementById("where").value.split(";").map(s => s.trim()).filter(s => s); }
 function withWhere(values) { return setSearch(new URLSearchParams(values)); }
+// Sub-parts and Where used are two ways of ranking sub-parts: one at a time. Where used takes no
+// where conditions (they select files), so the field is disabled while it is ticked.
+function showWhereUsed() { document.getElementById("where").disabled = !!usesValue(); }
+function chooseRanking(ev) {
+  const other = document.getElementById(ev.target.id === "uses" ? "parts" : "uses");
+  if (ev.target.checked) other.checked = false;
+  // where used has its own default distance (the command's); the user may pick another after
+  if (ev.target.id === "uses" && ev.target.checked && state.info) document.getElementById("metric").value = state.info.where_used_metric;
+  showWhereUsed();
+  requery();
+}
 function metadataLine(metadata) {
   const entries = Object.entries(metadata || {});
   if (!entries.length) return null;
@@ -202,7 +213,12 @@ function renderIntro() {
     i ? h("p", {class: "muted", text: `${i.ok.toLocaleString()} parts indexed, ${i.failed.toLocaleString()} failed, under ${i.root}.`}) : null));
 }
 
+// each route() call's number: an answer that arrives after a newer route() began is dropped
+// (a box ticked, then another address: the older answer must not overwrite the newer)
+let routed = 0;
 async function route() {
+  const mine = ++routed;
+  const latest = () => mine === routed;
   clearError();
   const view = (location.hash.split("?")[0] || "#/").slice(2);
   const p = params();
@@ -214,24 +230,25 @@ async function route() {
   busy(true);
   try {
     if (view === "query") {
-      if (p.getAll("where").length) document.getElementById("where").value = p.getAll("where").join("; ");
-      const search = new URLSearchParams({id: p.get("id") || "", metric: metricValue(), top: topValue()});
-      if (usesValue()) search.set("uses", "1");
-      else { for (const w of p.getAll("where")) search.append("where", w); if (partsValue()) search.set("parts", "1"); }
-      const url = "/api/query?" + search;
-      renderQuery(state.cache.get(key) || await api(url));
+      document.getElementById("where").value = p.getAll("where").join("; ");
+      showWhereUsed();
+      const url = "/api/query?" + withWhere({id: p.get("id") || "", metric: metricValue(), top: topValue()});
+      const result = state.cache.get(key) || await api(url);
+      if (latest()) renderQuery(result);
     } else if (view === "compare") {
-      renderCompare(await api("/api/compare?" + new URLSearchParams({a: p.get("a") || "", b: p.get("b") || ""})));
+      const result = await api("/api/compare?" + new URLSearchParams({a: p.get("a") || "", b: p.get("b") || ""}));
+      if (latest()) renderCompare(result);
     } else if (view === "browse") {
       const url = "/api/entries?" + new URLSearchParams({offset: p.get("offset") || 0, limit: 50, status: p.get("status") || "all", q: p.get("q") || ""});
-      renderBrowse(await api(url), p);
+      const result = await api(url);
+      if (latest()) renderBrowse(result, p);
     } else {
       renderIntro();
     }
   } catch (e) {
-    showError(e.message);
+    if (latest()) showError(e.message);
   } finally {
-    busy(false);
+    if (latest()) busy(false);
   }
 }
 
@@ -291,8 +308,8 @@ async function start() {
   select.addEventListener("change", requery);
   document.getElementById("top").addEventListener("change", requery);
   document.getElementById("where").addEventListener("change", requery);
-  document.getElementById("parts").addEventListener("change", requery);
-  document.getElementById("uses").addEventListener("change", requery);
+  document.getElementById("parts").addEventListener("change", chooseRanking);
+  document.getElementById("uses").addEventListener("change", chooseRanking);
   const drop = document.getElementById("drop");
   drop.addEventListener("dragover", (ev) => { ev.preventDefault(); drop.classList.add("over"); });
   drop.addEventListener("dragleave", () => drop.classList.remove("over"));
