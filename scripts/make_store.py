@@ -107,9 +107,9 @@ def _round_to_totals(flat: np.ndarray, lengths: np.ndarray, totals: np.ndarray) 
     Each count is rounded; the residual (a few pairs) goes to each histogram's fullest bin
     when pairs are missing, and is taken from its fullest bins in turn, down to one pair
     each, when there are too many (a histogram of more bins than pairs keeps its last bin
-    non-empty): no count goes below zero. (Taking it all from the fullest bin drove a count negative when a sparse
-    histogram's many roundings up outweighed that bin: 2 of 500,000 entries of a 5 x 10^6
-    store.)
+    non-empty): no count goes below zero. (Taking it all from the fullest bin drove a count
+    negative when a sparse histogram's many roundings up outweighed that bin: 2 of 500,000
+    entries of a 5 x 10^6 store.)
     """
     segment = _segments(lengths)
     starts = offsets_of(lengths)[:-1]
