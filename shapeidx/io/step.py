@@ -492,9 +492,19 @@ def _turns(periodic: bool, period: float, span: float) -> int:
     return turns if abs(span / period - turns) <= _TURN_TOLERANCE * turns else 0
 
 
+def _on_side(value: float, low: float, high: float, period: float | None, tolerance: float) -> bool:
+    """Whether an iso-line at ``value`` is a side of the band: ``low`` or ``high``, or with a
+    ``period`` (the direction going round) ``low`` plus any number of turns."""
+    if period:
+        turns = round((value - low) / period)
+        return abs(value - low - turns * period) <= tolerance
+    return min(abs(value - low), abs(value - high)) <= tolerance
+
+
 def _one_turn(face):
     """The one-turn band replacing a face (unlocated, forward) that goes round its periodic
-    surface more than once, or None (goes round once, or its boundary is not the band's)."""
+    surface more than once, or None (goes round once, or its boundary is not the band's:
+    every edge an iso-line on one of the band's two boundary curves or on its seam)."""
     try:
         from OCP.BRep import BRep_Tool
         from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace
@@ -509,20 +519,24 @@ def _one_turn(face):
         along_v = _turns(surface.IsVPeriodic(), surface.VPeriod() if surface.IsVPeriodic() else 0.0, v1 - v0)
         if along_u == 0 or along_v == 0 or (along_u == 1 and along_v == 1):
             return None
+        period_u = surface.UPeriod() if along_u > 1 else None
+        period_v = surface.VPeriod() if along_v > 1 else None
         tol_u, tol_v = _TURN_TOLERANCE * max(u1 - u0, 1.0), _TURN_TOLERANCE * max(v1 - v0, 1.0)
-        # the band is the face only if every edge lies on the rectangle's sides (iso-lines)
+        # the band is the face only if every edge is an iso-line on the band's boundary in 3D:
+        # a side of the rectangle, or in the direction that goes round, the seam at any turn
+        # (OpenCASCADE also makes such faces with a seam inside the parameter rectangle)
         explorer = TopExp_Explorer(face, TopAbs_EDGE)
         while explorer.More():
             a0, a1, b0, b1 = BRepTools.UVBounds_s(face, TopoDS.Edge(explorer.Current()))
-            on_u_side = a1 - a0 <= tol_u and min(abs(a0 - u0), abs(a0 - u1)) <= tol_u
-            on_v_side = b1 - b0 <= tol_v and min(abs(b0 - v0), abs(b0 - v1)) <= tol_v
+            on_u_side = a1 - a0 <= tol_u and _on_side(a0, u0, u1, period_u, tol_u)
+            on_v_side = b1 - b0 <= tol_v and _on_side(b0, v0, v1, period_v, tol_v)
             if not (on_u_side or on_v_side):
                 return None
             explorer.Next()
-        if along_u > 1:
-            u1 = u0 + surface.UPeriod()
-        if along_v > 1:
-            v1 = v0 + surface.VPeriod()
+        if period_u:
+            u1 = u0 + period_u
+        if period_v:
+            v1 = v0 + period_v
         maker = BRepBuilderAPI_MakeFace(surface, u0, u1, v0, v1, BRep_Tool.Tolerance_s(face))
         return maker.Face() if maker.IsDone() else None
     except Exception:  # noqa: BLE001 (the face stays as it was)
