@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from clitools import cli
 from test_step import placement, write_assembly, write_step
 
 from shapeidx.io import LoadLimits, load
@@ -187,6 +188,10 @@ class TestCylinderBand:
         assert faceting_report(band_files["by_hand"])["faces_unwound"] == 1
         plain = write_step(BRepPrimAPI_MakeCylinder(RADIUS, HEIGHT).Shape(), tmp_path / "cylinder.step")
         assert faceting_report(plain)["faces_unwound"] == 0
+        result = cli("inspect", band_files["by_hand"])
+        assert result.exit_code == 0
+        assert "repaired    1 face going round their surface more than once, meshed as one turn" in result.stdout
+        assert "repaired" not in cli("inspect", plain).stdout
 
 
 class TestRealTransformer:

@@ -18,9 +18,10 @@ everything downstream is the same as for a mesh format.
   transformers) is meshed by OpenCASCADE over that multiple domain, its area doubled or
   tripled. Such a face (``BRepTools.UVBounds`` a whole multiple of the surface's period) is
   replaced by its one-turn band on the same surface when its boundary allows it (every
-  pcurve an iso-line on the band's edges), once per face shared by located instances
-  (:func:`unwound`); a face that does not fit is left as it is. :func:`faceting_report`
-  counts them (``faces_unwound``).
+  edge an iso-line on one of the band's two boundary curves or on its seam), once per face
+  shared by located instances (:func:`unwound`); a face that does not fit, or an
+  OpenCASCADE exception, leaves it as read. :func:`faceting_report` counts them
+  (``faces_unwound``; ``inspect`` prints the count when there are any).
 * **Units**: OpenCASCADE converts the file's length unit to its session unit, which is
   set to millimetres here, so coordinates come out in mm whatever the file says (the
   file's own unit is reported by :func:`faceting_report`).
