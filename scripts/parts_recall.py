@@ -9,7 +9,11 @@ STORE must be built from the tree with ``shapeidx build TREE --store STORE --par
 The truth comes from the files' own solid structure, read with OpenCASCADE independently of
 shapeidx's splitting: every solid of every file (plain ``STEPControl_Reader``, ``TopExp`` over
 solids), described by exact B-rep invariants (volume, area, principal moments of inertia,
-from ``BRepGProp``). Two solids are the same part when these agree within 1e-4. For each
+from ``BRepGProp``). Two solids are the same part when these agree within 1e-4. A face going
+round its periodic surface more than once (the KiCad transformers' pins) corrupts those
+invariants as it corrupts the mesh, so the truth's solids get the reader's repair
+(``shapeidx.io.step.unwound``: the one-turn band, checked against the VRML twins) unless
+``--raw-truth`` is given. For each
 file with several solids, each distinct solid is written out as a STEP file of its own
 (moved by a random rigid motion) and asked ``where-used`` (the library's road,
 shapeidx.search.where_used); the files relevant to it are those holding a solid with its
@@ -41,16 +45,24 @@ from _common import DATA, machine  # noqa: E402
 TOLERANCE = 1e-4
 
 
+#: Whether the truth's solids have their multi-turn faces replaced by one turn (``--raw-truth``: not)
+UNWIND = True
+
+
 def solids_of(path: Path) -> list:
     from OCP.STEPControl import STEPControl_Reader
     from OCP.TopAbs import TopAbs_SOLID
     from OCP.TopExp import TopExp_Explorer
+
+    from shapeidx.io.step import unwound
 
     reader = STEPControl_Reader()
     if str(reader.ReadFile(str(path))).rsplit(".", 1)[-1] != "IFSelect_RetDone":
         return []
     reader.TransferRoots()
     shape = reader.OneShape()
+    if UNWIND:
+        (shape,), _ = unwound([shape])
     out, explorer = [], TopExp_Explorer(shape, TopAbs_SOLID)
     while explorer.More():
         out.append(explorer.Current())
@@ -84,8 +96,8 @@ def same_rows(table: np.ndarray, inv: np.ndarray) -> np.ndarray:
 def read_truth(tree: Path, files: list, cache: Path | None) -> dict:
     """Each file's solids' invariants (relative path -> list of arrays), read with OCCT once."""
     known = json.loads(cache.read_text()) if cache and cache.exists() else {}
-    if known.get("tree") != str(tree):
-        known = {"tree": str(tree), "files": {}}
+    if known.get("tree") != str(tree) or known.get("unwound", False) != UNWIND:
+        known = {"tree": str(tree), "unwound": UNWIND, "files": {}}
     for name in files:
         if name not in known["files"]:
             known["files"][name] = [invariants(s).tolist() for s in solids_of(tree / name)]
@@ -129,7 +141,11 @@ def main() -> None:
     parser.add_argument("--show-wrong", action="store_true", help="list the files whose reported count is wrong")
     parser.add_argument("--sample", type=int, help="ask a random N of the distinct solids (a whole library has thousands)")
     parser.add_argument("--truth-cache", help="JSON file keeping the solids' invariants between runs")
+    parser.add_argument("--raw-truth", action="store_true",
+                        help="the truth's solids as OpenCASCADE reads them, multi-turn faces and all")
     args = parser.parse_args()
+    global UNWIND
+    UNWIND = not args.raw_truth
     metrics = args.metrics or ["weighted", "combined-angle", "all-angle", "all"]
     scales = args.scales or ["sensitive", "invariant"]
     from shapeidx.families.duplicates import thresholds as duplicate_thresholds
@@ -216,7 +232,7 @@ def main() -> None:
                     res["at"][tier][2] += r
     summary = {"machine": machine(), "tree": str(tree), "files": len(files), "multi_solid_files": multi,
                "distinct_solids": distinct_solids, "queries": len(asked), "refused": refused,
-               "relevant_files": int(sum(len(q["holders"]) for q in asked)), "runs": []}
+               "relevant_files": int(sum(len(q["holders"]) for q in asked)), "truth_unwound": UNWIND, "runs": []}
     for (metric, scale, size), res in results.items():
         summary["runs"].append({
             "metric": metric, "scale": scale, "same_size": size,

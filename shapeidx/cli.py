@@ -196,6 +196,9 @@ def inspect(file, linear_deflection, angular_deflection, as_json):
         click.echo(f"  chordal     measured max {f['max_chordal_error_mm']:.4g} mm ({f['max_chordal_error']:.3g} of the diagonal)"
                    f" at {f['measured_points']:,} points of curved faces")
         click.echo(f"  units       file: {units}; coordinates in mm")
+        if f.get("faces_unwound"):
+            faces = f"{f['faces_unwound']:,} face" + ("s" if f["faces_unwound"] != 1 else "")
+            click.echo(f"  repaired    {faces} going round their surface more than once, meshed as one turn")
     for warning in facts["warnings"]:
         click.echo(f"  warning     {warning}")
 

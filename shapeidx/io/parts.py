@@ -7,6 +7,8 @@
   (``STEPCAFControl_Reader``), which also gives the name of the product the solid belongs
   to; assembly placements (``TopLoc_Location``) are applied down to each solid. **IGES**:
   every solid of the plain transfer (IGES files rarely hold solids: most are one part).
+  Faces that go round their periodic surface more than once are replaced by one turn, as
+  for the whole file (:func:`~shapeidx.io.step.unwound`).
 * **VRML and meshes**: each connected body (triangles that share vertices, after coincident
   vertices are merged): KiCad's VRML writes the body, the pins and the marking as separate
   shapes, which are separate bodies. A VRML file that groups its geometry (a robot's links
@@ -110,7 +112,7 @@ def split_parts(path, limits: LoadLimits | None = None, format_name: str | None 
 
 def _solid_model_parts(path: Path, limits: LoadLimits) -> list[SubPart] | None:
     from .faceting import Faceting
-    from .step import _quiet_opencascade, read_shape, sniff_solid_model, tessellate, triangles_of
+    from .step import _quiet_opencascade, read_shape, sniff_solid_model, tessellate, triangles_of, unwound
 
     data, _ = read_bytes(path, limits)
     kind = sniff_solid_model(data)
@@ -119,7 +121,9 @@ def _solid_model_parts(path: Path, limits: LoadLimits) -> list[SubPart] | None:
     _quiet_opencascade()
     solids = _named_solids(path, data) if kind == "step" else None
     if solids is None:  # IGES, or a STEP file XCAF cannot read: the plain transfer's solids, unnamed
-        solids = [("", solid) for solid in _solids_of(read_shape(path, data, limits).shape)]
+        solids = [("", solid) for solid in _solids_of(read_shape(path, data, limits).shape)]  # unwound there
+    else:  # faces going round their surface more than once, as read_step's (one turn)
+        solids = list(zip([name for name, _ in solids], unwound([solid for _, solid in solids])[0]))
     if len(solids) <= 1:
         return None
     faceting = limits.faceting or Faceting()

@@ -12,6 +12,16 @@ everything downstream is the same as for a mesh format.
   gives one compound whose sub-shapes carry their placements (``TopLoc_Location``); each
   face's triangulation is moved by the location accumulated down to it, so a solid used
   twice in two places appears twice. Reversed faces have their triangles turned.
+* **Faces that go round their surface more than once**: a face on a periodic surface (a
+  cylinder, a surface of revolution) whose wire runs round the axis two or three times
+  (its pcurves span u from -2 pi to 2 pi, seam edges at both ends: every pin of some KiCad
+  transformers) is meshed by OpenCASCADE over that multiple domain, its area doubled or
+  tripled. Such a face (``BRepTools.UVBounds`` a whole multiple of the surface's period) is
+  replaced by its one-turn band on the same surface when its boundary allows it (every
+  edge an iso-line on one of the band's two boundary curves or on its seam), once per face
+  shared by located instances (:func:`unwound`); a face that does not fit, or an
+  OpenCASCADE exception, leaves it as read. :func:`faceting_report` counts them
+  (``faces_unwound``; ``inspect`` prints the count when there are any).
 * **Units**: OpenCASCADE converts the file's length unit to its session unit, which is
   set to millimetres here, so coordinates come out in mm whatever the file says (the
   file's own unit is reported by :func:`faceting_report`).
@@ -50,7 +60,7 @@ from .contained import run_contained
 from .formats import SUFFIXES
 from .faceting import Faceting
 
-__all__ = ["Faceting", "read_step", "sniff_solid_model", "faceting_report"]
+__all__ = ["Faceting", "read_step", "sniff_solid_model", "faceting_report", "unwound"]
 
 STEP_MAGIC = b"ISO-10303-21"
 _STEP_END = re.compile(rb"END-ISO-10303-21\s*;\s*$")
@@ -83,6 +93,7 @@ class _Read:
     shape: object  # TopoDS_Shape, in millimetres
     kind: str  # "step" or "iges"
     file_units: list  # length unit names the file declares
+    unwound: int = 0  # faces going round their surface more than once, replaced by one turn
 
 
 def read_step(path, data: bytes | None = None, limits: LoadLimits | None = None) -> PolygonMesh:
@@ -158,7 +169,8 @@ def faceting_report(path, faceting: Faceting | None = None, limits: LoadLimits |
         ``linear_deflection`` (relative), ``angular_deflection`` (rad), ``deflection_mm``
         (absolute, given to OpenCASCADE), ``diagonal_mm``, ``triangles``, ``faces``,
         ``faces_failed``, ``max_chordal_error_mm``, ``max_chordal_error`` (relative to the
-        diagonal), ``measured_points``, ``file_units``.
+        diagonal), ``measured_points``, ``file_units``, ``faces_unwound`` (faces going round
+        their surface more than once, meshed as one turn: :func:`unwound`).
     """
     limits = limits or LoadLimits()
     faceting = faceting or limits.faceting or Faceting()
@@ -182,6 +194,7 @@ def _faceting_report(path: Path, limits: LoadLimits, faceting: Faceting, seed: i
         "max_chordal_error": error / diagonal if diagonal > 0 else float("nan"),
         "measured_points": measured,
         "file_units": read.file_units,
+        "faces_unwound": read.unwound,
     }
 
 
@@ -370,7 +383,8 @@ def _transfer(path: Path, copy: str, kind: str) -> _Read:
         raise LoadError(path, f"{name} file has no geometry that OpenCASCADE could transfer")
     if kind == "iges":
         shape = _occt(path, "sew its faces together", _sewn, shape)
-    return _Read(shape, kind, units)
+    (shape,), count = unwound([shape])
+    return _Read(shape, kind, units, count)
 
 
 def _sewn(shape):
@@ -421,6 +435,113 @@ def _quiet_opencascade() -> None:
     for printer in [printers.Value(i) for i in range(1, printers.Size() + 1)]:
         messenger.RemovePrinter(printer)
     _QUIET = True
+
+
+# --------------------------------------------------------------------------- multi-turn faces
+
+#: A face's parameter span is a whole number of its surface's periods to this share.
+_TURN_TOLERANCE = 1e-6
+
+
+def unwound(shapes: list) -> tuple[list, int]:
+    """``shapes`` with every face that goes round its periodic surface more than once
+    replaced by its one-turn band; the number of distinct faces replaced.
+
+    Only faces on a periodic surface (``IsUPeriodic``/``IsVPeriodic``) are looked at. A face
+    shared by located instances (one ``TShape``) is rebuilt once, and ``BRepTools_ReShape``
+    puts the band in place of every occurrence, at its placement and orientation. A face whose band cannot be built, and any OpenCASCADE
+    exception, leave the face as it was: with no face replaced, the shapes are returned
+    untouched (the same objects).
+    """
+    try:
+        from OCP.BRep import BRep_Tool
+        from OCP.BRepTools import BRepTools_ReShape
+        from OCP.TopAbs import TopAbs_FORWARD
+        from OCP.TopLoc import TopLoc_Location
+        from OCP.TopoDS import TopoDS
+
+        reshape, bands, count = None, {}, 0
+        for shape in shapes:
+            for face in _faces(shape):  # every placed occurrence, its location accumulated from the root
+                surface = BRep_Tool.Surface_s(face, TopLoc_Location())  # the handle itself, not a moved copy
+                if surface is None or not (surface.IsUPeriodic() or surface.IsVPeriodic()):
+                    continue
+                bare = TopoDS.Face(face.Located(TopLoc_Location()).Oriented(TopAbs_FORWARD))
+                bucket = bands.setdefault(hash(bare), [])
+                band = next((b for other, b in bucket if bare.IsSame(other)), False)
+                if band is False:
+                    band = _one_turn(bare)
+                    bucket.append((bare, band))
+                    count += band is not None
+                if band is not None:
+                    # ReShape matches a sub-shape with its accumulated location (Apply walks down
+                    # from the root as the explorer does): each occurrence gets the band in its place
+                    reshape = reshape or BRepTools_ReShape()
+                    reshape.Replace(face, band.Located(face.Location()).Oriented(face.Orientation()))
+        if reshape is None:
+            return shapes, 0
+        return [reshape.Apply(shape) for shape in shapes], count
+    except Exception:  # noqa: BLE001 (a repair never adds a failure: the shapes as read)
+        return shapes, 0
+
+
+def _turns(periodic: bool, period: float, span: float) -> int:
+    """How many times ``span`` covers the period: 1 when once or less, 0 when not a whole number."""
+    if not periodic or period <= 0 or span <= period * (1 + _TURN_TOLERANCE):
+        return 1
+    turns = round(span / period)
+    return turns if abs(span / period - turns) <= _TURN_TOLERANCE * turns else 0
+
+
+def _on_side(value: float, low: float, high: float, period: float | None, tolerance: float) -> bool:
+    """Whether an iso-line at ``value`` is a side of the band: ``low`` or ``high``, or with a
+    ``period`` (the direction going round) ``low`` plus any number of turns."""
+    if period:
+        turns = round((value - low) / period)
+        return abs(value - low - turns * period) <= tolerance
+    return min(abs(value - low), abs(value - high)) <= tolerance
+
+
+def _one_turn(face):
+    """The one-turn band replacing a face (unlocated, forward) that goes round its periodic
+    surface more than once, or None (goes round once, or its boundary is not the band's:
+    every edge an iso-line on one of the band's two boundary curves or on its seam)."""
+    try:
+        from OCP.BRep import BRep_Tool
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace
+        from OCP.BRepTools import BRepTools
+        from OCP.TopAbs import TopAbs_EDGE
+        from OCP.TopExp import TopExp_Explorer
+        from OCP.TopoDS import TopoDS
+
+        surface = BRep_Tool.Surface_s(face)
+        u0, u1, v0, v1 = BRepTools.UVBounds_s(face)
+        along_u = _turns(surface.IsUPeriodic(), surface.UPeriod() if surface.IsUPeriodic() else 0.0, u1 - u0)
+        along_v = _turns(surface.IsVPeriodic(), surface.VPeriod() if surface.IsVPeriodic() else 0.0, v1 - v0)
+        if along_u == 0 or along_v == 0 or (along_u == 1 and along_v == 1):
+            return None
+        period_u = surface.UPeriod() if along_u > 1 else None
+        period_v = surface.VPeriod() if along_v > 1 else None
+        tol_u, tol_v = _TURN_TOLERANCE * max(u1 - u0, 1.0), _TURN_TOLERANCE * max(v1 - v0, 1.0)
+        # the band is the face only if every edge is an iso-line on the band's boundary in 3D:
+        # a side of the rectangle, or in the direction that goes round, the seam at any turn
+        # (OpenCASCADE also makes such faces with a seam inside the parameter rectangle)
+        explorer = TopExp_Explorer(face, TopAbs_EDGE)
+        while explorer.More():
+            a0, a1, b0, b1 = BRepTools.UVBounds_s(face, TopoDS.Edge(explorer.Current()))
+            on_u_side = a1 - a0 <= tol_u and _on_side(a0, u0, u1, period_u, tol_u)
+            on_v_side = b1 - b0 <= tol_v and _on_side(b0, v0, v1, period_v, tol_v)
+            if not (on_u_side or on_v_side):
+                return None
+            explorer.Next()
+        if period_u:
+            u1 = u0 + period_u
+        if period_v:
+            v1 = v0 + period_v
+        maker = BRepBuilderAPI_MakeFace(surface, u0, u1, v0, v1, BRep_Tool.Tolerance_s(face))
+        return maker.Face() if maker.IsDone() else None
+    except Exception:  # noqa: BLE001 (the face stays as it was)
+        return None
 
 
 # --------------------------------------------------------------------------- faceting
