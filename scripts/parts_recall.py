@@ -3,6 +3,7 @@
     python scripts/parts_recall.py STORE [--tree ../shared/data/kicad6-step] [--metric weighted ...]
     python scripts/parts_recall.py STORE --tree /work/debian/step --metric all-angle --scale sensitive \
         --sample 200 --truth-cache step-truth.json        # a whole library: a random 200 of its solids
+    python scripts/parts_recall.py STORE ... --questions run.json   # ask what an earlier run (its --json) asked
 
 STORE must be built from the tree with ``shapeidx build TREE --store STORE --parts``.
 
@@ -13,11 +14,13 @@ from ``BRepGProp``). Two solids are the same part when these agree within 1e-4. 
 round its periodic surface more than once (the KiCad transformers' pins) corrupts those
 invariants as it corrupts the mesh, so the truth's solids get the reader's repair
 (``shapeidx.io.step.unwound``: the one-turn band, checked against the VRML twins) unless
-``--raw-truth`` is given. For each
-file with several solids, each distinct solid is written out as a STEP file of its own
-(moved by a random rigid motion) and asked ``where-used`` (the library's road,
-shapeidx.search.where_used); the files relevant to it are those holding a solid with its
-invariants, and the count each holds is the truth for the reported ``count``.
+``--raw-truth`` is given (``--truth-cache`` keeps the invariants, which truth they are and
+the faces the repair replaces in each file; a cache of the other truth is reused for every
+file the repair leaves alone). For each file with several solids, each distinct solid is
+written out as a STEP file of its own (moved by a random rigid motion) and asked
+``where-used`` (the library's road, shapeidx.search.where_used); the files relevant to it
+are those holding a solid with its invariants, and the count each holds is the truth for
+the reported ``count``.
 
 Reported per metric and ``--scale`` (sensitive: where-used's default, sub-parts of another
 size left out; invariant: the paper's): R-precision (of the R files that hold the part, how
@@ -49,7 +52,9 @@ TOLERANCE = 1e-4
 UNWIND = True
 
 
-def solids_of(path: Path) -> list:
+def solids_of(path: Path) -> tuple[list, int]:
+    """The file's solids (repaired unless ``--raw-truth``) and how many faces the repair
+    replaces in it (counted either way)."""
     from OCP.STEPControl import STEPControl_Reader
     from OCP.TopAbs import TopAbs_SOLID
     from OCP.TopExp import TopExp_Explorer
@@ -58,16 +63,17 @@ def solids_of(path: Path) -> list:
 
     reader = STEPControl_Reader()
     if str(reader.ReadFile(str(path))).rsplit(".", 1)[-1] != "IFSelect_RetDone":
-        return []
+        return [], 0
     reader.TransferRoots()
     shape = reader.OneShape()
+    (repaired,), count = unwound([shape])
     if UNWIND:
-        (shape,), _ = unwound([shape])
+        shape = repaired
     out, explorer = [], TopExp_Explorer(shape, TopAbs_SOLID)
     while explorer.More():
         out.append(explorer.Current())
         explorer.Next()
-    return out
+    return out, count
 
 
 def invariants(solid) -> np.ndarray:
@@ -93,17 +99,34 @@ def same_rows(table: np.ndarray, inv: np.ndarray) -> np.ndarray:
     return np.all(np.abs(table - inv) <= TOLERANCE * scale + 1e-9 * scale.max(axis=1, keepdims=True), axis=1)
 
 
-def read_truth(tree: Path, files: list, cache: Path | None) -> dict:
-    """Each file's solids' invariants (relative path -> list of arrays), read with OCCT once."""
+def read_truth(tree: Path, files: list, cache: Path | None) -> tuple[dict, dict]:
+    """Each file's solids' invariants (relative path -> list of arrays), read with OCCT once,
+    and how many faces the repair replaces in each file (relative path -> count).
+
+    The cache records which truth it holds (``unwound``: repaired or raw) and, per file, the
+    faces the repair replaces (``repaired``). A cache of the other truth is not thrown away:
+    a file in which the repair replaces no face has the same solids either way, so only the
+    others' invariants are computed again (finding them takes a read of each file not yet
+    counted, ~0.1 s, not the BRepGProp invariants that make the hour of a whole library).
+    """
     known = json.loads(cache.read_text()) if cache and cache.exists() else {}
-    if known.get("tree") != str(tree) or known.get("unwound", False) != UNWIND:
-        known = {"tree": str(tree), "unwound": UNWIND, "files": {}}
+    if known.get("tree") != str(tree):
+        known = {}
+    solids, repaired = known.get("files", {}), known.get("repaired", {})
+    if known and known.get("unwound", False) != UNWIND:
+        for name in files:
+            if name in solids and name not in repaired:
+                repaired[name] = solids_of(tree / name)[1]
+        solids = {name: v for name, v in solids.items() if repaired.get(name) == 0}
+    known = {"tree": str(tree), "unwound": UNWIND, "files": solids, "repaired": repaired}
     for name in files:
-        if name not in known["files"]:
-            known["files"][name] = [invariants(s).tolist() for s in solids_of(tree / name)]
+        if name not in solids:
+            read, repaired[name] = solids_of(tree / name)
+            solids[name] = [invariants(s).tolist() for s in read]
     if cache:
         cache.write_text(json.dumps(known))
-    return {name: [np.array(v) for v in known["files"][name]] for name in files}
+    return ({name: [np.array(v) for v in solids[name]] for name in files},
+            {name: repaired[name] for name in files if name in repaired})
 
 
 def random_rigid(rng):
@@ -140,6 +163,8 @@ def main() -> None:
     parser.add_argument("--json", dest="json_out")
     parser.add_argument("--show-wrong", action="store_true", help="list the files whose reported count is wrong")
     parser.add_argument("--sample", type=int, help="ask a random N of the distinct solids (a whole library has thousands)")
+    parser.add_argument("--questions", metavar="RUN.json",
+                        help="ask the solids an earlier run asked (its --json output's 'asked'), not a sample")
     parser.add_argument("--truth-cache", help="JSON file keeping the solids' invariants between runs")
     parser.add_argument("--raw-truth", action="store_true",
                         help="the truth's solids as OpenCASCADE reads them, multi-turn faces and all")
@@ -157,8 +182,13 @@ def main() -> None:
 
     started = time.monotonic()
     files = sorted(p.relative_to(tree).as_posix() for p in tree.rglob("*") if p.suffix.lower() in (".step", ".stp"))
-    truth = read_truth(tree, files, Path(args.truth_cache) if args.truth_cache else None)
+    truth, repaired = read_truth(tree, files, Path(args.truth_cache) if args.truth_cache else None)
     print(f"read {len(files)} files' solids in {time.monotonic() - started:.0f} s", file=sys.stderr)
+    turning = {name: count for name, count in repaired.items() if count}
+    if len(repaired) == len(files):  # a cache of before the count may lack it
+        print(f"{len(turning)} files with faces going round their surface more than once"
+              f" ({sum(turning.values())} faces; {'repaired' if UNWIND else 'not repaired'} in the truth)",
+              file=sys.stderr)
 
     # every solid of every file in one array: which file, its invariants
     owner = np.array([i for i, name in enumerate(files) for _ in truth[name]], dtype=np.int64)
@@ -178,10 +208,17 @@ def main() -> None:
     multi = sum(len(truth[name]) >= 2 for name in files)
     print(f"{multi} files with several solids, {len(questions)} distinct solids", file=sys.stderr)
     distinct_solids = len(questions)
-    if args.sample and args.sample < len(questions):
+    if args.questions:
+        # by file and solid number: another truth (--raw-truth or not) may make two solids asked
+        # there one part now (the transformers' two kinds of pin), asked once
+        wanted = {(q["query"], q["solid"]) for q in json.loads(Path(args.questions).read_text())["asked"]}
+        questions = [q for q in questions if any((q[0], i) in wanted for i, other in enumerate(truth[q[0]])
+                                                 if same(q[2], other))]
+        print(f"asking the {len(questions)} of them {args.questions} asked ({len(wanted)} there)", file=sys.stderr)
+    elif args.sample and args.sample < len(questions):
         questions = [questions[i] for i in sorted(rng.choice(len(questions), args.sample, replace=False))]
         print(f"asking a random {len(questions)} of them (--sample, --seed {args.seed})", file=sys.stderr)
-    queries = [(name, solids_of(tree / name)[index], inv, holders) for name, index, inv, holders in questions]
+    queries = [(name, solids_of(tree / name)[0][index], inv, holders) for name, index, inv, holders in questions]
 
     from shapeidx.search import Searcher
     from shapeidx.search.where_used import where_used
@@ -206,7 +243,7 @@ def main() -> None:
                 print(f"refused: a solid of {name}: {refused[-1]['reason']}", file=sys.stderr)
                 continue
             r = len(holders)
-            asked.append({"query": name, "holders": holders})
+            asked.append({"query": name, "solid": index_of[k], "holders": holders})
             for metric, scale, size in runs:
                 res = results[(metric, scale, size)]
                 answer = where_used(searcher, question, top=max(10, r), metric=metric, scale=scale, same_size=size)
@@ -232,7 +269,8 @@ def main() -> None:
                     res["at"][tier][2] += r
     summary = {"machine": machine(), "tree": str(tree), "files": len(files), "multi_solid_files": multi,
                "distinct_solids": distinct_solids, "queries": len(asked), "refused": refused,
-               "relevant_files": int(sum(len(q["holders"]) for q in asked)), "truth_unwound": UNWIND, "runs": []}
+               "relevant_files": int(sum(len(q["holders"]) for q in asked)), "truth_unwound": UNWIND,
+               "multi_turn_faces": turning if len(repaired) == len(files) else None, "asked": asked, "runs": []}
     for (metric, scale, size), res in results.items():
         summary["runs"].append({
             "metric": metric, "scale": scale, "same_size": size,
