@@ -45,8 +45,10 @@ from .base import LoadLimits, PolygonMesh, read_bytes
 __all__ = ["SubPart", "split_parts", "own_frame", "MAX_PARTS", "SAME_TOLERANCE", "PARTS_VERSION"]
 
 #: Raised whenever the same file would split differently (other sub-parts, another order):
-#: pictures of sub-parts are cached under it (2: VRML files split along their groups).
-PARTS_VERSION = 2
+#: pictures of sub-parts are cached under it (2: VRML files split along their groups; 3: STEP
+#: faces going round their surface more than once read as one turn, so a transformer's pins
+#: are one sub-part, not two).
+PARTS_VERSION = 3
 #: Sub-parts a file gives at most (distinct ones; a file with more keeps the largest).
 MAX_PARTS = 200
 #: Two sub-parts are the same part when each invariant agrees to this share.
