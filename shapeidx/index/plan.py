@@ -63,8 +63,12 @@ def make_plan(walk: Walk, reader, options) -> Plan:
     ``options`` is a :class:`~shapeidx.index.build.BuildOptions` (``full``, ``rehash``,
     ``retry_failed`` are read). The entries are looked up by path key
     (:func:`~shapeidx.store.known.known_files`): no stored path is decoded but the removed
-    entries', no content hash read but the changed files'.
+    entries', no content hash read but the changed files'. An entry older than its reader
+    (:attr:`Plan.older`) is found by its revision column; only the files of entries older than
+    the newest reader of any format have their format looked up.
     """
+    from ..io.registry import entry_format, reader_revision, revisions
+
     known = known_files(reader)
     files = walk.files
     at = known.lookup([f.path for f in files])
@@ -79,8 +83,6 @@ def make_plan(walk: Walk, reader, options) -> Plan:
     # an entry of an older reader revision than its format's now: signed again, ok or failed
     stale = np.zeros(len(files), dtype=bool)
     if len(known) and found.any():
-        from ..io.registry import reader_revision, revisions
-
         newest = max(revisions().values())
         maybe = np.flatnonzero(found & (known.revision[entry] < newest))  # only these paths looked at
         if len(maybe):
@@ -107,8 +109,6 @@ def make_plan(walk: Walk, reader, options) -> Plan:
     gone = np.ones(len(known), dtype=bool)
     gone[at[found]] = False
     removed = [p for p in known.paths(np.flatnonzero(gone)) if not _under_any(p, walk.unlisted)]
-    from ..io.registry import entry_format
-
     older_names = [entry_format(files[k].path) for k in np.flatnonzero(older).tolist()] if older.any() else []
     return Plan(tasks, unchanged, sorted(removed), len(files), failed_before, count_by_label(older_names))
 
