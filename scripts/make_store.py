@@ -62,7 +62,8 @@ def real_signatures(source: Path) -> dict:
         if len(rows) == 0:
             raise SystemExit(f"{source}: no ok entries to make a store from")
         out = {"params": reader.params, "paths": reader.paths[rows]}
-        for name in ("size", "mtime_ns", "triangles", "area", "watertight", *SHAPE_FIELDS):
+        # the revision of the reader that made each source signature (1 from a store before it)
+        for name in ("size", "mtime_ns", "triangles", "area", "watertight", "revision", *SHAPE_FIELDS):
             out[name] = reader.column(f"entries/{name}")[rows]
         for name in HISTOGRAMS:
             counts, lengths = reader.counts(name, rows)
@@ -197,6 +198,7 @@ def synthetic_entries(real: dict, first: int, picks: np.ndarray, rng, width: int
             triangles=int(real["triangles"][pick]),
             area=float(real["area"][pick]),
             watertight=bool(real["watertight"][pick]),
+            revision=int(real["revision"][pick]),
             **{name: tuple(real[name][pick].tolist()) for name in SHAPE_FIELDS},
             fractions=tuple(fractions[k]),
             histograms=histograms,

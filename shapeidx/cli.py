@@ -381,14 +381,19 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
     if as_json:
         emit_json(summary.to_dict(store_path, dry_run))
     elif dry_run:
-        click.echo(f"shapeidx build: would index {summary.planned} new or changed, {summary.unchanged} unchanged,"
-                   f" remove {summary.removed} (dry run: nothing changed)")
+        from .index.plan import older_words
+
+        older = sum(summary.older.values())
+        click.echo(f"shapeidx build: would index {summary.planned - older} new or changed"
+                   + (f", {older_words(summary.older)}" if older else "")
+                   + f", {summary.unchanged} unchanged, remove {summary.removed} (dry run: nothing changed)")
     elif not quiet:
         click.echo(
             f"shapeidx build: {summary.line()} in {duration(summary.seconds)};"
             f" store: {summary.store_ok} ok, {summary.store_failed} failed, {_size(summary.store_bytes)}"
             + (f"; parts: {summary.parts_indexed} signed, {summary.parts_entries} in the store"
                if summary.parts_entries is not None else "")
+            + summary.older_line()
         )
     if strict and summary.store_failed:
         reporter.say(
@@ -718,6 +723,10 @@ def stats(store, list_failed, output_format, as_json):
     if facts["journal_batches"]:
         click.echo(f"  journal     {facts['journal_batches']} segment(s) beside the main file"
                    " (folded in as the store grows)")
+    older = facts.get("older_reader") or {}
+    if older:
+        counts = ", ".join(f"{count:,} {label}" for label, count in older.items())
+        click.echo(f"  readers     {counts} entries signed by an older reader: the next build signs them again")
     parts = facts.get("parts")
     if parts:
         click.echo(f"  sub-parts   {parts['entries']:,} entries ({parts['instances']:,} counted as the files hold them)"

@@ -384,3 +384,22 @@ def test_a_file_whose_workers_keep_dying_is_failed_with_the_reason(data_dir, tmp
         assert any(line.rstrip("\n").endswith(reason) for line in lines), lines  # after the log prefix
     finally:
         cluster.stop()
+
+
+def test_a_distributed_build_signs_again_what_an_older_reader_signed(cluster, data_dir, tmp_path):
+    """The workers' entries record their reader's revision: a store whose STEP entries an older
+    reader signed is brought up to date on the cluster, the VRML and STL entries left alone."""
+    from test_reader_revision import assert_same, contents, mixed_tree, set_revision
+
+    tree = mixed_tree(data_dir, tmp_path)
+    store, fresh = tmp_path / "s.h5", tmp_path / "fresh.h5"
+    for path in (fresh, store):
+        run = run_shapeidx("build", tree, "--store", path, "--points", FAST_POINTS)
+        assert run.returncode == 0, run.stderr
+    assert set_revision(store, 1) == 2
+    run = run_shapeidx("build", tree, "--store", store, "--scheduler", cluster.address, "--json")
+    assert run.returncode == 0, run.stderr
+    record = json.loads(run.stdout)
+    assert (record["indexed"], record["unchanged"], record["older_reader"]) == (2, 11, {"STEP": 2})
+    assert "2 signed by an older STEP reader" in run.stderr
+    assert_same(contents(store), contents(fresh))

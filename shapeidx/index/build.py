@@ -89,9 +89,20 @@ class BuildSummary:
     parts_entries: int | None = None
     #: Where the build's CPU went (:class:`BuildProfile`); None for a dry run.
     profile: "BuildProfile | None" = None
+    #: Format label -> files planned only because an older revision of that format's reader
+    #: signed their entries (:attr:`shapeidx.index.plan.Plan.older`; included in ``planned``),
+    #: and files whose sub-entries (``--parts``) an older reader made.
+    older: dict = field(default_factory=dict)
+    older_parts: dict = field(default_factory=dict)
 
     def line(self) -> str:
         return f"{self.indexed} indexed, {self.unchanged} unchanged, {self.removed} removed, {self.failed} failed"
+
+    def older_line(self) -> str:
+        """``; signed again by a newer reader: 37 STEP`` ('' when no file was): why files whose
+        size and time did not change were indexed (added after the store's counts)."""
+        return ((f"; signed again by a newer reader: {_counts(self.older)}" if self.older else "")
+                + (f"; sub-parts made again by a newer reader: {_counts(self.older_parts)}" if self.older_parts else ""))
 
     root: str = ""
 
@@ -113,7 +124,14 @@ class BuildSummary:
             "parts": None if self.parts_indexed is None else {"indexed": self.parts_indexed,
                                                               "entries": self.parts_entries},
             "profile": None if self.profile is None else self.profile.to_dict(),
+            "older_reader": dict(self.older),
+            "older_reader_parts": dict(self.older_parts),
         }
+
+
+def _counts(by_label: dict) -> str:
+    """``37 STEP, 2 IGES``."""
+    return ", ".join(f"{count} {label}" for label, count in by_label.items())
 
 
 @dataclass
@@ -247,6 +265,7 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
         summary.found, summary.unchanged, summary.planned = plan.found, plan.unchanged, len(plan.tasks)
         # with --parts: the files whose sub-parts alone are missing or stale are tasks too
         parts = _parts_committer(store, params, root, options, reporter, plan, walk) if options.parts else None
+        summary.planned, summary.older, summary.older_parts = len(plan.tasks), dict(plan.older), dict(plan.older_parts)
         reporter.planned(plan)
         committer = Committer(writer, options.commit_interval, options.merge_after, reporter)
         committer.remove(plan.removed)
@@ -426,6 +445,7 @@ def _dry_run(root: Path, store: Path, params: StoreParams, options, reporter, su
     else:
         plan = Plan([Task(f.path, f.absolute) for f in walk.files], 0, [], len(walk.files))
     summary.found, summary.unchanged, summary.planned = plan.found, plan.unchanged, len(plan.tasks)
+    summary.older = dict(plan.older)
     summary.removed = len(plan.removed)
     reporter.planned(plan)
     return summary

@@ -4,6 +4,13 @@ Planning compares each file's size and modification time with its entry: equal m
 unchanged, with no read at all. A file whose times changed but whose size did not is hashed
 in a worker; the same content only updates the entry's times. Failed files are not retried
 until they change (or ``retry_failed``, or a new shapeidx version).
+
+An entry signed by an older revision of its format's reader (each entry records it,
+``entries/revision``; :attr:`shapeidx.io.base.Format.revision`) is work too, whatever its
+size and time, ok or failed: its file is read and signed again, without the same-content
+shortcut (its content is the same, its signature is not what the reader now makes). The
+other formats' entries stay. The plan counts these files by format (:attr:`Plan.older`), for
+the build to say why they are indexed again.
 """
 
 from __future__ import annotations
@@ -29,6 +36,25 @@ class Plan:
     found: int
     #: Paths of the tasks whose entries had failed (retried): failing again is not news.
     failed_before: set = field(default_factory=set)
+    #: Format label -> files of the tasks that are work only because an older revision of that
+    #: format's reader signed their entries (``{"STEP": 37}``).
+    older: dict = field(default_factory=dict)
+    #: The same for ``build --parts``: files whose sub-entries an older reader made.
+    older_parts: dict = field(default_factory=dict)
+
+
+def count_by_label(names) -> dict:
+    """Format label -> how many of ``names`` (format names), in the registry's order."""
+    from ..io.registry import FORMATS
+
+    return {fmt.label: names.count(name) for name, fmt in FORMATS.items() if name in names}
+
+
+def older_words(older: dict, verb: str = "signed") -> str:
+    """``37 signed by an older STEP reader, 2 by an older IGES reader`` ('' for none)."""
+    parts = [f"{count} {verb + ' ' if k == 0 else ''}by an older {label} reader"
+             for k, (label, count) in enumerate(older.items())]
+    return ", ".join(parts)
 
 
 def make_plan(walk: Walk, reader, options) -> Plan:
@@ -37,8 +63,12 @@ def make_plan(walk: Walk, reader, options) -> Plan:
     ``options`` is a :class:`~shapeidx.index.build.BuildOptions` (``full``, ``rehash``,
     ``retry_failed`` are read). The entries are looked up by path key
     (:func:`~shapeidx.store.known.known_files`): no stored path is decoded but the removed
-    entries', no content hash read but the changed files'.
+    entries', no content hash read but the changed files'. An entry older than its reader
+    (:attr:`Plan.older`) is found by its revision column; only the files of entries older than
+    the newest reader of any format have their format looked up.
     """
+    from ..io.registry import entry_format, reader_revision, revisions
+
     known = known_files(reader)
     files = walk.files
     at = known.lookup([f.path for f in files])
@@ -50,24 +80,37 @@ def make_plan(walk: Walk, reader, options) -> Plan:
     same_size = found & (known.size[entry] == size) if len(known) else failed
     same_stat = same_size & (known.mtime_ns[entry] == mtime) if len(known) else failed
     retry = options.retry_failed or reader.attrs.get("shapeidx_version") != __version__
+    # an entry of an older reader revision than its format's now: signed again, ok or failed
+    stale = np.zeros(len(files), dtype=bool)
+    if len(known) and found.any():
+        newest = max(revisions().values())
+        maybe = np.flatnonzero(found & (known.revision[entry] < newest))  # only these paths looked at
+        if len(maybe):
+            current = np.array([reader_revision(files[k].path) for k in maybe.tolist()], dtype=np.int64)
+            stale[maybe] = known.revision[entry[maybe]] < current
     # failed entries retried unchanged (--retry-failed, --full, a new version): failing again is not news
     # a file that could not be read at all (permission, I/O error) is recorded without size or time
     # (index.workers): it is tried again at every build, but its failing again is not news either
     never_read = failed & (known.size[entry] == 0) & (known.mtime_ns[entry] == 0) if len(known) else failed
     failed_before = {files[k].path for k in np.flatnonzero(failed & (same_stat | never_read)).tolist()}
-    work = ~found | (failed & bool(retry)) | ~same_stat
+    work = ~found | (failed & bool(retry)) | ~same_stat | stale
+    # work only for the reader's revision (not changed, not retried anyway): what the build says
+    older = stale & same_stat & ~(failed & bool(retry)) if not options.full else np.zeros(len(files), dtype=bool)
     if options.full or options.rehash:
         work[:] = True
     unchanged = int(np.sum(~work))
     # times changed (or --rehash): same size may still be the same content, known by its hash
-    hashed = np.flatnonzero(work & same_size & ~(failed & bool(retry))) if not options.full else np.zeros(0, dtype=np.int64)
+    # (not for an older reader's entry: the same content is to be signed again)
+    hashed = (np.flatnonzero(work & same_size & ~(failed & bool(retry)) & ~stale) if not options.full
+              else np.zeros(0, dtype=np.int64))
     known_hash = dict(zip(hashed.tolist(), known.hashes(at[hashed]))) if len(hashed) else {}
     tasks = [Task(files[k].path, files[k].absolute, known_hash.get(k) or None, in_store=bool(found[k]))
              for k in np.flatnonzero(work).tolist()]
     gone = np.ones(len(known), dtype=bool)
     gone[at[found]] = False
     removed = [p for p in known.paths(np.flatnonzero(gone)) if not _under_any(p, walk.unlisted)]
-    return Plan(tasks, unchanged, sorted(removed), len(files), failed_before)
+    older_names = [entry_format(files[k].path) for k in np.flatnonzero(older).tolist()] if older.any() else []
+    return Plan(tasks, unchanged, sorted(removed), len(files), failed_before, count_by_label(older_names))
 
 
 def _under_any(path: str, folders: list) -> bool:
@@ -81,28 +124,41 @@ def plan_parts(plan: Plan, walk: Walk, reader, options) -> list:
 
     ``reader`` is the parts store's view (None: it has no entry yet). A file's sub-entries
     (``FILE#n``, or one failed ``FILE``) carry its size, time and content hash: the same size
-    and time mean they are up to date, as for the whole-file entries.
+    and time mean they are up to date, as for the whole-file entries, unless an older revision
+    of the file's reader made them (:func:`make_plan`): then they are made again, the same
+    content notwithstanding, and counted in ``plan.older_parts``.
     """
     import dataclasses
 
-    known: dict = {}  # parent -> [paths, size, mtime_ns, hash]
+    from ..io.registry import entry_format, reader_revision
+    from ..store.layout import REVISION_COLUMN
+
+    known: dict = {}  # parent -> [paths, size, mtime_ns, hash, oldest revision]
     if reader is not None and len(reader):
         paths, parents = reader.paths, reader.column("entries/parent")
         size, mtime, hashes = reader.column("entries/size"), reader.column("entries/mtime_ns"), reader.column("entries/hash")
+        revision = reader.column(REVISION_COLUMN)
         for i in range(len(paths)):
-            record = known.setdefault(str(parents[i]) or str(paths[i]), [[], int(size[i]), int(mtime[i]), hashes[i]])
+            record = known.setdefault(str(parents[i]) or str(paths[i]),
+                                      [[], int(size[i]), int(mtime[i]), hashes[i], int(revision[i])])
             record[0].append(str(paths[i]))
+            record[4] = min(record[4], int(revision[i]))
     index = {task.path: k for k, task in enumerate(plan.tasks)}
+    older = []
     for f in walk.files:
         record = known.get(f.path)
         old = tuple(record[0]) if record else ()
-        stored_hash = None if record is None or options.full else (record[3].decode() if isinstance(record[3], bytes) else str(record[3])) or None
+        stale = record is not None and record[4] < reader_revision(f.path)
+        stored_hash = None if record is None or options.full or stale else (record[3].decode() if isinstance(record[3], bytes) else str(record[3])) or None
         if f.path in index:
             k = index[f.path]
             plan.tasks[k] = dataclasses.replace(plan.tasks[k], parts=True, parts_hash=stored_hash, old_parts=old)
-        elif options.full or options.rehash or record is None or (record[1], record[2]) != (f.size, f.mtime_ns):
+        elif options.full or options.rehash or record is None or (record[1], record[2]) != (f.size, f.mtime_ns) or stale:
             plan.tasks.append(Task(f.path, f.absolute, whole=False, parts=True, parts_hash=stored_hash, old_parts=old,
                                    in_store=True))
+        if stale and not options.full and (record[1], record[2]) == (f.size, f.mtime_ns):
+            older.append(entry_format(f.path))
+    plan.older_parts = count_by_label(older)
     walked = {f.path for f in walk.files}
     return sorted(p for parent, record in known.items() if parent not in walked and not _under_any(parent, walk.unlisted)
                   for p in record[0])

@@ -37,6 +37,26 @@ def duration(seconds: float) -> str:
     return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"
 
 
+def plan_words(plan) -> str:
+    """``120 files: 3 new or changed, 37 signed by an older STEP reader, 80 unchanged, 0 to remove``:
+    what a build's plan holds. The files an older revision of their reader signed (unchanged
+    otherwise: :attr:`shapeidx.index.plan.Plan.older`) are named apart, so that the user sees
+    why they are indexed again."""
+    from .plan import older_words
+
+    older, older_parts = getattr(plan, "older", {}) or {}, getattr(plan, "older_parts", {}) or {}
+    only_parts = sum(not getattr(task, "whole", True) for task in plan.tasks)
+    changed = len(plan.tasks) - only_parts - sum(older.values())
+    text = f"{plan.found} files: {changed} new or changed, "
+    text += f"{older_words(older)}, " if older else ""
+    text += f"{plan.unchanged} unchanged, {len(plan.removed)} to remove"
+    if only_parts:
+        text += f"; {only_parts} to split into sub-parts"
+    if older_parts:  # made again whatever their file's own entry needs
+        text += f"; {older_words(older_parts, 'files whose sub-parts were made')}"
+    return text
+
+
 class BuildReporter:
     """Prints a build's progress; see the module docstring.
 
@@ -84,11 +104,7 @@ class BuildReporter:
         self.started = self.last_line = time.monotonic()
         if self.quiet:
             return
-        only_parts = sum(not getattr(task, "whole", True) for task in plan.tasks)
-        self._say(
-            f"shapeidx build: {plan.found} files: {len(plan.tasks) - only_parts} new or changed, {plan.unchanged} unchanged,"
-            f" {len(plan.removed)} to remove" + (f"; {only_parts} to split into sub-parts" if only_parts else "")
-        )
+        self._say("shapeidx build: " + plan_words(plan))
         if self.terminal and self.total:
             self.bar = click.progressbar(
                 length=self.total, file=sys.stderr, show_eta=True, show_pos=True, item_show_func=self._rate_text

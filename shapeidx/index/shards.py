@@ -48,6 +48,9 @@ def run_sharded_build(root, store, options: BuildOptions, reporter, shards: int)
         for name in _SUMMED:
             setattr(total, name, getattr(total, name) + getattr(summary, name))
         total.failures += summary.failures
+        for name in ("older", "older_parts"):
+            for label, count in getattr(summary, name).items():
+                getattr(total, name)[label] = getattr(total, name).get(label, 0) + count
         if summary.metadata_rows is not None:
             total.metadata_rows = summary.metadata_rows
             total.metadata_changed |= summary.metadata_changed
@@ -80,6 +83,7 @@ def _on_cluster(root, paths: list, options: BuildOptions, reporter) -> list:
                 setattr(summary, name, result[name])
             summary.failures = [tuple(f) for f in result["failures"]]
             summary.metadata_rows, summary.metadata_changed = result["metadata_rows"], result["metadata_changed"]
+            summary.older, summary.older_parts = dict(result.get("older", {})), dict(result.get("older_parts", {}))
             reporter.say(f"shard {k} of {len(paths)}: {summary.line()} on {result['host']}")
             summaries.append(summary)
         return summaries
@@ -119,7 +123,8 @@ def _main(argv: list) -> int:
         reporter.close()
     out = {name: getattr(summary, name) for name in _SUMMED}
     out.update(failures=[list(f) for f in summary.failures], metadata_rows=summary.metadata_rows,
-               metadata_changed=summary.metadata_changed, host=socket.gethostname(), seconds=summary.seconds)
+               metadata_changed=summary.metadata_changed, host=socket.gethostname(), seconds=summary.seconds,
+               older=summary.older, older_parts=summary.older_parts)
     print(json.dumps(out))
     return 0
 

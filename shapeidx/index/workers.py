@@ -121,7 +121,22 @@ def reason_of(error: LoadError, absolute: str) -> str:
 
 def index_file(task: Task, params: StoreParams, root: str) -> Outcome:
     """Hash and, unless the content is known, sign one file (and with ``task.parts`` its
-    sub-parts). Never raises for a bad file."""
+    sub-parts). Never raises for a bad file.
+
+    Its entries record the revision of this process's reader of the file's format
+    (``entries/revision``): on a Dask worker, the worker's, which may be older than the
+    build's (its entries are then signed again by the next build)."""
+    from ..io.registry import reader_revision
+
+    outcome = _index_file(task, params, root)
+    revision = reader_revision(task.path)
+    for entry in [outcome.entry, *(outcome.parts or ())]:
+        if entry is not None and entry.revision is None:
+            entry.revision = revision
+    return outcome
+
+
+def _index_file(task: Task, params: StoreParams, root: str) -> Outcome:
     from ..io import LoadLimits, load
     from ..signing.solid import make_solid
 

@@ -20,7 +20,8 @@ from .._lazy import attach
 
 _NAMES = {
     **dict.fromkeys(
-        ["FORMATS", "check_polygon_mesh", "format_of", "load", "load_bytes", "register", "suffixes"], ".registry"
+        ["FORMATS", "check_polygon_mesh", "entry_format", "format_of", "load", "load_bytes", "reader_revision", "register",
+         "revisions", "suffixes"], ".registry"
     ),
     **dict.fromkeys(["Format", "LoadLimits", "PolygonMesh", "file_hash", "read_bytes"], ".base"),
 }

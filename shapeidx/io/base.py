@@ -199,6 +199,17 @@ class Format:
         without reading it (a header, or a count of bytes in C), and never more than its
         bytes can hold. :func:`shapeidx.io.load` checks the memory they need
         (:meth:`LoadLimits.check_memory`) before the reader spends it.
+    revision : int
+        The reader's revision: raised whenever this reader could give another mesh for the
+        same file (and limits), so that a build signs again the files an older revision
+        read (each store entry records the revision that signed it, ``entries/revision``;
+        :func:`shapeidx.index.plan.make_plan`) while the other formats' entries stay.
+        This is :data:`~shapeidx.signing.parameters.SIGNATURE_VERSION` for one format:
+        a change to what every format shares (cleaning, sampling, classification) raises
+        that instead. Each raise, and what it was for, is noted where the format is declared:
+
+        * STEP and IGES 2 (shapeidx.io.step): faces going round their surface more than once
+          (a cylinder wall wound two or three turns) meshed as one turn, not as a sliver.
     """
 
     name: str
@@ -208,6 +219,7 @@ class Format:
     sniff: Callable | None = None
     weak: bool = False
     declared: Callable | None = None
+    revision: int = 1
 
 
 @dataclass

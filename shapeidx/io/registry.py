@@ -15,13 +15,16 @@ from .base import GZIP_MAGIC, Format, LoadLimits, PolygonMesh, gunzip_bounded, r
 __all__ = [
     "FORMATS",
     "Format",
+    "entry_format",
     "LoadLimits",
     "PolygonMesh",
     "format_of",
     "load",
     "load_bytes",
     "read_bytes",
+    "reader_revision",
     "register",
+    "revisions",
     "suffixes",
 ]
 
@@ -59,6 +62,27 @@ def format_of(path: str | os.PathLike) -> str | None:
     at = name.rfind(".")
     fmt = _BY_SUFFIX.get(name[at:]) if 0 < at < len(name) - 1 else None  # Path(name).suffix's rule: ".wrl" has none
     return fmt.name if fmt else None
+
+
+def entry_format(path: str) -> str | None:
+    """The format of a store entry's file, by its name (:func:`format_of`: a build reads a file
+    by its name); a sub-entry ``FILE#n`` (``build --parts``) is its file's."""
+    fmt = format_of(path)
+    if fmt is None and "#" in path:
+        fmt = format_of(path.rpartition("#")[0])
+    return fmt
+
+
+def reader_revision(path: str) -> int:
+    """The revision (:attr:`Format.revision`) of the reader of an entry's file
+    (:func:`entry_format`); 1 for a name no format owns."""
+    fmt = entry_format(path)
+    return FORMATS[fmt].revision if fmt else 1
+
+
+def revisions() -> dict[str, int]:
+    """Format name -> its reader's current revision."""
+    return {name: fmt.revision for name, fmt in FORMATS.items()}
 
 
 @without_float_warnings

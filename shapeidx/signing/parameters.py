@@ -12,7 +12,10 @@ DEFAULT_SEED = 20020101
 #: Bin width = mean distance of the set / BIN_DIVISOR (the paper's 1/50).
 BIN_DIVISOR = 50
 #: Raised whenever the same file and parameters could give a different signature (changes to
-#: loading, cleaning, sampling or classification). A store records it and refuses a mismatch.
+#: loading, cleaning, sampling or classification) of every format. A store records it and refuses
+#: a mismatch ("rebuild it"). A change to one format's reader raises that reader's revision
+#: instead (:attr:`shapeidx.io.base.Format.revision`): each entry records it, and a build signs
+#: again only the entries an older revision read.
 SIGNATURE_VERSION = 2  # 2: walls between touching bodies dropped (signing.mesh.shared_walls)
 
 #: Codes of the pair classes, as stored in class arrays.

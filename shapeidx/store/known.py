@@ -4,7 +4,7 @@ A build's plan compares every walked file's size and modification time with its 
 10^6 entries, decoding every stored path (and checking the SHA-256 of them all) to look the
 files up costs seconds, and grows with the store. :func:`known_files` instead takes each
 file's ``rank/path_key`` (the BLAKE2b-128 of its paths, CRC-32-checked as it is mapped) and
-its ``size``, ``mtime_ns`` and ``status`` columns (Fletcher-32, 17 bytes an entry), applies
+its ``size``, ``mtime_ns``, ``status`` and ``revision`` columns (Fletcher-32, 25 bytes an entry), applies
 the journal segments by key (an entry or a removal of a newer file supersedes; a newer
 file's ``touched`` times apply), and looks the walked files up by their keys. Paths and
 content hashes are read only for the rows that need them: the changed files' hashes, the
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .layout import STATUS_OK
+from .layout import FIRST_REVISION, REVISION_COLUMN, STATUS_OK
 from .rank import path_keys
 
 #: Above this share of a file's rows, reading its whole path column beats single reads.
@@ -90,12 +90,16 @@ class KnownFiles:
     size, mtime_ns : (n,) int64
         Its file's size and modification time, as the store last recorded them.
     status : (n,) uint8
+    revision : (n,) int64
+        The revision of the reader that signed it (:data:`~shapeidx.store.layout.REVISION_COLUMN`;
+        1 in a file written before the column).
     """
 
-    def __init__(self, reader, keys, source, row, size, mtime_ns, status):
+    def __init__(self, reader, keys, source, row, size, mtime_ns, status, revision=None):
         self.reader = reader
         self.source, self.row = source, row
         self.size, self.mtime_ns, self.status = size, mtime_ns, status
+        self.revision = np.full(len(row), FIRST_REVISION, dtype=np.int64) if revision is None else revision
         self._index = _KeyIndex(keys)
 
     def __len__(self) -> int:
@@ -174,7 +178,8 @@ def known_files(reader) -> KnownFiles:
         return np.concatenate([np.asarray(sources[i].column(name), dtype=dtype)[rows] for i, rows, _ in parts])
 
     size, mtime, status = column("entries/size", np.int64), column("entries/mtime_ns", np.int64), column("entries/status", np.uint8)
-    known = KnownFiles(reader, keys, file_of, row, size, mtime, status)
+    revision = column(REVISION_COLUMN, np.int64)  # a file written before the column: all 1
+    known = KnownFiles(reader, keys, file_of, row, size, mtime, status, revision)
     if touches:
         touched_keys = np.array(list(touches), dtype=np.uint64).reshape(-1, 2)
         at = known._index.find(touched_keys)

@@ -72,8 +72,16 @@ ENTRY_COLUMNS.update({name: (object, _STR) for name in TEXT_COLUMNS})
 PARENT_COLUMN, COUNT_COLUMN = "entries/parent", "entries/count"
 ENTRY_COLUMNS[PARENT_COLUMN] = (object, _STR)
 ENTRY_COLUMNS[COUNT_COLUMN] = (np.int64, np.int64)
+#: The revision of the reader that signed the entry (:attr:`shapeidx.io.base.Format.revision`,
+#: of the format its file's name says; a failed entry's too): a build signs again an entry whose
+#: reader has been revised since (:mod:`shapeidx.index.plan`). Absent from older files: read as
+#: :data:`FIRST_REVISION`, what every reader was before revisions were recorded.
+REVISION_COLUMN = "entries/revision"
+FIRST_REVISION = 1
+ENTRY_COLUMNS[REVISION_COLUMN] = (np.int64, np.int64)
 #: Every column a file may lack.
-MAY_BE_ABSENT = frozenset(OPTIONAL_COLUMNS) | frozenset(TEXT_COLUMNS) | {PARENT_COLUMN, COUNT_COLUMN}
+MAY_BE_ABSENT = (frozenset(OPTIONAL_COLUMNS) | frozenset(TEXT_COLUMNS)
+                 | {PARENT_COLUMN, COUNT_COLUMN, REVISION_COLUMN})
 for _name in HISTOGRAMS:
     ENTRY_COLUMNS[f"histograms/{_name}/mean"] = (np.float64, np.float64)
     ENTRY_COLUMNS[f"histograms/{_name}/bin_width"] = (np.float64, np.float64)
@@ -195,6 +203,10 @@ class Entry:
     parent: str = ""
     #: How many times ``parent`` holds this sub-part.
     count: int = 1
+    #: The revision of the reader that read the file (:data:`REVISION_COLUMN`); None: the
+    #: current one of its format (:func:`shapeidx.io.registry.reader_revision`), found when the
+    #: entry is written. A build's workers set it (a Dask worker's reader may be another's).
+    revision: int | None = None
 
     @classmethod
     def indexed(cls, path, hash, size, mtime_ns, signature: Signature, facts: dict, shape: dict | None = None) -> "Entry":
@@ -244,6 +256,7 @@ def entries_to_columns(entries: list[Entry]) -> tuple[dict, dict]:
         columns[name] = object_array([getattr(e, name.split("/")[1]) for e in entries])
     columns[PARENT_COLUMN] = object_array([e.parent for e in entries])
     columns[COUNT_COLUMN] = np.array([e.count for e in entries], dtype=np.int64)
+    columns[REVISION_COLUMN] = np.array([_revision_of(e) for e in entries], dtype=np.int64)
     counts = {}
     for name in HISTOGRAMS:
         hists = [e.histograms.get(name, empty) for e in entries]
@@ -253,6 +266,14 @@ def entries_to_columns(entries: list[Entry]) -> tuple[dict, dict]:
         flat = np.concatenate([h.counts for h in hists]) if n else np.zeros(0)
         counts[name] = (_as_counts(flat), lengths)
     return columns, counts
+
+
+def _revision_of(entry: Entry) -> int:
+    if entry.revision is not None:
+        return int(entry.revision)
+    from ..io.registry import reader_revision
+
+    return reader_revision(entry.parent or entry.path)
 
 
 def object_array(values) -> np.ndarray:
@@ -291,6 +312,8 @@ def missing_column(name: str, rows: int) -> np.ndarray:
         return object_array([""] * rows)
     if name == COUNT_COLUMN:
         return np.ones(rows, dtype=np.int64)
+    if name == REVISION_COLUMN:
+        return np.full(rows, FIRST_REVISION, dtype=np.int64)
     return np.full((rows, OPTIONAL_COLUMNS[name]), np.nan)
 
 

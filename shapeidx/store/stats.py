@@ -36,7 +36,30 @@ def describe_store(reader: StoreReader) -> dict:
         "parts": _parts_facts(reader.path),
         "bytes": reader.size_on_disk(),
         "failure_reasons": [{"reason": str(r), "count": int(c)} for c, r in by_count],
+        "older_reader": older_reader(reader),
     }
+
+
+def older_reader(reader: StoreReader) -> dict:
+    """Format label -> entries signed by an older revision of that format's reader than this
+    shapeidx's (:attr:`shapeidx.io.base.Format.revision`): the next build signs them again.
+
+    Reads the revision column (8 bytes an entry) and decodes only the paths of entries older
+    than the newest revision of any reader: none in a store built since.
+    """
+    from ..io.registry import FORMATS, entry_format, revisions
+    from .layout import REVISION_COLUMN
+
+    if not len(reader):
+        return {}
+    revision = reader.column(REVISION_COLUMN)
+    maybe = np.flatnonzero(revision < max(revisions().values()))
+    if not len(maybe):
+        return {}
+    paths = reader.paths
+    names = [entry_format(str(paths[i])) for i in maybe.tolist()]
+    older = [name for i, name in zip(maybe.tolist(), names) if name and revision[i] < FORMATS[name].revision]
+    return {fmt.label: older.count(name) for name, fmt in FORMATS.items() if name in older}
 
 
 def _parts_facts(store) -> dict | None:
