@@ -303,3 +303,53 @@ def test_a_killed_re_signing_loses_nothing_and_the_next_build_finishes(data_dir,
         assert f"{left} signed by an older STEP reader" in run.stderr
     assert summary_counts(run.stdout)["indexed"] == left
     assert_same(contents(store), contents(fresh))
+
+
+def test_check_compares_the_ranking_arrays_in_a_store_without_the_column(data_dir, tmp_path):
+    """A store written before the column still has its ranking arrays checked against its entries."""
+    from shapeidx.store.files import main_file
+
+    tree = mixed_tree(data_dir, tmp_path, step=(ORDINARY,))
+    store = tmp_path / "s.shapeidx"
+    assert build(tree, store).exit_code == 0
+    assert drop_revision(store) >= 1
+    assert cli("check", "--store", store).exit_code == 0
+    with h5py.File(main_file(store), "r+") as f:  # an entry's mean moved, its checksum written anew
+        f["histograms/all/mean"][0] = f["histograms/all/mean"][0] * 1.5
+    check = cli("check", "--store", store)
+    assert check.exit_code == 5 and "disagrees with the entries" in check.output, check.output
+
+
+def test_planned_counts_the_files_signed_whole(data_dir, tmp_path):
+    """``build --parts`` on a store built without it splits every file but signs none whole."""
+    tree = mixed_tree(data_dir, tmp_path, step=(ORDINARY,))
+    store = tmp_path / "s.shapeidx"
+    assert build(tree, store).exit_code == 0
+    run = build(tree, store, "--parts", "--json")
+    assert run.exit_code == 0, run.output
+    facts = json.loads(run.stdout)
+    assert facts["planned"] == 0 and facts["indexed"] == 0 and facts["parts"]["indexed"] >= 12
+
+
+def test_an_older_workers_entries_are_of_the_first_revision(data_dir, tmp_path):
+    """An entry from a Dask worker running a shapeidx of before revisions has no revision of its
+    own (unpickled, it falls back to the class's None): it is revision 1, not the build's."""
+    from shapeidx.index.dask_pool import _revision_of_older_worker
+    from shapeidx.index.workers import Outcome, Task, index_file
+    from shapeidx.store.layout import entries_to_columns
+
+    tree = mixed_tree(data_dir, tmp_path, step=(ORDINARY,))
+    store = tmp_path / "s.shapeidx"
+    assert build(tree, store).exit_code == 0
+    with open_store(store) as r:
+        params = r.params
+    outcome = index_file(Task(ORDINARY, str(tree / ORDINARY)), params, str(tree))
+    assert outcome.entry.revision == 2
+    _revision_of_older_worker(outcome)
+    assert outcome.entry.revision == 2  # a worker of today's keeps its own
+    del vars(outcome.entry)["revision"]  # as an older shapeidx's pickled entry arrives
+    assert outcome.entry.revision is None
+    _revision_of_older_worker(outcome)
+    columns, _ = entries_to_columns([outcome.entry])
+    assert columns[REVISION_COLUMN].tolist() == [1]
+    assert isinstance(outcome, Outcome)

@@ -262,10 +262,12 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
             summary.metadata_rows, summary.metadata_changed = len(table), _store_metadata(store, table, reporter)
         with open_store(store, skip_damaged=True) as reader:  # the writer dropped what is damaged
             plan = make_plan(walk, reader, options)
-        summary.found, summary.unchanged, summary.planned = plan.found, plan.unchanged, len(plan.tasks)
+        summary.found, summary.unchanged = plan.found, plan.unchanged
         # with --parts: the files whose sub-parts alone are missing or stale are tasks too
         parts = _parts_committer(store, params, root, options, reporter, plan, walk) if options.parts else None
-        summary.planned, summary.older, summary.older_parts = len(plan.tasks), dict(plan.older), dict(plan.older_parts)
+        # planned: the files to sign whole (not those only split into sub-parts), as a dry run counts them
+        summary.planned = sum(getattr(task, "whole", True) for task in plan.tasks)
+        summary.older, summary.older_parts = dict(plan.older), dict(plan.older_parts)
         reporter.planned(plan)
         committer = Committer(writer, options.commit_interval, options.merge_after, reporter)
         committer.remove(plan.removed)

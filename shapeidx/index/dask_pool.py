@@ -170,6 +170,7 @@ class DaskPool:
         distributed = _distributed()
         if future.status == "finished":
             outcome = dataclasses.replace(future.result(), task=task)
+            _revision_of_older_worker(outcome)
             if outcome.kind == "missing" and os.path.exists(task.absolute):
                 raise ShapeidxError(f"a dask worker cannot see {self._on_worker(task).absolute}, which exists here:"
                                     " the tree must be shared with the workers at the same path, or give --worker-root")
@@ -198,3 +199,14 @@ class DaskPool:
         except Exception:  # noqa: BLE001 (a scheduler already gone: nothing left to release)
             pass
         self.running, self.client = {}, None
+
+
+def _revision_of_older_worker(outcome) -> None:
+    """A worker running a shapeidx from before reader revisions sends entries without one:
+    its reader is the first revision (left unset, the build would stamp its own, and an entry
+    an older reader signed would never be signed again)."""
+    from ..store.layout import FIRST_REVISION
+
+    for entry in [outcome.entry, *(outcome.parts or ())]:
+        if entry is not None and "revision" not in vars(entry):
+            entry.revision = FIRST_REVISION

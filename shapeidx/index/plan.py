@@ -64,10 +64,10 @@ def make_plan(walk: Walk, reader, options) -> Plan:
     ``retry_failed`` are read). The entries are looked up by path key
     (:func:`~shapeidx.store.known.known_files`): no stored path is decoded but the removed
     entries', no content hash read but the changed files'. An entry older than its reader
-    (:attr:`Plan.older`) is found by its revision column; only the files of entries older than
-    the newest reader of any format have their format looked up.
+    (:attr:`Plan.older`) is found by its revision column against the revision of the format
+    the walk found for its file (a dictionary lookup a file; no path is parsed again).
     """
-    from ..io.registry import entry_format, reader_revision, revisions
+    from ..io.registry import entry_format, revisions
 
     known = known_files(reader)
     files = walk.files
@@ -83,10 +83,12 @@ def make_plan(walk: Walk, reader, options) -> Plan:
     # an entry of an older reader revision than its format's now: signed again, ok or failed
     stale = np.zeros(len(files), dtype=bool)
     if len(known) and found.any():
-        newest = max(revisions().values())
-        maybe = np.flatnonzero(found & (known.revision[entry] < newest))  # only these paths looked at
+        by_format = revisions()
+        newest = max(by_format.values())
+        maybe = np.flatnonzero(found & (known.revision[entry] < newest))  # older than some reader
         if len(maybe):
-            current = np.array([reader_revision(files[k].path) for k in maybe.tolist()], dtype=np.int64)
+            current = np.array([by_format.get(files[k].format or entry_format(files[k].path), 1)
+                                for k in maybe.tolist()], dtype=np.int64)
             stale[maybe] = known.revision[entry[maybe]] < current
     # failed entries retried unchanged (--retry-failed, --full, a new version): failing again is not news
     # a file that could not be read at all (permission, I/O error) is recorded without size or time
@@ -109,7 +111,7 @@ def make_plan(walk: Walk, reader, options) -> Plan:
     gone = np.ones(len(known), dtype=bool)
     gone[at[found]] = False
     removed = [p for p in known.paths(np.flatnonzero(gone)) if not _under_any(p, walk.unlisted)]
-    older_names = [entry_format(files[k].path) for k in np.flatnonzero(older).tolist()] if older.any() else []
+    older_names = [files[k].format or entry_format(files[k].path) for k in np.flatnonzero(older).tolist()] if older.any() else []
     return Plan(tasks, unchanged, sorted(removed), len(files), failed_before, count_by_label(older_names))
 
 
@@ -130,8 +132,10 @@ def plan_parts(plan: Plan, walk: Walk, reader, options) -> list:
     """
     import dataclasses
 
-    from ..io.registry import entry_format, reader_revision
+    from ..io.registry import entry_format, revisions
     from ..store.layout import REVISION_COLUMN
+
+    by_format = revisions()
 
     known: dict = {}  # parent -> [paths, size, mtime_ns, hash, oldest revision]
     if reader is not None and len(reader):
@@ -148,7 +152,7 @@ def plan_parts(plan: Plan, walk: Walk, reader, options) -> list:
     for f in walk.files:
         record = known.get(f.path)
         old = tuple(record[0]) if record else ()
-        stale = record is not None and record[4] < reader_revision(f.path)
+        stale = record is not None and record[4] < by_format.get(f.format or entry_format(f.path), 1)
         stored_hash = None if record is None or options.full or stale else (record[3].decode() if isinstance(record[3], bytes) else str(record[3])) or None
         if f.path in index:
             k = index[f.path]
@@ -157,7 +161,7 @@ def plan_parts(plan: Plan, walk: Walk, reader, options) -> list:
             plan.tasks.append(Task(f.path, f.absolute, whole=False, parts=True, parts_hash=stored_hash, old_parts=old,
                                    in_store=True))
         if stale and not options.full and (record[1], record[2]) == (f.size, f.mtime_ns):
-            older.append(entry_format(f.path))
+            older.append(f.format or entry_format(f.path))
     plan.older_parts = count_by_label(older)
     walked = {f.path for f in walk.files}
     return sorted(p for parent, record in known.items() if parent not in walked and not _under_any(parent, walk.unlisted)

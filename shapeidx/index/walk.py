@@ -23,6 +23,8 @@ class FoundFile:
     absolute: str
     size: int
     mtime_ns: int
+    #: Its format's name (:func:`shapeidx.io.format_of`, found by the walk anyway); None: not known.
+    format: str | None = None
 
 
 @dataclass
@@ -73,9 +75,9 @@ def walk_parts(root: Path, follow_outside_links: bool = False) -> Walk:
                 continue
             if _is_folder(child):
                 (linked if child.is_symlink() else folders).append(Path(child.path))
-            elif format_of(child.name) is not None:
+            elif (fmt := format_of(child.name)) is not None:
                 _add_file(found, child.name if folder_rel == "." else f"{folder_rel}/{child.name}",
-                          child.name if folder_text == "." else os.path.join(folder_text, child.name))
+                          child.name if folder_text == "." else os.path.join(folder_text, child.name), fmt)
     found.files.sort(key=lambda f: f.path)
     return found
 
@@ -99,8 +101,9 @@ def _is_folder(entry: os.DirEntry) -> bool:
         return False
 
 
-def _add_file(found: Walk, rel: str, absolute: str) -> None:
-    """``rel``: the path relative to the root, '/'-separated; ``absolute``: as ``str(Path(...))`` gives it."""
+def _add_file(found: Walk, rel: str, absolute: str, fmt: str | None = None) -> None:
+    """``rel``: the path relative to the root, '/'-separated; ``absolute``: as ``str(Path(...))``
+    gives it; ``fmt``: its format's name."""
     try:
         rel.encode("utf-8")
     except UnicodeEncodeError:
@@ -113,4 +116,4 @@ def _add_file(found: Walk, rel: str, absolute: str) -> None:
         return
     if not S_ISREG(stat.st_mode):  # what Path.is_file() asks, from the same stat: one system call a file
         return
-    found.files.append(FoundFile(rel, absolute, stat.st_size, stat.st_mtime_ns))
+    found.files.append(FoundFile(rel, absolute, stat.st_size, stat.st_mtime_ns, fmt))

@@ -81,6 +81,9 @@ class FileScan:
     unusable: bool = False
     checksummed: bool = True
     columns: dict = field(default_factory=dict)
+    #: How many entry columns the file holds (an older file lacks some optional ones): the
+    #: ranking arrays are compared with the entries only when every one of them was read.
+    columns_held: int = 0
     counts: dict = field(default_factory=dict)  # name -> (flat counts, offsets), bad chunks zeroed
     #: The ranking section (derived data) is damaged / absent (a file of layout 2 or older).
     rank_damaged: bool = False
@@ -156,6 +159,7 @@ def scan_file(path: Path, seq: int, points: int | None, derived: bool = True) ->
             return scan
         scan.entries = n
         expected = [name for name in ENTRY_COLUMNS if name not in MAY_BE_ABSENT or _present(f, name)]  # older files lack some
+        scan.columns_held = len(expected)
         for name, (dtype, _) in ENTRY_COLUMNS.items():
             if name not in expected:
                 continue
@@ -205,7 +209,7 @@ def _scan_ranking(scan: FileScan, f: h5py.File, derived: bool = True) -> None:
         wrong = section.verify()
     except (KeyError, OSError, RuntimeError, ValueError) as exc:
         wrong = [f"{RANK} cannot be used ({_first_line(exc)})"]
-    if derived and not wrong and not scan.problems and len(scan.counts) == len(HISTOGRAMS) and len(scan.columns) == len(ENTRY_COLUMNS):
+    if derived and not wrong and not scan.problems and len(scan.counts) == len(HISTOGRAMS) and len(scan.columns) == scan.columns_held:
         counts = {name: (flat, np.diff(offsets)) for name, (flat, offsets) in scan.counts.items()}
         for name, values in expected_rank(scan.columns, counts, section.histograms):
             if not np.array_equal(section.array(name), values, equal_nan=True):  # NaN: unknown angles
