@@ -43,11 +43,13 @@ class Plan:
     older_parts: dict = field(default_factory=dict)
 
 
-def count_by_label(names) -> dict:
-    """Format label -> how many of ``names`` (format names), in the registry's order."""
-    from ..io.registry import FORMATS
+def _format_of(found) -> str | None:
+    """A walked file's format: the walk's, else (a listing made by hand) by its name."""
+    if found.format:
+        return found.format
+    from ..io.registry import entry_format
 
-    return {fmt.label: names.count(name) for name, fmt in FORMATS.items() if name in names}
+    return entry_format(found.path)
 
 
 def older_words(older: dict, verb: str = "signed") -> str:
@@ -67,7 +69,7 @@ def make_plan(walk: Walk, reader, options) -> Plan:
     (:attr:`Plan.older`) is found by its revision column against the revision of the format
     the walk found for its file (a dictionary lookup a file; no path is parsed again).
     """
-    from ..io.registry import entry_format, revisions
+    from ..io.registry import count_by_label, revisions
 
     known = known_files(reader)
     files = walk.files
@@ -87,7 +89,7 @@ def make_plan(walk: Walk, reader, options) -> Plan:
         newest = max(by_format.values())
         maybe = np.flatnonzero(found & (known.revision[entry] < newest))  # older than some reader
         if len(maybe):
-            current = np.array([by_format.get(files[k].format or entry_format(files[k].path), 1)
+            current = np.array([by_format.get(_format_of(files[k]), 1)
                                 for k in maybe.tolist()], dtype=np.int64)
             stale[maybe] = known.revision[entry[maybe]] < current
     # failed entries retried unchanged (--retry-failed, --full, a new version): failing again is not news
@@ -111,7 +113,7 @@ def make_plan(walk: Walk, reader, options) -> Plan:
     gone = np.ones(len(known), dtype=bool)
     gone[at[found]] = False
     removed = [p for p in known.paths(np.flatnonzero(gone)) if not _under_any(p, walk.unlisted)]
-    older_names = [files[k].format or entry_format(files[k].path) for k in np.flatnonzero(older).tolist()] if older.any() else []
+    older_names = [_format_of(files[k]) for k in np.flatnonzero(older).tolist()] if older.any() else []
     return Plan(tasks, unchanged, sorted(removed), len(files), failed_before, count_by_label(older_names))
 
 
@@ -132,11 +134,10 @@ def plan_parts(plan: Plan, walk: Walk, reader, options) -> list:
     """
     import dataclasses
 
-    from ..io.registry import entry_format, revisions
+    from ..io.registry import count_by_label, revisions
     from ..store.layout import REVISION_COLUMN
 
     by_format = revisions()
-
     known: dict = {}  # parent -> [paths, size, mtime_ns, hash, oldest revision]
     if reader is not None and len(reader):
         paths, parents = reader.paths, reader.column("entries/parent")
@@ -152,7 +153,7 @@ def plan_parts(plan: Plan, walk: Walk, reader, options) -> list:
     for f in walk.files:
         record = known.get(f.path)
         old = tuple(record[0]) if record else ()
-        stale = record is not None and record[4] < by_format.get(f.format or entry_format(f.path), 1)
+        stale = record is not None and record[4] < by_format.get(_format_of(f), 1)
         stored_hash = None if record is None or options.full or stale else (record[3].decode() if isinstance(record[3], bytes) else str(record[3])) or None
         if f.path in index:
             k = index[f.path]
@@ -161,7 +162,7 @@ def plan_parts(plan: Plan, walk: Walk, reader, options) -> list:
             plan.tasks.append(Task(f.path, f.absolute, whole=False, parts=True, parts_hash=stored_hash, old_parts=old,
                                    in_store=True))
         if stale and not options.full and (record[1], record[2]) == (f.size, f.mtime_ns):
-            older.append(f.format or entry_format(f.path))
+            older.append(_format_of(f))
     plan.older_parts = count_by_label(older)
     walked = {f.path for f in walk.files}
     return sorted(p for parent, record in known.items() if parent not in walked and not _under_any(parent, walk.unlisted)

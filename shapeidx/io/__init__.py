@@ -20,7 +20,7 @@ from .._lazy import attach
 
 _NAMES = {
     **dict.fromkeys(
-        ["FORMATS", "check_polygon_mesh", "entry_format", "format_of", "load", "load_bytes", "reader_revision", "register",
+        ["FORMATS", "check_polygon_mesh", "count_by_label", "entry_format", "format_of", "load", "load_bytes", "reader_revision", "register",
          "revisions", "suffixes"], ".registry"
     ),
     **dict.fromkeys(["Format", "LoadLimits", "PolygonMesh", "file_hash", "read_bytes"], ".base"),

@@ -15,6 +15,7 @@ from .base import GZIP_MAGIC, Format, LoadLimits, PolygonMesh, gunzip_bounded, r
 __all__ = [
     "FORMATS",
     "Format",
+    "count_by_label",
     "entry_format",
     "LoadLimits",
     "PolygonMesh",
@@ -83,6 +84,11 @@ def reader_revision(path: str) -> int:
 def revisions() -> dict[str, int]:
     """Format name -> its reader's current revision."""
     return {name: fmt.revision for name, fmt in FORMATS.items()}
+
+
+def count_by_label(names: list) -> dict[str, int]:
+    """Format label -> how many of ``names`` (format names) are of it, in the registry's order."""
+    return {fmt.label: names.count(name) for name, fmt in FORMATS.items() if name in names}
 
 
 @without_float_warnings

@@ -47,7 +47,7 @@ def older_reader(reader: StoreReader) -> dict:
     Reads the revision column (8 bytes an entry) and decodes only the paths of entries older
     than the newest revision of any reader: none in a store built since.
     """
-    from ..io.registry import FORMATS, entry_format, revisions
+    from ..io.registry import FORMATS, count_by_label, entry_format, revisions
     from .layout import REVISION_COLUMN
 
     if not len(reader):
@@ -59,7 +59,7 @@ def older_reader(reader: StoreReader) -> dict:
     paths = reader.paths
     names = [entry_format(str(paths[i])) for i in maybe.tolist()]
     older = [name for i, name in zip(maybe.tolist(), names) if name and revision[i] < FORMATS[name].revision]
-    return {fmt.label: older.count(name) for name, fmt in FORMATS.items() if name in older}
+    return count_by_label(older)
 
 
 def _parts_facts(store) -> dict | None:
