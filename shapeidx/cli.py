@@ -386,7 +386,11 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
         older = sum(summary.older.values())
         click.echo(f"shapeidx build: would index {summary.planned - older} new or changed"
                    + (f", {older_words(summary.older)}" if older else "")
-                   + f", {summary.unchanged} unchanged, remove {summary.removed} (dry run: nothing changed)")
+                   + f", {summary.unchanged} unchanged, remove {summary.removed}"
+                   + (f"; sub-parts: make those of {summary.parts_planned} files"
+                      + (f" ({older_words(summary.older_parts, 'made')})" if summary.older_parts else "")
+                      + f", remove {summary.parts_removed} sub-entries" if summary.parts_planned is not None else "")
+                   + " (dry run: nothing changed)")
     elif not quiet:
         click.echo(
             f"shapeidx build: {summary.line()} in {duration(summary.seconds)};"

@@ -388,6 +388,34 @@ class TestBuildAndWhereUsed:
             assert not [p for p in reader.paths if p.startswith("boards/six.step")]
             assert [p for p in reader.paths if p.startswith("boards/four.step#")]
 
+    def test_dry_run_plans_the_sub_parts(self, library, tmp_path):
+        """``--parts --dry-run`` says what the build with ``--parts`` then does, and writes nothing."""
+        root = tmp_path / "tree"
+        shutil.copytree(library[0], root)
+        store = tmp_path / "s.shapeidx"
+        _build(root, store)
+
+        def dry():
+            return json.loads(_build(root, store, "--parts", "--dry-run", "--json").stdout)
+
+        def contents():
+            return sorted((p.relative_to(store), p.stat().st_size, p.stat().st_mtime_ns)
+                          for p in store.rglob("*") if p.is_file())
+
+        before = contents()
+        planned = dry()
+        assert contents() == before and not parts_store(store).exists()
+        assert planned["planned"] == 0
+        assert planned["parts"] == {"indexed": 0, "entries": 0, "planned": 4, "removed": 0}
+        words = _build(root, store, "--parts", "--dry-run").stdout
+        assert "sub-parts: make those of 4 files, remove 0 sub-entries (dry run" in words
+        done = json.loads(_build(root, store, "--parts", "--json").stdout)
+        assert done["parts"]["planned"] == 4 and done["parts"]["entries"] == 7
+        assert dry()["parts"] == {"indexed": 0, "entries": 7, "planned": 0, "removed": 0}
+        (root / "boards" / "six.step").unlink()  # its body and its pin go
+        assert dry()["parts"] == {"indexed": 0, "entries": 7, "planned": 0, "removed": 2}
+        assert json.loads(_build(root, store, "--parts", "--json").stdout)["parts"]["removed"] == 2
+
     def test_store_without_parts(self, library, tmp_path):
         root, query = library
         store = tmp_path / "s.shapeidx"

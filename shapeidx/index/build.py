@@ -87,6 +87,10 @@ class BuildSummary:
     #: With ``--parts``: sub-entries written by this build, and the parts store's ok sub-entries after it.
     parts_indexed: int | None = None
     parts_entries: int | None = None
+    #: With ``--parts``: files whose sub-parts the build (or dry run) plans to make, and
+    #: sub-entries it plans to remove (their files are gone).
+    parts_planned: int | None = None
+    parts_removed: int | None = None
     #: Where the build's CPU went (:class:`BuildProfile`); None for a dry run.
     profile: "BuildProfile | None" = None
     #: Format label -> files planned only because an older revision of that format's reader
@@ -121,8 +125,9 @@ class BuildSummary:
             "failures": [{"path": path, "reason": reason} for path, reason in self.failures],
             "metadata": None if self.metadata_rows is None else {"rows": self.metadata_rows,
                                                                   "changed": self.metadata_changed},
-            "parts": None if self.parts_indexed is None else {"indexed": self.parts_indexed,
-                                                              "entries": self.parts_entries},
+            "parts": None if self.parts_indexed is None and self.parts_planned is None else {
+                "indexed": self.parts_indexed or 0, "entries": self.parts_entries,
+                "planned": self.parts_planned, "removed": self.parts_removed},
             "profile": None if self.profile is None else self.profile.to_dict(),
             "older_reader": dict(self.older),
             "older_reader_parts": dict(self.older_parts),
@@ -264,7 +269,7 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
             plan = make_plan(walk, reader, options)
         summary.found, summary.unchanged = plan.found, plan.unchanged
         # with --parts: the files whose sub-parts alone are missing or stale are tasks too
-        parts = _parts_committer(store, params, root, options, reporter, plan, walk) if options.parts else None
+        parts = _parts_committer(store, params, root, options, reporter, plan, walk, summary) if options.parts else None
         # planned: the files to sign whole (not those only split into sub-parts), as a dry run counts them
         summary.planned = sum(getattr(task, "whole", True) for task in plan.tasks)
         summary.older, summary.older_parts = dict(plan.older), dict(plan.older_parts)
@@ -342,8 +347,10 @@ def _shard_walk(walk, options: BuildOptions):
     return walk
 
 
-def _parts_committer(store: Path, params, root: Path, options: BuildOptions, reporter, plan, walk):
-    """The committer of the parts store (``STORE/parts``), its plan merged into ``plan``."""
+def _parts_committer(store: Path, params, root: Path, options: BuildOptions, reporter, plan, walk,
+                     summary: BuildSummary):
+    """The committer of the parts store (``STORE/parts``), its plan merged into ``plan`` and
+    counted in ``summary``."""
     from ..store.files import parts_store
     from .commit import PartsCommitter
     from .plan import plan_parts
@@ -357,6 +364,7 @@ def _parts_committer(store: Path, params, root: Path, options: BuildOptions, rep
     except BaseException:
         writer.close()
         raise
+    _count_parts_plan(plan, removed, summary)
     committer = PartsCommitter(writer, options.commit_interval, options.merge_after, reporter)
     committer.remove(removed)
     return committer
@@ -446,11 +454,38 @@ def _dry_run(root: Path, store: Path, params: StoreParams, options, reporter, su
         _store_counts(store, summary)
     else:
         plan = Plan([Task(f.path, f.absolute) for f in walk.files], 0, [], len(walk.files))
-    summary.found, summary.unchanged, summary.planned = plan.found, plan.unchanged, len(plan.tasks)
+    if options.parts:
+        _plan_parts_dry(store, walk, plan, options, summary)
+    summary.found, summary.unchanged = plan.found, plan.unchanged
+    summary.planned = sum(getattr(task, "whole", True) for task in plan.tasks)
     summary.older = dict(plan.older)
+    summary.older_parts = dict(plan.older_parts)
     summary.removed = len(plan.removed)
     reporter.planned(plan)
     return summary
+
+
+def _plan_parts_dry(store: Path, walk, plan, options, summary: BuildSummary) -> None:
+    """``build --parts --dry-run``: the parts store's plan merged into ``plan`` (as a build
+    does), its counts into ``summary``; the parts store only read."""
+    from ..store.files import parts_store
+    from .plan import plan_parts
+
+    path = parts_store(store)
+    if path.exists():
+        from ..store.known import known_files
+
+        with open_store(path, skip_damaged=True) as reader:
+            removed = plan_parts(plan, walk, reader, options)
+            summary.parts_entries = known_files(reader).status_counts()[0]
+    else:
+        removed, summary.parts_entries = plan_parts(plan, walk, None, options), 0
+    _count_parts_plan(plan, removed, summary)
+
+
+def _count_parts_plan(plan, removed: list, summary: BuildSummary) -> None:
+    summary.parts_planned = sum(bool(getattr(task, "parts", False)) for task in plan.tasks)
+    summary.parts_removed = len(removed)
 
 
 _QUOTED = re.compile(r"""'[^']*'|"[^"]*"|`[^`]*`""")

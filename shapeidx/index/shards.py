@@ -29,6 +29,8 @@ from .build import BuildOptions, BuildSummary, run_build
 
 #: The summary fields a sharded build adds up over its shards.
 _SUMMED = ("found", "planned", "indexed", "unchanged", "removed", "failed", "store_ok", "store_failed", "store_bytes")
+#: The same for ``--parts`` (None without it).
+_SUMMED_PARTS = ("parts_indexed", "parts_entries", "parts_planned", "parts_removed")
 
 
 def run_sharded_build(root, store, options: BuildOptions, reporter, shards: int) -> BuildSummary:
@@ -51,6 +53,9 @@ def run_sharded_build(root, store, options: BuildOptions, reporter, shards: int)
         for name in ("older", "older_parts"):
             for label, count in getattr(summary, name).items():
                 getattr(total, name)[label] = getattr(total, name).get(label, 0) + count
+        for name in _SUMMED_PARTS:
+            if getattr(summary, name) is not None:
+                setattr(total, name, (getattr(total, name) or 0) + getattr(summary, name))
         if summary.metadata_rows is not None:
             total.metadata_rows = summary.metadata_rows
             total.metadata_changed |= summary.metadata_changed
@@ -81,6 +86,8 @@ def _on_cluster(root, paths: list, options: BuildOptions, reporter) -> list:
             summary = BuildSummary(root=root)
             for name in _SUMMED:
                 setattr(summary, name, result[name])
+            for name in _SUMMED_PARTS:
+                setattr(summary, name, result.get(name))
             summary.failures = [tuple(f) for f in result["failures"]]
             summary.metadata_rows, summary.metadata_changed = result["metadata_rows"], result["metadata_changed"]
             summary.older, summary.older_parts = dict(result.get("older", {})), dict(result.get("older_parts", {}))
@@ -121,7 +128,7 @@ def _main(argv: list) -> int:
         return 1
     finally:
         reporter.close()
-    out = {name: getattr(summary, name) for name in _SUMMED}
+    out = {name: getattr(summary, name) for name in _SUMMED + _SUMMED_PARTS}
     out.update(failures=[list(f) for f in summary.failures], metadata_rows=summary.metadata_rows,
                metadata_changed=summary.metadata_changed, host=socket.gethostname(), seconds=summary.seconds,
                older=summary.older, older_parts=summary.older_parts)
