@@ -804,9 +804,10 @@ main.add_command(click.Command("info", callback=stats.callback, params=stats.par
 @click.option("--repair", is_flag=True, help="Rebuild damaged or missing ranking arrays (written before layout 3) from the checked entries; takes the store's lock.")
 @format_options
 def check(store, check_files, repair, output_format, as_json):
-    """Verify a store: structure, offsets, totals, checksums (and with --files, that every
-    entry's file still hashes the same). Exits 5 naming the first problems. --repair
-    rebuilds the ranking arrays (derived data) of files where they are damaged or missing.
+    """Verify a store and its sub-parts (build --parts): structure, offsets, totals, checksums
+    (and with --files, that every entry's file still hashes the same). Exits 5 naming the
+    first problems. --repair rebuilds the ranking arrays (derived data) of files where they
+    are damaged or missing.
 
     \b
     Example:
@@ -818,18 +819,12 @@ def check(store, check_files, repair, output_format, as_json):
 
     fmt = chosen_format(output_format, as_json)
     if repair:
-        from .store import StoreLock
-        from .store.check import rebuild_ranking
+        from .store.check import repair_ranking
 
         path = _store_path(store)
         check_store(path)  # no store, not a store: one line, before taking the lock
-        lock = StoreLock(path)
-        lock.acquire()
-        try:
-            for line in rebuild_ranking(path):
-                click.echo(line, err=True)
-        finally:
-            lock.release()
+        for line in repair_ranking(path):
+            click.echo(line, err=True)
     report = check_store(_store_path(store), files=check_files)
     if fmt == "json":
         emit_json(report.to_dict())

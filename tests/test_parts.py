@@ -416,6 +416,38 @@ class TestBuildAndWhereUsed:
         assert dry()["parts"] == {"indexed": 0, "entries": 7, "planned": 0, "removed": 2}
         assert json.loads(_build(root, store, "--parts", "--json").stdout)["parts"]["removed"] == 2
 
+    def test_damaged_sub_parts_are_checked_and_repaired_through_their_store(self, library, tmp_path):
+        """``check`` finds damage in STORE/parts; every message says to repair it with
+        ``build --store STORE --parts --repair``, and a build into STORE/parts itself (which would
+        fill it with whole files) is refused."""
+        from test_store_check import flip_chunk
+
+        root, _ = library
+        store = tmp_path / "s.shapeidx"
+        _build(root, store, "--parts")
+        sound = cli("check", "--store", store)
+        assert sound.exit_code == 0 and "sub-parts ok: 7 entries" in sound.stdout
+        flip_chunk(parts_store(store), "histograms/all/counts", 0)
+        with open_store(parts_store(store)) as reader:
+            part = str(reader.paths[0])
+        report = cli("check", "--store", store, "--json")
+        assert report.exit_code == 5
+        answer = json.loads(report.stdout)
+        assert not answer["ok"] and answer["parts"]["entries"] == 7
+        assert {p["file"] for p in answer["problems"]} == {"parts/main.h5"}
+        words = cli("check", "--store", store)
+        assert f"'shapeidx build DIR --store {store} --parts --repair'" in words.stdout
+        refused = cli("where-used", "--id", part, "--store", store)
+        assert_one_line_error(refused, store, status=5)
+        assert f"'shapeidx build {root} --store {store} --parts --repair'" in refused.stderr
+        assert f"'shapeidx check --store {store}'" in refused.stderr
+        into_parts = cli("build", root, "--store", parts_store(store))
+        assert_one_line_error(into_parts, parts_store(store), status=2)
+        assert f"--store {store} --parts" in into_parts.stderr
+        _build(root, store, "--parts", "--repair")
+        assert cli("check", "--store", store).exit_code == 0
+        assert cli("where-used", "--id", part, "--store", store).exit_code == 0
+
     def test_store_without_parts(self, library, tmp_path):
         root, query = library
         store = tmp_path / "s.shapeidx"

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..io.faceting import Faceting
-from ..errors import ShapeidxError, StoreDamagedError
+from ..errors import ShapeidxError, StoreDamagedError, UsageError
 from ..signing.parameters import BIN_DIVISOR, DEFAULT_POINTS, DEFAULT_SEED, SIGNATURE_VERSION
 from ..store import StoreParams, StoreWriter, check_params, check_root, open_store
 from ..system import available_cores
@@ -240,6 +240,7 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     root = Path(root).resolve()
     check_tree(given, root)
     store = Path(store)
+    _refuse_parts_store(store)
     if not options.dry_run:
         from ..store.convert import convert_one_file_store
 
@@ -331,6 +332,16 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
 
             summary.parts_entries = known_files(reader).status_counts()[0]
     return summary
+
+
+def _refuse_parts_store(store: Path) -> None:
+    """A build into ``OWNER/parts`` itself would replace its sub-entries with whole files."""
+    from ..store.files import owner_of_parts
+
+    owner = owner_of_parts(store)
+    if owner is not None:
+        raise UsageError(f"{store} is the sub-parts store of {owner}, made by its builds with --parts:"
+                         f" 'shapeidx build DIR --store {owner} --parts' builds it")
 
 
 def _shard_walk(walk, options: BuildOptions):

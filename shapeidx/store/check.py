@@ -34,7 +34,7 @@ from ..errors import StoreError
 from ..io.base import file_hash
 from .heaps import open_hdf5
 from ..signing.parameters import HISTOGRAMS
-from .files import batch_files, main_file, write_atomically
+from .files import PARTS, batch_files, main_file, owner_of_parts, parts_store, recovery_commands, write_atomically
 from .layout import (
     CONTENT_HASH,
     COUNT_DTYPE,
@@ -113,14 +113,18 @@ class CheckReport:
     files_hashed: int = 0
     problems: list = field(default_factory=list)
     notes: list = field(default_factory=list)
+    #: The check of the store's sub-parts (``STORE/parts``, ``build --parts``); None: it has none.
+    parts: "CheckReport | None" = None
 
     def summary(self) -> str:
         if self.problems:
+            repair, _ = recovery_commands(self.parts.store if self.parts and self.parts.problems else self.store)
             return (f"{self.store}: DAMAGED: {len(self.problems)} problem(s) in {self.files} file(s);"
-                    f" 'shapeidx build DIR --store {self.store} --repair' rebuilds the damaged entries")
+                    f" '{repair}' rebuilds the damaged entries")
         sums = "checksums verified" if self.checksummed else "no checksums (written by an older shapeidx)"
         hashed = f", {self.files_hashed} files hash as stored" if self.files_hashed else ""
-        return f"{self.store}: ok: {self.entries} entries in {self.files} file(s), {sums}{hashed}"
+        parts = f"; sub-parts ok: {self.parts.entries} entries in {self.parts.files} file(s)" if self.parts else ""
+        return f"{self.store}: ok: {self.entries} entries in {self.files} file(s), {sums}{hashed}{parts}"
 
     def to_dict(self) -> dict:
         return {
@@ -132,6 +136,7 @@ class CheckReport:
             "files_hashed": self.files_hashed,
             "problems": [p.to_dict() for p in self.problems],
             "notes": self.notes,
+            "parts": None if self.parts is None else self.parts.to_dict(),
         }
 
 
@@ -378,7 +383,27 @@ def check_store(store, files: bool = False) -> CheckReport:
     _check_metadata(store, report)
     if files and not report.problems:
         _check_files(store, attrs.get("root"), report)
+    _check_parts(store, report)
     return report
+
+
+def _check_parts(store: Path, report: CheckReport) -> None:
+    """The sub-parts store (``STORE/parts``) checked as a store of its own, its problems
+    named ``parts/FILE`` in ``report`` (its entries ``FILE#n`` have no file of their own to hash)."""
+    from .reader import StoreBeingCreated
+
+    sub = parts_store(store)
+    if not sub.is_dir() or owner_of_parts(store) is not None:
+        return
+    try:
+        report.parts = check_store(sub)
+    except StoreBeingCreated:
+        report.notes.append(f"{PARTS}: the first build with --parts has committed nothing yet")
+        return
+    except StoreError as exc:
+        report.parts = CheckReport(sub, problems=[Problem(PARTS, "store", str(exc))])
+    report.problems.extend(Problem(f"{PARTS}/{p.file}", p.what, p.problem) for p in report.parts.problems)
+    report.notes.extend(f"{PARTS}: {note}" for note in report.parts.notes)
 
 
 def _check_metadata(store: Path, report: CheckReport) -> None:
@@ -498,6 +523,23 @@ def rebuild_ranking(store: Path, scans: list | None = None) -> list[str]:
         _rewrite_ranking(scan)
         why = "none: written before layout 3" if scan.rank_missing else scan.problems[0].problem
         done.append(f"repair: rebuilt the ranking arrays of {scan.path.name} ({why})")
+    return done
+
+
+def repair_ranking(store: Path) -> list[str]:
+    """``check --repair``: :func:`rebuild_ranking` of the store and of its sub-parts store
+    (``STORE/parts``), each under its own lock; returns what was done."""
+    from .writer import StoreLock
+
+    done = []
+    sub = parts_store(store)
+    for target in (Path(store), sub) if sub.is_dir() and main_file(sub).exists() else (Path(store),):
+        lock = StoreLock(target)
+        lock.acquire()
+        try:
+            done += [line if target == Path(store) else f"{PARTS}: {line}" for line in rebuild_ranking(target)]
+        finally:
+            lock.release()
     return done
 
 

@@ -38,6 +38,26 @@ def parts_store(store) -> Path:
     return Path(store) / PARTS
 
 
+def owner_of_parts(store) -> Path | None:
+    """The store whose sub-parts ``store`` is (``OWNER/parts``, which ``build OWNER --parts``
+    writes), or None for any other store."""
+    store = Path(store)
+    owner = store.parent
+    if store.name != PARTS or owner == store:
+        return None
+    return owner if any(p.exists() for p in (main_file(owner), lock_path(owner), committed_path(owner))) else None
+
+
+def recovery_commands(store, root: str | None = None) -> tuple[str, str]:
+    """(repair, check): the commands that repair and check ``store``. A sub-parts store is
+    repaired and checked through its owner (``build --parts --repair``): a build into
+    ``OWNER/parts`` itself would fill it with whole files."""
+    folder, owner = root or "DIR", owner_of_parts(store)
+    if owner is not None:
+        return (f"shapeidx build {folder} --store {owner} --parts --repair", f"shapeidx check --store {owner}")
+    return f"shapeidx build {folder} --store {store} --repair", f"shapeidx check --store {store}"
+
+
 #: Bytes reserved beyond a write's estimate (HDF5's metadata, chunk indexes).
 RESERVE_MARGIN = 1 << 20
 

@@ -20,7 +20,7 @@ from ..ragged import offsets_of, take_ragged
 from ..signing.histogram import Histogram, Signature
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS
 from ..signing.parameters import HISTOGRAMS
-from .files import batch_files, is_one_file_store, main_file
+from .files import batch_files, is_one_file_store, main_file, recovery_commands
 from .layout import (
     CONTENT_HASH,
     COUNT_DTYPE,
@@ -64,10 +64,10 @@ class StoreBeingCreated(StoreError, NoAnswer):
 
 def damaged(store: Path, what: str, root: str | None = None) -> StoreDamagedError:
     """The one-line error of a damaged store: what is wrong, and how to recover."""
-    folder = root or "DIR"
+    repair, check = recovery_commands(store, root)
     return StoreDamagedError(
-        f"the store {store} is damaged ({what}): 'shapeidx build {folder} --store {store} --repair' rebuilds the"
-        f" damaged entries (or delete the store and build again); 'shapeidx check --store {store}' lists every problem"
+        f"the store {store} is damaged ({what}): '{repair}' rebuilds the"
+        f" damaged entries (or delete the store and build again); '{check}' lists every problem"
     )
 
 
