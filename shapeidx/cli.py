@@ -1115,8 +1115,9 @@ def _no_entry_kept(where):
 @where_option
 @scale_option
 @click.option("--parts", is_flag=True,
-              help="Groups of sub-parts (a store built with build --parts) shared by several files: the same pin in"
-                   " two connectors; each group names its files.")
+              help="Groups of sub-parts (a store built with build --parts) shared by several files, one of them an"
+                   " assembly: the same pin in two connectors; each group names its files. Files that are each"
+                   " one part are whole-file duplicates: duplicates without --parts reports them.")
 @click.option("--csv", "as_csv", is_flag=True, help="One row per member (same as --format csv).")
 @format_options
 def duplicates(store, metric, with_similar, with_near, where, scale, parts, as_csv, output_format, as_json):
@@ -1148,8 +1149,9 @@ def duplicates(store, metric, with_similar, with_near, where, scale, parts, as_c
 
         with open_store(store) as reader:
             parent_of = dict(zip(reader.paths.tolist(), reader.column("entries/parent").tolist()))
+            count_of = dict(zip(reader.paths.tolist(), reader.column("entries/count").tolist()))
         groups = shared_sub_parts(table, [parent_of[p] for p in table.paths], metric, scale, threads=available_cores(),
-                                  tiers=tiers, keep=keep)
+                                  tiers=tiers, keep=keep, counts=[count_of[p] for p in table.paths])
     else:
         groups = find_duplicates(table, metric, scale, threads=available_cores(), tiers=tiers, keep=keep)
     fmt = "csv" if as_csv and output_format is None else chosen_format(output_format, as_json)

@@ -485,6 +485,20 @@ class TestBuildAndWhereUsed:
         # the whole-file duplicates are not changed by the sub-parts
         assert json.loads(cli("duplicates", "--store", store, "--json").stdout) == []
 
+    def test_duplicates_parts_leaves_whole_file_duplicates_to_duplicates(self, library, tmp_path):
+        """Two files that are each one part (a copy of the cube) are a whole-file duplicate, not a
+        shared sub-part; the pin alone as a file of its own is the assemblies' pin, shared."""
+        root = tmp_path / "tree"
+        shutil.copytree(library[0], root)
+        shutil.copy(root / "cube.step", root / "cube-copy.step")
+        shutil.copy(library[1], root / "pin.step")
+        store = tmp_path / "s.shapeidx"
+        _build(root, store, "--parts")
+        groups = json.loads(cli("duplicates", "--parts", "--store", store, "--json").stdout)
+        assert sorted(g["files"] for g in groups) == [["boards/four.step", "boards/six.step", "pin.step"]]
+        whole = json.loads(cli("duplicates", "--store", store, "--json").stdout)
+        assert [sorted(g["members"]) for g in whole] == [["cube-copy.step", "cube.step"]]
+
 
 def test_a_failing_split_costs_the_sub_parts_only(library, tmp_path, monkeypatch):
     """An unforeseen error while splitting a file: its sub-entries are one failed entry with
