@@ -10,6 +10,7 @@ file declares (its MANIFOLD_SOLID_BREP entities, counted in its text).
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 from pathlib import Path
@@ -387,6 +388,36 @@ class TestBuildAndWhereUsed:
         with open_store(parts_store(store)) as reader:
             assert not [p for p in reader.paths if p.startswith("boards/six.step")]
             assert [p for p in reader.paths if p.startswith("boards/four.step#")]
+
+    def test_a_build_without_parts_leaves_no_sub_part_of_a_file_gone_or_changed(self, library, tmp_path):
+        """A nightly build without --parts over a store built with it: where-used, duplicates
+        --parts and stats never name a file the store no longer holds, nor the sub-parts of
+        a file's old content (it named both); a file whose times alone changed keeps its
+        sub-parts, and the next --parts build makes only the changed file's again."""
+        root = tmp_path / "tree"
+        shutil.copytree(library[0], root)
+        query = library[1]
+        store = tmp_path / "s.shapeidx"
+        _build(root, store, "--parts")
+        (root / "boards" / "six.step").unlink()
+        four = root / "boards" / "four.step"
+        four.write_bytes(four.read_bytes() + b"\n")  # its content changed: signed again
+        cube = root / "cube.step"
+        os.utime(cube, ns=(cube.stat().st_atime_ns, cube.stat().st_mtime_ns + 10**9))  # its times only
+        done = cli("build", root, "--store", store, "--workers", "1")
+        assert done.exit_code == 0, done.output + done.stderr
+        anysize = json.loads(cli("where-used", query, "--store", store, "--scale", "invariant", "--json").stdout)
+        assert {u["relative_path"] for u in anysize["uses"]} == {"boards/other.step", "cube.step"}
+        with open_store(parts_store(store)) as reader:
+            assert {str(p) for p in reader.column("entries/parent")} == {"boards/other.step", "cube.step"}
+        assert json.loads(cli("stats", "--store", store, "--json").stdout)["parts"]["files"] == 2
+        shared = json.loads(cli("duplicates", "--parts", "--store", store, "--json").stdout)
+        assert not [g for g in shared if "boards/six.step" in g["files"]]
+        assert "1 removed, 0 failed" in done.stdout and "parts: 0 signed, 4 removed, 3 in the store" in done.stdout
+        again = json.loads(_build(root, store, "--parts", "--json").stdout)
+        assert again["parts"]["planned"] == 1 and again["parts"]["removed"] == 0  # four.step's, made again
+        uses = json.loads(cli("where-used", query, "--store", store, "--top", "2", "--json").stdout)["uses"]
+        assert {u["relative_path"]: u["count"] for u in uses} == {"boards/four.step": 4}
 
     def test_dry_run_plans_the_sub_parts(self, library, tmp_path):
         """``--parts --dry-run`` says what the build with ``--parts`` then does, and writes nothing."""

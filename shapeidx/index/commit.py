@@ -77,9 +77,17 @@ class PartsCommitter(Committer):
     """The sub-entries of ``build --parts``, committed to the parts store (``STORE/parts``):
     a file's new sub-entries replace its old ones."""
 
+    #: Sub-entries removed by this build (of files gone, and without ``--parts`` of files signed again).
+    removed_count = 0
+
     def add(self, outcome: Outcome) -> None:
         task = outcome.task
-        if not task.parts:
+        if not task.parts:  # a build without --parts (index.plan.prune_parts): no sub-part is made
+            if task.old_parts and outcome.kind in ("indexed", "failed", "missing"):
+                self.batch.removed.extend(task.old_parts)
+                self.removed_count += len(task.old_parts)
+            elif task.old_parts and outcome.kind == "same":
+                self.batch.touched.extend((p, outcome.size, outcome.mtime_ns) for p in task.old_parts)
             return
         if outcome.parts is not None:
             self.batch.removed.extend(p for p in task.old_parts if p not in {e.path for e in outcome.parts})
