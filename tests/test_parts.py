@@ -479,6 +479,44 @@ class TestBuildAndWhereUsed:
         assert cli("check", "--store", store).exit_code == 0
         assert cli("where-used", "--id", part, "--store", store).exit_code == 0
 
+    def test_a_first_parts_build_killed_before_committing_anything(self, library, tmp_path):
+        """A first ``build --parts`` killed between making STORE/parts and writing its first
+        main file leaves the folder and its lock, nothing else (made here by hand: the window
+        is too short for a timed kill). stats and the web page answer as without sub-parts
+        (both refused: 'being created'), the sub-part commands say the build stopped and how to
+        build it (they said 'a first build has just begun... try again in a moment', forever),
+        and while a build holds the lock they still say it is being created."""
+        from shapeidx.store.writer import StoreLock
+        from shapeidx.web.app import StoreService
+
+        root, query = library
+        store = tmp_path / "s.shapeidx"
+        _build(root, store)
+        parts_store(store).mkdir()
+        (parts_store(store) / "lock").touch()
+        stats = cli("stats", "--store", store, "--json")
+        assert stats.exit_code == 0, stats.output + stats.stderr
+        assert json.loads(stats.stdout)["parts"] is None
+        service = StoreService(store)
+        try:
+            assert service.info()["parts"] is False
+        finally:
+            service.close()
+        for args in (("where-used", query), ("query", query, "--parts"), ("duplicates", "--parts")):
+            result = cli(*args, "--store", store)
+            assert_one_line_error(result, store, status=6)
+            assert "its first build stopped before committing anything" in result.stderr
+            assert f"'shapeidx build DIR --store {store} --parts' builds it" in result.stderr
+        lock = StoreLock(parts_store(store))
+        lock.acquire()
+        try:
+            assert "try again in a moment" in cli("where-used", query, "--store", store).stderr
+        finally:
+            lock.release()
+        assert cli("check", "--store", store).exit_code == 0
+        _build(root, store, "--parts")
+        assert json.loads(cli("stats", "--store", store, "--json").stdout)["parts"]["files"] == 4
+
     def test_store_without_parts(self, library, tmp_path):
         root, query = library
         store = tmp_path / "s.shapeidx"

@@ -541,6 +541,12 @@ def _open_main(path: Path) -> _SourceFile:
                 build_state_path(path).exists() and not lock_path(path).exists()):
             raise damaged(path, f"its main file {main.name} is missing") from None
         if lock_path(path).exists():
+            from .files import build_command
+            from .writer import _lock_held
+
+            if not _lock_held(path):  # its first build was killed before it committed anything
+                raise StoreBeingCreated(f"the store {path} holds nothing yet: its first build stopped before committing"
+                                        f" anything; '{build_command(path)}' builds it") from None
             raise StoreBeingCreated(f"the store {path} is being created: a first build has just begun and committed"
                                     " nothing yet; try again in a moment") from None
         if (path / "shards.json").is_file():
