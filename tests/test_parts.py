@@ -418,6 +418,10 @@ class TestBuildAndWhereUsed:
         assert again["parts"]["planned"] == 1 and again["parts"]["removed"] == 0  # four.step's, made again
         uses = json.loads(cli("where-used", query, "--store", store, "--top", "2", "--json").stdout)["uses"]
         assert {u["relative_path"]: u["count"] for u in uses} == {"boards/four.step": 4}
+        # every file signed again, none changed (--full; a newer reader does the same): all sub-parts stand
+        full = json.loads(_build(root, store, "--full", "--json").stdout)
+        assert full["indexed"] == 3 and full["parts"]["removed"] == 0 and full["parts"]["entries"] == 5
+        assert json.loads(_build(root, store, "--parts", "--json").stdout)["parts"]["planned"] == 0
 
     def test_dry_run_plans_the_sub_parts(self, library, tmp_path):
         """``--parts --dry-run`` says what the build with ``--parts`` then does, and writes nothing."""

@@ -88,11 +88,13 @@ class PartsCommitter(Committer):
     def add(self, outcome: Outcome) -> None:
         task = outcome.task
         if not task.parts:  # a build without --parts (index.plan.prune_parts): no sub-part is made
-            if task.old_parts and outcome.kind in ("indexed", "failed", "missing"):
+            same = outcome.kind == "same" or (outcome.kind in ("indexed", "failed") and task.parts_hash is not None
+                                               and outcome.entry is not None and outcome.entry.hash == task.parts_hash)
+            if task.old_parts and same:  # the same content: its sub-parts stand, with the file's new times
+                self.batch.touched.extend((p, outcome.size, outcome.mtime_ns) for p in task.old_parts)
+            elif task.old_parts and outcome.kind in ("indexed", "failed", "missing"):
                 self.batch.removed.extend(task.old_parts)
                 self.removed_count += len(task.old_parts)
-            elif task.old_parts and outcome.kind == "same":
-                self.batch.touched.extend((p, outcome.size, outcome.mtime_ns) for p in task.old_parts)
             return
         if outcome.parts is not None:
             self.batch.removed.extend(p for p in task.old_parts if p not in {e.path for e in outcome.parts})

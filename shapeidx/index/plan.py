@@ -184,13 +184,19 @@ def _gone_parts(known: dict, walk: Walk) -> list:
 def prune_parts(plan: Plan, walk: Walk, reader) -> list:
     """A build without ``--parts`` over a store that has sub-parts: the sub-entries it must not
     leave behind. Each task of a file with sub-entries carries them (``old_parts``, not
-    ``parts``): they are removed when the file is signed again or fails (they describe content
-    that is gone; ``build --parts`` makes them again), and get its new times when only its
-    times changed (:class:`~shapeidx.index.commit.PartsCommitter`). Returns the sub-entries of
+    ``parts``) and their content hash (``parts_hash``): they are removed when the file's
+    content changed (they describe content that is gone; ``build --parts`` makes them again),
+    and get its new times when it did not (times changed, ``--full``, a newer reader:
+    :class:`~shapeidx.index.commit.PartsCommitter`). Returns the sub-entries of
     the files that are gone, as :func:`plan_parts` does."""
     import dataclasses
 
     known = _known_parts(reader)
-    plan.tasks = [dataclasses.replace(task, old_parts=tuple(known[task.path][0])) if task.path in known else task
-                  for task in plan.tasks]
+    plan.tasks = [dataclasses.replace(task, old_parts=tuple(known[task.path][0]), parts_hash=_text(known[task.path][3]))
+                  if task.path in known else task for task in plan.tasks]
     return _gone_parts(known, walk)
+
+
+def _text(value) -> str | None:
+    """A stored hash as text (None when empty)."""
+    return (value.decode() if isinstance(value, bytes) else str(value)) or None
