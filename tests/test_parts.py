@@ -530,6 +530,10 @@ class TestBuildAndWhereUsed:
             result = cli(*args, "--store", store)
             assert_one_line_error(result, store)
             assert "--parts" in result.stderr
+        # the parts store named itself: how to make it (it said 'build DIR --store S/parts', which is refused)
+        alone = cli("stats", "--store", parts_store(store))
+        assert_one_line_error(alone, parts_store(store))
+        assert f"'shapeidx build DIR --store {store} --parts'" in alone.stderr
 
     def test_a_main_file_without_the_new_columns_still_opens(self, library, tmp_path):
         """A store written before sub-parts lacks entries/parent and entries/count: read as "" and 1."""

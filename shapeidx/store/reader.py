@@ -569,7 +569,9 @@ def check_store_directory(path: Path) -> None:
     if path.is_dir():
         return
     if not path.exists():
-        raise StoreError(f"no store at {path} (run 'shapeidx build DIR --store {path}' first, or give --store)")
+        from .files import build_command
+
+        raise StoreError(f"no store at {path} (run '{build_command(path)}' first, or give --store)")
     if is_one_file_store(path):
         raise StoreError(f"{path} is a store of the older one-file layout: 'shapeidx build DIR --store {path}' converts"
                          " it into the store directory (renames only: no part is signed again)")
