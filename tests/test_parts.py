@@ -521,6 +521,25 @@ class TestBuildAndWhereUsed:
         _build(root, store, "--parts")
         assert json.loads(cli("stats", "--store", store, "--json").stdout)["parts"]["files"] == 4
 
+    def test_a_parts_store_of_other_parameters_is_refused_with_the_way_out(self, library, tmp_path):
+        """STORE/parts of other signature parameters than STORE (the store rebuilt beside it):
+        a build with --parts is refused in one line that says to delete STORE/parts, whose
+        parameters follow the store's (it said 'use another --store')."""
+        root, _ = library
+        store = tmp_path / "s.shapeidx"
+        _build(root, store, "--parts", "--points", "256")
+        kept = parts_store(store).rename(tmp_path / "kept-parts")
+        shutil.rmtree(store)
+        _build(root, store, "--points", "512")
+        kept.rename(parts_store(store))
+        refused = cli("build", root, "--store", store, "--parts", "--workers", "1")
+        assert_one_line_error(refused, parts_store(store))
+        assert "another --store" not in refused.stderr
+        assert f"delete {parts_store(store)} and 'shapeidx build {root} --store {store} --parts' makes it again" in refused.stderr
+        shutil.rmtree(parts_store(store))
+        _build(root, store, "--parts")
+        assert json.loads(cli("stats", "--store", store, "--json").stdout)["parts"]["files"] == 4
+
     def test_store_without_parts(self, library, tmp_path):
         root, query = library
         store = tmp_path / "s.shapeidx"

@@ -681,6 +681,16 @@ def check_params(reader: StoreReader, wanted: StoreParams) -> None:
     """Refuse a store built with other signature parameters (never mix signatures)."""
     differences = reader.params.differences(wanted)
     if differences:
+        from .files import build_command, owner_of_parts
+
+        owner = owner_of_parts(reader.path)
+        if owner is not None:  # another --store is no way out: the sub-parts follow their store's parameters
+            raise StoreError(
+                f"the sub-parts store {reader.path} was built with other signature parameters than its store"
+                f" {owner}: {', '.join(differences)}; delete {reader.path} and"
+                f" '{build_command(reader.path, as_text(reader.attrs.get('root', '')) or None)}'"
+                " makes it again with the store's"
+            )
         raise StoreError(
             f"store {reader.path} was built with other signature parameters: {', '.join(differences)}; "
             "use another --store, or delete this one to rebuild it"
