@@ -399,9 +399,9 @@ def _parts_pruner(store: Path, params, root: Path, options: BuildOptions, report
     if not path.is_dir():
         return None
     try:
-        with open_store(path) as reader:
-            removed = prune_parts(plan, walk, reader)
-        if not removed and not any(getattr(task, "old_parts", ()) for task in plan.tasks):
+        with open_store(path) as reader, open_store(store, skip_damaged=True) as main:
+            removed, touched = prune_parts(plan, walk, reader, main)
+        if not removed and not touched and not any(getattr(task, "old_parts", ()) for task in plan.tasks):
             return None
         writer = StoreWriter(path, params, root, options.wait, reporter.waiting, options.wait_timeout,
                              on_warning=reporter.warning)
@@ -412,6 +412,7 @@ def _parts_pruner(store: Path, params, root: Path, options: BuildOptions, report
         return None
     committer = PartsCommitter(writer, options.commit_interval, options.merge_after, reporter)
     committer.remove(removed)
+    committer.batch.touched.extend(touched)
     committer.removed_count = len(removed)
     return committer
 

@@ -181,20 +181,42 @@ def _gone_parts(known: dict, walk: Walk) -> list:
                   for p in record[0])
 
 
-def prune_parts(plan: Plan, walk: Walk, reader) -> list:
+def prune_parts(plan: Plan, walk: Walk, reader, main=None) -> tuple[list, list]:
     """A build without ``--parts`` over a store that has sub-parts: the sub-entries it must not
     leave behind. Each task of a file with sub-entries carries them (``old_parts``, not
     ``parts``) and their content hash (``parts_hash``): they are removed when the file's
     content changed (they describe content that is gone; ``build --parts`` makes them again),
     and get its new times when it did not (times changed, ``--full``, a newer reader:
-    :class:`~shapeidx.index.commit.PartsCommitter`). Returns the sub-entries of
-    the files that are gone, as :func:`plan_parts` does."""
+    :class:`~shapeidx.index.commit.PartsCommitter`).
+
+    A file without a task whose sub-entries are of other times than it is one whose own
+    entry an earlier build without ``--parts`` committed before it was killed: its sub-entries
+    are judged now, against its entry's hash in ``main`` (the store's view).
+
+    Returns (removed, touched): the sub-entries of the files that are gone (as
+    :func:`plan_parts` does) or changed, and (path, size, mtime_ns) of those that only get times.
+    """
     import dataclasses
 
     known = _known_parts(reader)
     plan.tasks = [dataclasses.replace(task, old_parts=tuple(known[task.path][0]), parts_hash=_text(known[task.path][3]))
                   if task.path in known else task for task in plan.tasks]
-    return _gone_parts(known, walk)
+    removed, touched = _gone_parts(known, walk), []
+    tasked = {task.path for task in plan.tasks}
+    behind = [f for f in walk.files if f.path not in tasked and f.path in known
+              and (known[f.path][1], known[f.path][2]) != (f.size, f.mtime_ns)]
+    if behind and main is not None:
+        entries = known_files(main)
+        at = entries.lookup([f.path for f in behind])
+        hashes = entries.hashes(at[at >= 0]) if (at >= 0).any() else []
+        now = dict(zip([f.path for f, k in zip(behind, at.tolist()) if k >= 0], hashes))
+        for f in behind:
+            record = known[f.path]
+            if now.get(f.path) and now[f.path] == _text(record[3]):
+                touched.extend((p, f.size, f.mtime_ns) for p in record[0])
+            else:
+                removed.extend(record[0])
+    return sorted(removed), touched
 
 
 def _text(value) -> str | None:
