@@ -423,6 +423,20 @@ class TestBuildAndWhereUsed:
         assert full["indexed"] == 3 and full["parts"]["removed"] == 0 and full["parts"]["entries"] == 5
         assert json.loads(_build(root, store, "--parts", "--json").stdout)["parts"]["planned"] == 0
 
+    def test_a_sharded_build_without_parts_counts_every_shards_sub_parts(self, library, tmp_path):
+        """The summary of a build without --parts over sharded sub-parts adds up every shard's
+        (it counted only the shards where sub-entries were removed)."""
+        root = tmp_path / "tree"
+        shutil.copytree(library[0], root)
+        store = tmp_path / "s.shapeidx"
+        made = json.loads(_build(root, store, "--shards", "2", "--parts", "--json").stdout)["parts"]
+        assert made["entries"] == 7
+        (root / "boards" / "six.step").unlink()
+        done = json.loads(_build(root, store, "--json").stdout)["parts"]
+        assert done["removed"] == 2 and done["entries"] == 5
+        again = json.loads(_build(root, store, "--json").stdout)["parts"]
+        assert again["removed"] == 0 and again["entries"] == 5
+
     def test_a_build_without_parts_killed_between_its_two_commits(self, library, tmp_path):
         """A build without --parts commits a file's whole entry and the removal of its old
         sub-entries one after the other; killed in between (made here by putting the parts

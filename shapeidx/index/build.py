@@ -324,17 +324,28 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     summary.seconds = time.monotonic() - started
     _store_counts(store, summary)
     profile.parent["other"] = max(0.0, _cpu(resource.RUSAGE_SELF) - sum(profile.parent.values()))
-    if options.parts or parts is not None:
-        from ..store.files import parts_store
-
-        summary.parts_indexed = summary.parts_indexed or 0
-        if not options.parts:
-            summary.parts_removed = parts.removed_count
-        with open_store(parts_store(store)) as reader:
-            from ..store.known import known_files
-
-            summary.parts_entries = known_files(reader).status_counts()[0]
+    _parts_counts(store, options, parts, summary)
     return summary
+
+
+def _parts_counts(store: Path, options: BuildOptions, parts, summary: BuildSummary) -> None:
+    """The parts store's counts after a build with ``--parts``, or without it over a store that
+    has sub-parts (what it removed: :func:`_parts_pruner`; a sharded build adds them up)."""
+    from ..store.files import parts_store
+    from ..store.known import known_files
+
+    if not options.parts and not parts_store(store).is_dir():
+        return
+    try:
+        with open_store(parts_store(store)) as reader:
+            summary.parts_entries = known_files(reader).status_counts()[0]
+    except ShapeidxError:
+        if options.parts:
+            raise
+        return  # damaged or never committed: the build said so (_parts_pruner), its counts are not known
+    summary.parts_indexed = summary.parts_indexed or 0
+    if not options.parts:
+        summary.parts_removed = parts.removed_count if parts is not None else 0
 
 
 def _refuse_parts_store(store: Path) -> None:
