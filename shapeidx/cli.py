@@ -395,7 +395,9 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
         click.echo(
             f"shapeidx build: {summary.line()} in {duration(summary.seconds)};"
             f" store: {summary.store_ok} ok, {summary.store_failed} failed, {_size(summary.store_bytes)}"
-            + (f"; parts: {summary.parts_indexed} signed, {summary.parts_entries} in the store"
+            + (f"; parts: {summary.parts_indexed} signed"
+               + (f", {summary.parts_removed} removed" if summary.parts_removed else "")
+               + f", {summary.parts_entries} in the store"
                if summary.parts_entries is not None else "")
             + summary.older_line()
         )

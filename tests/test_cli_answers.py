@@ -17,6 +17,7 @@ from storetools import build, small_kicad
 
 from shapeidx.console import exits
 from shapeidx.io.formats import FORMAT_NAMES
+from shapeidx.store.writer import StoreLock
 
 
 @pytest.fixture(scope="module")
@@ -43,12 +44,21 @@ class TestNoSilentAnswers:
         tree, _ = store
         creating = tmp_path / "new.shapeidx"
         creating.mkdir()
-        (creating / "lock").write_text("")  # what a first build makes before its first commit
         (creating / "build.json").write_text('{"state": "running", "pid": 1}')
-        for args in (("query", parts(tree)[0]), ("stats",), ("cluster",)):
-            result = run_shapeidx(*args, "--store", creating)
-            assert result.returncode == exits.NO_ANSWER, (args, result.stderr)
-            assert "being created" in one_line(result) and "try again" in result.stderr
+        lock = StoreLock(creating)  # what a first build holds before its first commit
+        lock.acquire()
+        try:
+            for args in (("query", parts(tree)[0]), ("stats",), ("cluster",)):
+                result = run_shapeidx(*args, "--store", creating)
+                assert result.returncode == exits.NO_ANSWER, (args, result.stderr)
+                assert "being created" in one_line(result) and "try again" in result.stderr
+        finally:
+            lock.release()
+        # the build killed before its first commit: no "try again", but how to build it
+        result = run_shapeidx("query", parts(tree)[0], "--store", creating)
+        assert result.returncode == exits.NO_ANSWER, result.stderr
+        assert "its first build stopped before committing anything" in one_line(result)
+        assert f"'shapeidx build DIR --store {creating}' builds it" in result.stderr
 
     def test_max_distance_with_no_hit_and_stats_without_failures_say_so(self, store):
         tree, path = store

@@ -270,7 +270,8 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
             plan = make_plan(walk, reader, options)
         summary.found, summary.unchanged = plan.found, plan.unchanged
         # with --parts: the files whose sub-parts alone are missing or stale are tasks too
-        parts = _parts_committer(store, params, root, options, reporter, plan, walk, summary) if options.parts else None
+        parts = (_parts_committer(store, params, root, options, reporter, plan, walk, summary) if options.parts
+                 else _parts_pruner(store, params, root, options, reporter, plan, walk))
         # planned: the files to sign whole (not those only split into sub-parts), as a dry run counts them
         summary.planned = sum(getattr(task, "whole", True) for task in plan.tasks)
         summary.older, summary.older_parts = dict(plan.older), dict(plan.older_parts)
@@ -323,15 +324,28 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
     summary.seconds = time.monotonic() - started
     _store_counts(store, summary)
     profile.parent["other"] = max(0.0, _cpu(resource.RUSAGE_SELF) - sum(profile.parent.values()))
-    if options.parts:
-        from ..store.files import parts_store
-
-        summary.parts_indexed = summary.parts_indexed or 0
-        with open_store(parts_store(store)) as reader:
-            from ..store.known import known_files
-
-            summary.parts_entries = known_files(reader).status_counts()[0]
+    _parts_counts(store, options, parts, summary)
     return summary
+
+
+def _parts_counts(store: Path, options: BuildOptions, parts, summary: BuildSummary) -> None:
+    """The parts store's counts after a build with ``--parts``, or without it over a store that
+    has sub-parts (what it removed: :func:`_parts_pruner`; a sharded build adds them up)."""
+    from ..store.files import parts_store
+    from ..store.known import known_files
+
+    if not options.parts and not parts_store(store).is_dir():
+        return
+    try:
+        with open_store(parts_store(store)) as reader:
+            summary.parts_entries = known_files(reader).status_counts()[0]
+    except ShapeidxError:
+        if options.parts:
+            raise
+        return  # damaged or never committed: the build said so (_parts_pruner), its counts are not known
+    summary.parts_indexed = summary.parts_indexed or 0
+    if not options.parts:
+        summary.parts_removed = parts.removed_count if parts is not None else 0
 
 
 def _refuse_parts_store(store: Path) -> None:
@@ -378,6 +392,39 @@ def _parts_committer(store: Path, params, root: Path, options: BuildOptions, rep
     _count_parts_plan(plan, removed, summary)
     committer = PartsCommitter(writer, options.commit_interval, options.merge_after, reporter)
     committer.remove(removed)
+    return committer
+
+
+def _parts_pruner(store: Path, params, root: Path, options: BuildOptions, reporter, plan, walk):
+    """A build without ``--parts`` over a store that has sub-parts: the committer that removes
+    the sub-entries of the files it removes or signs again, and gives those whose times only
+    changed their new times (:func:`~shapeidx.index.plan.prune_parts`), so that ``where-used``
+    never names a file the store no longer holds, nor the sub-parts of its old content. None
+    when there is nothing to do; a damaged or locked parts store is left as it is, with a warning."""
+    from ..store.files import parts_store
+    from ..store.reader import StoreBeingCreated
+    from .commit import PartsCommitter
+    from .plan import prune_parts
+
+    path = parts_store(store)
+    if not path.is_dir():
+        return None
+    try:
+        with open_store(path) as reader, open_store(store, skip_damaged=True) as main:
+            removed, touched = prune_parts(plan, walk, reader, main)
+        if not removed and not touched and not any(getattr(task, "old_parts", ()) for task in plan.tasks):
+            return None
+        writer = StoreWriter(path, params, root, options.wait, reporter.waiting, options.wait_timeout,
+                             on_warning=reporter.warning)
+    except StoreBeingCreated:
+        return None  # a first build with --parts was stopped before committing: nothing to remove
+    except ShapeidxError as exc:
+        reporter.warning(f"the sub-parts of the files removed or signed again are left in {path}: {exc}")
+        return None
+    committer = PartsCommitter(writer, options.commit_interval, options.merge_after, reporter)
+    committer.remove(removed)
+    committer.batch.touched.extend(touched)
+    committer.removed_count = len(removed)
     return committer
 
 

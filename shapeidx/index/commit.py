@@ -30,6 +30,9 @@ class Committer:
     size-tiered (:meth:`StoreWriter.compact`), so it costs about what the batches hold.
     """
 
+    #: Which store the reporter's commit and merge lines name ("": the whole-file store).
+    store = ""
+
     def __init__(self, writer: StoreWriter, interval: float, merge_after: int, reporter):
         self.writer = writer
         self.interval = interval
@@ -57,12 +60,12 @@ class Committer:
             if self.writer.pending_batches >= self.merge_after:
                 merged = self.writer.compact()
                 if merged:
-                    self.reporter.merged(merged)
+                    self.reporter.merged(merged, self.store)
 
     def commit(self) -> None:
         if len(self.batch):
             seq = self.writer.commit(self.batch)
-            self.reporter.committed(seq, len(self.batch))
+            self.reporter.committed(seq, len(self.batch), self.store)
             self.batch = Batch()
         self.last = time.monotonic()
 
@@ -70,16 +73,28 @@ class Committer:
         self.commit()
         merged = self.writer.checkpoint()  # the journal folded into the main file once it is large enough
         if merged:
-            self.reporter.merged(merged)
+            self.reporter.merged(merged, self.store)
 
 
 class PartsCommitter(Committer):
     """The sub-entries of ``build --parts``, committed to the parts store (``STORE/parts``):
     a file's new sub-entries replace its old ones."""
 
+    store = "sub-parts"
+
+    #: Sub-entries removed by this build (of files gone, and without ``--parts`` of files signed again).
+    removed_count = 0
+
     def add(self, outcome: Outcome) -> None:
         task = outcome.task
-        if not task.parts:
+        if not task.parts:  # a build without --parts (index.plan.prune_parts): no sub-part is made
+            same = outcome.kind == "same" or (outcome.kind in ("indexed", "failed") and task.parts_hash is not None
+                                               and outcome.entry is not None and outcome.entry.hash == task.parts_hash)
+            if task.old_parts and same:  # the same content: its sub-parts stand, with the file's new times
+                self.batch.touched.extend((p, outcome.size, outcome.mtime_ns) for p in task.old_parts)
+            elif task.old_parts and outcome.kind in ("indexed", "failed", "missing"):
+                self.batch.removed.extend(task.old_parts)
+                self.removed_count += len(task.old_parts)
             return
         if outcome.parts is not None:
             self.batch.removed.extend(p for p in task.old_parts if p not in {e.path for e in outcome.parts})

@@ -135,19 +135,9 @@ def plan_parts(plan: Plan, walk: Walk, reader, options) -> list:
     import dataclasses
 
     from ..io.registry import count_by_label, revisions
-    from ..store.layout import REVISION_COLUMN
 
     by_format = revisions()
-    known: dict = {}  # parent -> [paths, size, mtime_ns, hash, oldest revision]
-    if reader is not None and len(reader):
-        paths, parents = reader.paths, reader.column("entries/parent")
-        size, mtime, hashes = reader.column("entries/size"), reader.column("entries/mtime_ns"), reader.column("entries/hash")
-        revision = reader.column(REVISION_COLUMN)
-        for i in range(len(paths)):
-            record = known.setdefault(str(parents[i]) or str(paths[i]),
-                                      [[], int(size[i]), int(mtime[i]), hashes[i], int(revision[i])])
-            record[0].append(str(paths[i]))
-            record[4] = min(record[4], int(revision[i]))
+    known = _known_parts(reader)
     index = {task.path: k for k, task in enumerate(plan.tasks)}
     older = []
     for f in walk.files:
@@ -164,6 +154,71 @@ def plan_parts(plan: Plan, walk: Walk, reader, options) -> list:
         if stale and not options.full and (record[1], record[2]) == (f.size, f.mtime_ns):
             older.append(_format_of(f))
     plan.older_parts = count_by_label(older)
+    return _gone_parts(known, walk)
+
+
+def _known_parts(reader) -> dict:
+    """The parts store's sub-entries by file: parent -> [paths, size, mtime_ns, hash, oldest revision]."""
+    from ..store.layout import REVISION_COLUMN
+
+    known: dict = {}
+    if reader is not None and len(reader):
+        paths, parents = reader.paths, reader.column("entries/parent")
+        size, mtime, hashes = reader.column("entries/size"), reader.column("entries/mtime_ns"), reader.column("entries/hash")
+        revision = reader.column(REVISION_COLUMN)
+        for i in range(len(paths)):
+            record = known.setdefault(str(parents[i]) or str(paths[i]),
+                                      [[], int(size[i]), int(mtime[i]), hashes[i], int(revision[i])])
+            record[0].append(str(paths[i]))
+            record[4] = min(record[4], int(revision[i]))
+    return known
+
+
+def _gone_parts(known: dict, walk: Walk) -> list:
+    """The sub-entries whose files the walk no longer finds (not those under an unlisted folder)."""
     walked = {f.path for f in walk.files}
     return sorted(p for parent, record in known.items() if parent not in walked and not _under_any(parent, walk.unlisted)
                   for p in record[0])
+
+
+def prune_parts(plan: Plan, walk: Walk, reader, main=None) -> tuple[list, list]:
+    """A build without ``--parts`` over a store that has sub-parts: the sub-entries it must not
+    leave behind. Each task of a file with sub-entries carries them (``old_parts``, not
+    ``parts``) and their content hash (``parts_hash``): they are removed when the file's
+    content changed (they describe content that is gone; ``build --parts`` makes them again),
+    and get its new times when it did not (times changed, ``--full``, a newer reader:
+    :class:`~shapeidx.index.commit.PartsCommitter`).
+
+    A file without a task whose sub-entries are of other times than it is one whose own
+    entry an earlier build without ``--parts`` committed before it was killed: its sub-entries
+    are judged now, against its entry's hash in ``main`` (the store's view).
+
+    Returns (removed, touched): the sub-entries of the files that are gone (as
+    :func:`plan_parts` does) or changed, and (path, size, mtime_ns) of those that only get times.
+    """
+    import dataclasses
+
+    known = _known_parts(reader)
+    plan.tasks = [dataclasses.replace(task, old_parts=tuple(known[task.path][0]), parts_hash=_text(known[task.path][3]))
+                  if task.path in known else task for task in plan.tasks]
+    removed, touched = _gone_parts(known, walk), []
+    tasked = {task.path for task in plan.tasks}
+    behind = [f for f in walk.files if f.path not in tasked and f.path in known
+              and (known[f.path][1], known[f.path][2]) != (f.size, f.mtime_ns)]
+    if behind and main is not None:
+        entries = known_files(main)
+        at = entries.lookup([f.path for f in behind])
+        hashes = entries.hashes(at[at >= 0]) if (at >= 0).any() else []
+        now = dict(zip([f.path for f, k in zip(behind, at.tolist()) if k >= 0], hashes))
+        for f in behind:
+            record = known[f.path]
+            if now.get(f.path) and now[f.path] == _text(record[3]):
+                touched.extend((p, f.size, f.mtime_ns) for p in record[0])
+            else:
+                removed.extend(record[0])
+    return sorted(removed), touched
+
+
+def _text(value) -> str | None:
+    """A stored hash as text (None when empty)."""
+    return (value.decode() if isinstance(value, bytes) else str(value)) or None

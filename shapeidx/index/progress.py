@@ -10,7 +10,8 @@ Every line starts with ``shapeidx build:``; elsewhere than on a terminal it is p
 timestamp, so that a log of nightly runs can be read back. File names are printed with their
 control characters escaped (a newline in a name cannot forge a line) and reasons without
 Python's byte reprs. scripts/kill_build.py finds ``committed batch N (M records)`` and
-``indexed PATH (1.2s)`` anywhere in a line: keep those texts.
+``indexed PATH (1.2s)`` anywhere in a line: keep those texts (the parts store's commits,
+``build --parts``, say ``committed sub-parts batch N (M records)``).
 """
 
 from __future__ import annotations
@@ -137,15 +138,17 @@ class BuildReporter:
         percent = 100.0 * self.done / max(self.total, 1)
         self._say(f"shapeidx build: {self.done}/{self.total} files ({percent:.0f}%), {self._rate_text()}, {left} left")
 
-    def committed(self, seq: int, records: int) -> None:
+    def committed(self, seq: int, records: int, store: str = "") -> None:
+        """A batch was committed; ``store``: which one, when not the whole-file store (``sub-parts``)."""
         if self.verbose:
-            self._say(f"committed batch {seq} ({records} records)")
+            self._say(f"committed {store + ' ' if store else ''}batch {seq} ({records} records)")
 
-    def merged(self, what: str = "main") -> None:
+    def merged(self, what: str = "main", store: str = "") -> None:
         """A merge happened: ``what`` is :meth:`~shapeidx.store.StoreWriter.compact`'s answer."""
         if self.verbose:
-            self._say("merged the journal into the main file" if what == "main"
-                      else "merged the journal's newest segments into one")
+            journal = f"the {store + ' ' if store else ''}journal"
+            self._say(f"merged {journal} into the main file" if what == "main"
+                      else f"merged {journal}'s newest segments into one")
 
     def close(self) -> None:
         if self.bar is not None:

@@ -48,14 +48,20 @@ def owner_of_parts(store) -> Path | None:
     return owner if any(p.exists() for p in (main_file(owner), lock_path(owner), committed_path(owner))) else None
 
 
-def recovery_commands(store, root: str | None = None) -> tuple[str, str]:
-    """(repair, check): the commands that repair and check ``store``. A sub-parts store is
-    repaired and checked through its owner (``build --parts --repair``): a build into
-    ``OWNER/parts`` itself would fill it with whole files."""
+def build_command(store, root: str | None = None) -> str:
+    """The command that builds ``store``: a sub-parts store is built through its owner
+    (``build OWNER --parts``): a build into ``OWNER/parts`` itself would fill it with whole files."""
     folder, owner = root or "DIR", owner_of_parts(store)
     if owner is not None:
-        return (f"shapeidx build {folder} --store {owner} --parts --repair", f"shapeidx check --store {owner}")
-    return f"shapeidx build {folder} --store {store} --repair", f"shapeidx check --store {store}"
+        return f"shapeidx build {folder} --store {owner} --parts"
+    return f"shapeidx build {folder} --store {store}"
+
+
+def recovery_commands(store, root: str | None = None) -> tuple[str, str]:
+    """(repair, check): the commands that repair and check ``store`` (a sub-parts store through
+    its owner: ``build --parts --repair``, ``check --store OWNER``; see :func:`build_command`)."""
+    owner = owner_of_parts(store)
+    return f"{build_command(store, root)} --repair", f"shapeidx check --store {owner if owner is not None else store}"
 
 
 #: Bytes reserved beyond a write's estimate (HDF5's metadata, chunk indexes).

@@ -541,6 +541,12 @@ def _open_main(path: Path) -> _SourceFile:
                 build_state_path(path).exists() and not lock_path(path).exists()):
             raise damaged(path, f"its main file {main.name} is missing") from None
         if lock_path(path).exists():
+            from .files import build_command
+            from .writer import _lock_held
+
+            if not _lock_held(path):  # its first build was killed before it committed anything
+                raise StoreBeingCreated(f"the store {path} holds nothing yet: its first build stopped before committing"
+                                        f" anything; '{build_command(path)}' builds it") from None
             raise StoreBeingCreated(f"the store {path} is being created: a first build has just begun and committed"
                                     " nothing yet; try again in a moment") from None
         if (path / "shards.json").is_file():
@@ -563,7 +569,9 @@ def check_store_directory(path: Path) -> None:
     if path.is_dir():
         return
     if not path.exists():
-        raise StoreError(f"no store at {path} (run 'shapeidx build DIR --store {path}' first, or give --store)")
+        from .files import build_command
+
+        raise StoreError(f"no store at {path} (run '{build_command(path)}' first, or give --store)")
     if is_one_file_store(path):
         raise StoreError(f"{path} is a store of the older one-file layout: 'shapeidx build DIR --store {path}' converts"
                          " it into the store directory (renames only: no part is signed again)")
@@ -673,6 +681,16 @@ def check_params(reader: StoreReader, wanted: StoreParams) -> None:
     """Refuse a store built with other signature parameters (never mix signatures)."""
     differences = reader.params.differences(wanted)
     if differences:
+        from .files import build_command, owner_of_parts
+
+        owner = owner_of_parts(reader.path)
+        if owner is not None:  # another --store is no way out: the sub-parts follow their store's parameters
+            raise StoreError(
+                f"the sub-parts store {reader.path} was built with other signature parameters than its store"
+                f" {owner}: {', '.join(differences)}; delete {reader.path} and"
+                f" '{build_command(reader.path, as_text(reader.attrs.get('root', '')) or None)}'"
+                " makes it again with the store's"
+            )
         raise StoreError(
             f"store {reader.path} was built with other signature parameters: {', '.join(differences)}; "
             "use another --store, or delete this one to rebuild it"

@@ -71,12 +71,16 @@ def _parts_facts(store) -> dict | None:
     """
     from .files import parts_store
     from .layout import COUNT_COLUMN, PARENT_COLUMN
-    from .reader import open_store
+    from .reader import StoreBeingCreated, open_store
 
     path = parts_store(store)
     if not path.is_dir():
         return None
-    with open_store(path) as parts:
+    try:
+        parts = open_store(path)
+    except StoreBeingCreated:  # the first build with --parts has committed nothing (yet)
+        return None
+    with parts:
         ok = parts.column("entries/status") == STATUS_OK
         parents = parts.column(PARENT_COLUMN)[ok].astype(str)
         counts = parts.column(COUNT_COLUMN)[ok]

@@ -102,6 +102,18 @@ def upload_suffix(filename: str) -> str:
     return ".gz" if gz else ".part"
 
 
+def _parts_searcher(store: Path):
+    """The searcher of ``store``'s sub-parts; None while the first build with --parts has
+    committed nothing (the page then has no sub-parts, as without them)."""
+    from ..search import Searcher
+    from ..store.reader import StoreBeingCreated
+
+    try:
+        return Searcher(store, parts=True)
+    except StoreBeingCreated:
+        return None
+
+
 class StoreService:
     """A store held open for the web page: queries through the one search road
     (:class:`~shapeidx.search.Searcher`), entries, thumbnails, uploads.
@@ -133,7 +145,7 @@ class StoreService:
         from ..store.files import parts_store
 
         #: The store's sub-parts (``build --parts``; ``parts=1`` ranks them), or None.
-        self.parts = Searcher(self.store, parts=True) if parts_store(self.store).is_dir() else None
+        self.parts = _parts_searcher(self.store) if parts_store(self.store).is_dir() else None
         #: Their pictures (each drawn itself), cached with the files' in ``STORE/thumbs``.
         self.part_thumbs = StoreThumbnails(self.parts, folder=self.thumbs.cache.folder) if self.parts else None
 
