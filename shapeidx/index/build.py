@@ -87,8 +87,8 @@ class BuildSummary:
     #: With ``--parts``: sub-entries written by this build, and the parts store's ok sub-entries after it.
     parts_indexed: int | None = None
     parts_entries: int | None = None
-    #: With ``--parts``: files whose sub-parts the build (or dry run) plans to make, and
-    #: sub-entries it plans to remove (their files are gone).
+    #: With ``--parts``: files whose sub-parts the build (or dry run) plans to make; and the
+    #: sub-entries it removes (their files gone; without ``--parts``, also changed in content).
     parts_planned: int | None = None
     parts_removed: int | None = None
     #: Where the build's CPU went (:class:`BuildProfile`); None for a dry run.
@@ -350,12 +350,12 @@ def _parts_counts(store: Path, options: BuildOptions, parts, summary: BuildSumma
 
 def _refuse_parts_store(store: Path) -> None:
     """A build into ``OWNER/parts`` itself would replace its sub-entries with whole files."""
-    from ..store.files import owner_of_parts
+    from ..store.files import build_command, owner_of_parts
 
     owner = owner_of_parts(store)
     if owner is not None:
         raise UsageError(f"{store} is the sub-parts store of {owner}, made by its builds with --parts:"
-                         f" 'shapeidx build DIR --store {owner} --parts' builds it")
+                         f" '{build_command(store)}' builds it")
 
 
 def _shard_walk(walk, options: BuildOptions):

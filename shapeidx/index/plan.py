@@ -144,7 +144,7 @@ def plan_parts(plan: Plan, walk: Walk, reader, options) -> list:
         record = known.get(f.path)
         old = tuple(record[0]) if record else ()
         stale = record is not None and record[4] < by_format.get(_format_of(f), 1)
-        stored_hash = None if record is None or options.full or stale else (record[3].decode() if isinstance(record[3], bytes) else str(record[3])) or None
+        stored_hash = None if record is None or options.full or stale else _text(record[3])
         if f.path in index:
             k = index[f.path]
             plan.tasks[k] = dataclasses.replace(plan.tasks[k], parts=True, parts_hash=stored_hash, old_parts=old)
