@@ -854,12 +854,16 @@ def check(store, check_files, repair, output_format, as_json):
 @click.option("--per-class", is_flag=True, help="Also each class's figures.")
 @click.option("--cross-validate", is_flag=True, help="Also learn the combined metric on this collection (class-wise cross-validated).")
 @click.option("--points", type=click.IntRange(2, 8192), help="Surface samples for a new store [default: 1024].")
+@click.option("--query-seed", "query_seeds", multiple=True, type=click.IntRange(0, MAX_SEED),
+              help="Sign every query again with this seed, may be repeated (figures: the mean over the seeds; 'copy':"
+                   " how often the query's own entry comes first) [default: the stored signatures, which share"
+                   " their points with the entries].")
 @click.option("--workers", "-j", type=click.IntRange(1), help="Worker processes for the build [default: one per core].")
 @click.option("--quiet", "-q", is_flag=True, help="No build progress.")
 @click.option("--follow-outside-links", is_flag=True, help="Also follow symbolic links that lead out of DIRECTORY.")
 @format_options
-def evaluate(directory, store, metrics, per_class, cross_validate, points, workers, quiet, follow_outside_links,
-             output_format, as_json):
+def evaluate(directory, store, metrics, per_class, cross_validate, points, query_seeds, workers, quiet,
+             follow_outside_links, output_format, as_json):
     """Retrieval quality on DIRECTORY, whose sub-folders are the classes: NN, FT, ST, E, DCG.
 
     Figures of the combined metric on the collection its weights were learned on are
@@ -869,6 +873,7 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
     Example:
       shapeidx evaluate ../shared/data/kicad6 --store kicad6.h5
       shapeidx evaluate labelled/ --metric weighted --metric all --format csv
+      shapeidx evaluate ../shared/data/kicad6 --query-seed 7 --query-seed 8 --query-seed 9
     """
     from .evaluation.evaluate import check_labelled_tree, evaluate as evaluate_store
     from .index.build import BuildOptions, run_build
@@ -886,19 +891,20 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
     finally:
         reporter.close()
     with Searcher(store_path) as searcher:
-        result = evaluate_store(searcher, metrics or METRICS, per_class=per_class, cross_validated=cross_validate)
+        result = evaluate_store(searcher, metrics or METRICS, per_class=per_class, cross_validated=cross_validate,
+                                query_seeds=query_seeds)
     if fmt == "json":
         emit_json({"collection": directory, "store": str(store_path), **result})
         return
-    scores = ("nn", "ft", "st", "e", "dcg")
+    scores = ("nn", "ft", "st", "e", "dcg") + (("copy",) if query_seeds else ())
     family = ("knn", "nmi", "ari")  # classification and clustering agreement: the whole collection's only
     if fmt != "table":
         rows = []
         for name, figures in result["metrics"].items():
-            rows.append({"metric": name, "class": "", **{s: figures[s] for s in scores},
+            rows.append({"metric": name, "class": "", **{s: figures.get(s, "") for s in scores},
                          **{s: figures.get(s, "") for s in family}, "in_sample": bool(figures.get("in_sample", False))})
             for cls, per in figures.get("per_class", {}).items():
-                rows.append({"metric": name, "class": cls, **{s: per[s] for s in scores}, **{s: "" for s in family},
+                rows.append({"metric": name, "class": cls, **{s: per.get(s, "") for s in scores}, **{s: "" for s in family},
                              "in_sample": bool(figures.get("in_sample", False))})
         emit_rows(fmt, ["metric", "class", *scores, *family, "in_sample"], rows)
         return
@@ -909,18 +915,27 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, worke
     labels = {name: metric_label(name) + (" (in-sample)" if figures.get("in_sample") else "")
               for name, figures in result["metrics"].items()}
     width = max([30, *map(len, labels.values())] + [len(c) + 2 for f in result["metrics"].values() for c in f.get("per_class", {})])
-    click.echo(f"{'distance':{width}s} {'NN':>6s} {'FT':>6s} {'ST':>6s} {'E':>6s} {'DCG':>6s}   {'kNN':>6s} {'NMI':>6s} {'ARI':>6s}")
+    if query_seeds:
+        click.echo(f"queries signed again with seed {', '.join(map(str, query_seeds))} (figures: their mean);"
+                   " copy: the query's own entry first")
+    click.echo(f"{'distance':{width}s} " + " ".join(f"{s.upper():>6s}" for s in scores)
+               + f"   {'kNN':>6s} {'NMI':>6s} {'ARI':>6s}")
     for name, figures in result["metrics"].items():
         agreement = "   " + " ".join(f"{figures[s]:6.3f}" for s in family) if "knn" in figures else ""
-        click.echo(f"{labels[name]:{width}s} " + " ".join(f"{figures[s]:6.3f}" for s in scores) + agreement)
+        click.echo(f"{labels[name]:{width}s} " + " ".join(_figure(figures.get(s)) for s in scores) + agreement)
         for cls, per in figures.get("per_class", {}).items():
-            click.echo(f"  {printable(cls):{width - 2}s} " + " ".join(f"{per[s]:6.3f}" for s in scores))
+            click.echo(f"  {printable(cls):{width - 2}s} " + " ".join(_figure(per.get(s)) for s in scores))
     for name, figures in result["metrics"].items():
         if figures.get("in_sample"):
             click.echo(f"note: {metric_label(name)}'s weights were learned on this collection"
                        f" ({figures['learned_on']}): its figures are in-sample and flatter it;"
                        + (" its (cross-validated) row gives out-of-sample ones" if cross_validate
                           else " --cross-validate gives out-of-sample ones"))
+
+
+def _figure(value) -> str:
+    """A score in evaluate's table (a dash where a row has none: a cross-validated row's copy)."""
+    return f"{value:6.3f}" if value is not None else f"{'-':>6s}"
 
 
 # --------------------------------------------------------------------------- families (classify, cluster, duplicates)

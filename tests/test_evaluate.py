@@ -112,3 +112,36 @@ def test_a_folder_without_classes_is_refused_in_one_line(tmp_path, data_dir):
         result = cli("evaluate", str(folder), "--store", str(tmp_path / f"{folder.name}.h5"), "-q")
         assert result.exit_code == 1, result.stderr
         assert "sub-folders" in result.stderr and len(result.stderr.strip().splitlines()) == 1
+
+
+def test_queries_drawn_again_change_the_figures_only_when_their_seed_differs(collection):
+    """--query-seed signs every query again: with the store's own seed the figures are the stored
+    signatures' (the same points), with other seeds they move (other points) and each query's own
+    entry, an exact copy drawn again, is no longer at distance 0; the mean lies within the spread."""
+    from shapeidx.signing.pipeline import signature_of_file
+    from shapeidx.distance import compare as compare_pair
+
+    root, store = collection
+    with open_store(store) as reader:
+        stored = evaluate(reader, metrics=("weighted", "all-angle"))
+        seed = reader.params.seed
+        same = evaluate(reader, metrics=("weighted", "all-angle"), query_seeds=(seed,))
+        other = evaluate(reader, metrics=("weighted", "all-angle"), query_seeds=(7, 8, 9))
+        first = sorted(p for p in reader.paths if "/" in p)[0]
+        own = reader.signature(list(reader.paths).index(first))
+    scores = ("nn", "ft", "st", "e", "dcg")
+    for metric in ("weighted", "all-angle"):
+        assert {s: same["metrics"][metric][s] for s in scores} == {s: stored["metrics"][metric][s] for s in scores}
+        assert "copy" not in stored["metrics"][metric] and same["metrics"][metric]["copy"] <= 1.0
+        figures = other["metrics"][metric]
+        for s in scores + ("copy",):
+            low, high = figures["spread"][s]
+            assert low <= figures[s] <= high
+            assert figures[s] == pytest.approx(np.mean([figures["per_seed"][str(k)][s] for k in (7, 8, 9)]))
+    assert other["query_seeds"] == [7, 8, 9] and stored["query_seeds"] == []
+    moved = [(metric, s) for metric in ("weighted", "all-angle") for s in scores
+             if other["metrics"][metric][s] != stored["metrics"][metric][s]]
+    assert moved, "queries drawn with other seeds gave exactly the stored figures"
+    # the first query drawn again with seed 7 is its file signed with seed 7, not the stored signature
+    again = signature_of_file(root / first, points=256, seed=7)
+    assert compare_pair(again, own)["weighted"] > 0

@@ -53,8 +53,8 @@ class TestHistogram:
         assert sig.histograms["all"].total == 512 * 511 // 2
         assert sum(sig.fractions.values()) == pytest.approx(1.0)
         assert sum(sig.histograms[c].total for c in ("in", "out", "mixed")) == 512 * 511 // 2
-        for h in sig.histograms.values():
-            assert h.p.sum() == pytest.approx(1.0) and h.bin_width == pytest.approx(h.mean / 50)
+        for h in sig.histograms.values():  # a class with no pair (OUT here is rare) has no bins
+            assert (h.p.sum() == pytest.approx(1.0) if h.total else len(h.p) == 0) and h.bin_width == pytest.approx(h.mean / 50)
 
     def test_histogram_bins_cover_the_longest_pair(self, tmp_path):
         v, f = A.mesh_arrays(A.catalogue()["l_bracket"])

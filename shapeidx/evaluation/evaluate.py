@@ -97,17 +97,20 @@ def class_of(path: str) -> str | None:
     return head if sep else None
 
 
-def labelled_features(store) -> LabelledFeatures:
+def labelled_features(store, query_seed: int | None = None) -> LabelledFeatures:
     """Features between all labelled ok entries (sorted by path), through the search road of ``query``.
 
     ``store``: an open :class:`~shapeidx.search.Searcher`, or an open store reader (its store
-    is searched).
+    is searched). ``query_seed``: each query is its file signed again with this seed (the
+    store's number of points), not its stored signature, so that no query shares its points
+    with a stored entry (a real query never does); ``features[:, q, q]`` is then the distance
+    of an exact copy, its points drawn again, to its own entry.
     """
     from ..search import Searcher
 
     if not isinstance(store, Searcher):
         with Searcher(store.path) as searcher:
-            return labelled_features(searcher)
+            return labelled_features(searcher, query_seed)
     searcher = store
     paths = searcher.metadata_column("path")
     order = np.argsort(paths.astype(str), kind="stable")
@@ -118,7 +121,8 @@ def labelled_features(store) -> LabelledFeatures:
     names = FEATURES + (ANGLE_FEATURES if with_angles else ())
     features = np.zeros((len(names), len(chosen), len(chosen)))
     for k, i in enumerate(chosen.tolist()):
-        values = entry_features(searcher.view, searcher.signature_at(i), HISTOGRAMS, chosen, with_angles)
+        signature = searcher.signature_at(i) if query_seed is None else drawn_again(searcher, i, query_seed)
+        values = entry_features(searcher.view, signature, HISTOGRAMS, chosen, with_angles)
         for f, name in enumerate(names):
             features[f, k] = values[name]
     return LabelledFeatures(
@@ -128,6 +132,27 @@ def labelled_features(store) -> LabelledFeatures:
         unlabelled=len(paths) - len(chosen),
         angle_features=features[len(FEATURES) :] if with_angles else None,
     )
+
+
+def drawn_again(searcher, position: int, seed: int):
+    """The signature of the file of the entry at ``position``, its points drawn with ``seed`` (the
+    store's other parameters); raises ShapeidxError when the file is gone or unusable."""
+    import os
+
+    from ..io import LoadLimits
+    from ..signing.pipeline import signature_of_solid, solid_of_file
+
+    path = os.path.join(searcher.root, searcher.path_at(position))
+    solid = solid_of_file(path, LoadLimits(faceting=searcher.params.faceting))
+    return signature_of_solid(solid, searcher.params.points, seed, searcher.params.bin_divisor)
+
+
+def copy_first(distances: np.ndarray) -> float:
+    """Share of the rows whose own column (the diagonal) is strictly the smallest: how often an
+    exact copy, drawn again, is its own first answer."""
+    d = np.asarray(distances, dtype=np.float64)
+    own = np.diag(d)[:, None]
+    return float(((d <= own).sum(axis=1) == 1).mean())
 
 
 def distance_matrices(data: LabelledFeatures, metrics=METRICS) -> dict:
@@ -157,7 +182,8 @@ def per_class_scores(scores: dict, labels: np.ndarray) -> dict:
     }
 
 
-def evaluate(reader, metrics=METRICS, per_class: bool = False, cross_validated: bool = False) -> dict:
+def evaluate(reader, metrics=METRICS, per_class: bool = False, cross_validated: bool = False,
+             query_seeds=()) -> dict:
     """Retrieval scores of each metric over the labelled entries of a store.
 
     Parameters
@@ -170,13 +196,37 @@ def evaluate(reader, metrics=METRICS, per_class: bool = False, cross_validated: 
     cross_validated : bool
         Add ``"combined (cross-validated)"``: the combined metric's weights learned on this
         very collection, each query scored with weights that never saw its class.
+    query_seeds : sequence of int
+        Sign each query again with each of these seeds (:func:`labelled_features`) instead of
+        ranking the stored signatures against each other: every score is then the mean over
+        the seeds, ``spread`` gives each score's lowest and highest, ``per_seed`` the seeds'
+        own, and ``copy`` how often the query's own entry (an exact copy drawn again) came
+        first. Empty: the stored signatures (they share their points with the entries).
 
     Returns
     -------
     dict
-        ``models``, ``classes``, ``unlabelled``, ``points``, and ``metrics``: name -> scores.
+        ``models``, ``classes``, ``unlabelled``, ``points``, ``query_seeds`` and ``metrics``:
+        name -> scores.
     """
-    data = labelled_features(reader)
+    runs = [_evaluate_once(reader, labelled_features(reader, seed), metrics, per_class, cross_validated, seed is not None)
+            for seed in (tuple(query_seeds) or (None,))]
+    result = runs[0]
+    result["query_seeds"] = [int(seed) for seed in query_seeds]
+    if len(runs) > 1:
+        for name, entry in result["metrics"].items():
+            numbers = [k for k, v in entry.items() if isinstance(v, float)]
+            per_seed = [{k: run["metrics"][name][k] for k in numbers} for run in runs]  # before the mean replaces them
+            entry.update({k: float(np.mean([one[k] for one in per_seed])) for k in numbers})
+            entry["spread"] = {k: [float(min(one[k] for one in per_seed)), float(max(one[k] for one in per_seed))]
+                               for k in numbers}
+            entry["per_seed"] = dict(zip(map(str, query_seeds), per_seed))
+    return result
+
+
+def _evaluate_once(reader, data: LabelledFeatures, metrics, per_class: bool, cross_validated: bool, drawn: bool) -> dict:
+    """:func:`evaluate` on one set of features (with ``drawn``: queries drawn again, so the
+    exact copy's figure ``copy`` is added)."""
     if data.angle_features is None:  # a store built before the normal-angle histograms
         metrics = [m for m in metrics if m not in ANGLE_METRICS]
     sizes = Counter(data.labels)
@@ -196,6 +246,8 @@ def evaluate(reader, metrics=METRICS, per_class: bool = False, cross_validated: 
     for name in metrics:
         scores = retrieval_scores(matrices[name], data.labels, per_query=per_class)
         entry = {s: scores[s] for s in SCORES}
+        if drawn:
+            entry["copy"] = copy_first(matrices[name])
         if per_class:
             entry["per_class"] = per_class_scores(scores, data.labels)
         from ..families.scores import family_scores  # classification and clustering (issue 11)

@@ -19,7 +19,8 @@ from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
 from ..distance.combined import ANGLE_KINDS, class_scales
 from ..errors import StoreError
 from ..ragged import offsets_of
-from ..signing.parameters import HISTOGRAMS, SIGNATURE_VERSION
+from ..search.searcher import check_usable
+from ..signing.parameters import HISTOGRAMS
 from ..store import STATUS_OK, StoreReader
 
 #: Pair values handled per step of :meth:`FamilyTable.pair_distances` (bounds its memory).
@@ -178,11 +179,7 @@ class FamilyTable:
         ``histograms``: the D2 histograms to load (a metric's, ``METRIC_HISTOGRAMS``; combined-angle
         needs none); ``embedding``: the histograms whose stored embedding rows to load
         (default: the same)."""
-        if reader.params.signature_version != SIGNATURE_VERSION:
-            raise StoreError(
-                f"store {reader.path} holds signatures of version {reader.params.signature_version}, this shapeidx"
-                f" makes version {SIGNATURE_VERSION}: rebuild it (delete it and run shapeidx build)"
-            )
+        check_usable(reader)
         rows = np.flatnonzero(reader.column("entries/status") == STATUS_OK)
         hists = {name: RaggedHistograms.from_counts(*reader.counts(name, rows)) for name in histograms}
         means = np.stack([reader.column(f"histograms/{name}/mean")[rows] for name in HISTOGRAMS], axis=1)

@@ -14,7 +14,7 @@ import re
 import signal
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ..io.faceting import Faceting
@@ -98,6 +98,8 @@ class BuildSummary:
     #: and files whose sub-entries (``--parts``) an older reader made.
     older: dict = field(default_factory=dict)
     older_parts: dict = field(default_factory=dict)
+    #: The signature version of the store this build signed again whole (None: it was current).
+    resigned_from: int | None = None
 
     def line(self) -> str:
         return f"{self.indexed} indexed, {self.unchanged} unchanged, {self.removed} removed, {self.failed} failed"
@@ -105,7 +107,9 @@ class BuildSummary:
     def older_line(self) -> str:
         """``; signed again by a newer reader: 37 STEP`` ('' when no file was): why files whose
         size and time did not change were indexed (added after the store's counts)."""
-        return ((f"; signed again by a newer reader: {_counts(self.older)}" if self.older else "")
+        return ((f"; every entry signed again: the store held signature version {self.resigned_from}"
+                 if self.resigned_from is not None else "")
+                + (f"; signed again by a newer reader: {_counts(self.older)}" if self.older else "")
                 + (f"; sub-parts made again by a newer reader: {_counts(self.older_parts)}" if self.older_parts else ""))
 
     root: str = ""
@@ -120,6 +124,7 @@ class BuildSummary:
             "unchanged": self.unchanged,
             "removed": self.removed,
             "failed": self.failed,
+            "resigned_from": self.resigned_from,
             "seconds": round(self.seconds, 3),
             "store": {"path": str(store), "root": self.root, "ok": self.store_ok, "failed": self.store_failed, "bytes": self.store_bytes},
             "failures": [{"path": path, "reason": reason} for path, reason in self.failures],
@@ -206,6 +211,85 @@ def resolve_params(store: Path, options: BuildOptions) -> StoreParams:
                        linear_deflection=linear, angular_deflection=angular)
 
 
+def resign_folder(store: Path) -> Path:
+    """Where a store of an older signature version is signed again, beside it."""
+    return store.with_name(store.name + ".resign")
+
+
+def _older_signature(store: Path) -> int | None:
+    """The signature version of ``store`` when it is older than this shapeidx's (else None)."""
+    from ..store.files import main_file
+
+    if not main_file(store).exists():
+        return None
+    try:
+        with open_store(store, skip_damaged=True) as reader:
+            version = reader.params.signature_version
+    except ShapeidxError:
+        return None  # damaged or unreadable: the build's own checks say so
+    return version if version < SIGNATURE_VERSION else None
+
+
+def _resign(root, store: Path, older: int, options: BuildOptions, reporter) -> "BuildSummary":
+    """Sign every entry of a store of an older signature version again.
+
+    Signatures of two versions are never mixed, and the old store cannot answer queries of the
+    new version, so the build makes a whole new store beside it (:func:`resign_folder`, an
+    ordinary store: a killed build goes on from what it committed) with the old store's
+    parameters but the version, its metadata and thumbnails, and then puts it in the old one's
+    place. Until then readers are refused with the command that finishes it.
+    """
+    import shutil
+
+    from ..store.files import main_file
+
+    side = resign_folder(store)
+    with open_store(store, skip_damaged=True) as reader:
+        old = reader.params
+    reporter.warning(f"{store} holds signatures of version {older}; this shapeidx makes version {SIGNATURE_VERSION}:"
+                     f" every entry is signed again (into {side}, which then replaces it)")
+    side.mkdir(exist_ok=True)
+    for name in ("metadata.h5", "thumbs"):  # what the files' content alone decides: still true
+        source, target = store / name, side / name
+        if source.exists() and not target.exists():
+            (shutil.copytree if source.is_dir() else shutil.copy2)(source, target)
+    if (store / "parts").exists() and not options.parts:
+        reporter.warning(f"{store}/parts (sub-parts) is left out: 'build DIR --store {store} --parts' makes it again")
+    same = replace(options, points=options.points or old.points, seed=old.seed if options.seed is None else options.seed,
+                   linear_deflection=options.linear_deflection or old.faceting.linear_deflection,
+                   angular_deflection=options.angular_deflection or old.faceting.angular_deflection)
+    summary = run_build(root, side, same, reporter)
+    if main_file(side).exists():
+        _swap_in(store, side)
+    summary.resigned_from = older
+    return summary
+
+
+def _swap_in(store: Path, side: Path) -> None:
+    """Put the re-signed store ``side`` in the place of ``store`` (two renames; a build killed
+    between them is completed by :func:`_finish_resign`)."""
+    import shutil
+
+    old = store.with_name(store.name + ".older")
+    if old.exists():
+        shutil.rmtree(old)
+    os.replace(store, old)
+    os.replace(side, store)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _finish_resign(store: Path) -> None:
+    """Complete a swap that a killed build left half done: the re-signed store is in its
+    folder beside the store, and the store is gone (renamed aside)."""
+    import shutil
+
+    side, old = resign_folder(store), store.with_name(store.name + ".older")
+    if not store.exists() and side.exists() and old.exists():
+        os.replace(side, store)
+    if store.exists() and old.exists():
+        shutil.rmtree(old, ignore_errors=True)
+
+
 def _params_of_damaged(store: Path) -> StoreParams | None:
     """The parameters a damaged store was built with, if the attributes of its main file or
     of one of its segments can still be read."""
@@ -246,6 +330,11 @@ def run_build(root, store, options: BuildOptions, reporter) -> BuildSummary:
 
         if convert_one_file_store(store, options.wait, reporter.waiting, options.wait_timeout):
             reporter.warning(f"converted {store} from the one-file layout into a store directory (renames only)")
+    if not options.dry_run:
+        _finish_resign(store)
+        older = _older_signature(store)
+        if older is not None:
+            return _resign(given, store, older, options, reporter)
     params = resolve_params(store, options)
     summary = BuildSummary(root=str(root))
     if options.worker_root and not options.scheduler:

@@ -484,8 +484,15 @@ def check_usable(reader) -> None:
     """Refuse, in one line, a store whose signatures another version of shapeidx made."""
     from ..signing.parameters import SIGNATURE_VERSION
 
-    if reader.params.signature_version != SIGNATURE_VERSION:
-        raise StoreError(
-            f"store {reader.path} holds signatures of version {reader.params.signature_version}, this shapeidx"
-            f" makes version {SIGNATURE_VERSION}: rebuild it (delete it and run shapeidx build)"
-        )
+    version = reader.params.signature_version
+    if version != SIGNATURE_VERSION:
+        from ..store.files import build_command
+        from ..store.layout import as_text
+
+        if version < SIGNATURE_VERSION:
+            way = (f"its next build signs every entry again:"
+                   f" {build_command(reader.path, as_text(reader.attrs.get('root', '')) or None)}")
+        else:
+            way = "a newer shapeidx made it: upgrade shapeidx to read it"
+        raise StoreError(f"store {reader.path} holds signatures of version {version}, this shapeidx"
+                         f" makes version {SIGNATURE_VERSION}: {way}")

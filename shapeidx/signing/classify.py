@@ -49,6 +49,7 @@ from scipy.spatial.distance import pdist
 from ..io.base import column_max, column_min
 from .mesh import unit_normals
 from .occlusion import NativeScene, OcclusionScene, _thread_pool, native_pairs
+from .sampling import z_order
 from .parameters import CLASS_NAMES, IN, MIXED, OUT  # noqa: F401 (re-exported: the class codes)
 
 assert (IN, OUT) == (0, 1)  # classify_pairs writes an agreeing pair's "leaves the material" flag as its class
@@ -218,15 +219,9 @@ def _float32_ends(points: np.ndarray, normals: np.ndarray):
 
 
 def spatial_order(points: np.ndarray) -> np.ndarray:
-    """The points' indices in Morton (Z-curve) order of a 1024^3 grid over their bounds:
+    """The points' indices in Morton (Z-curve) order (:func:`~shapeidx.signing.sampling.z_order`):
     points near each other come near each other, so rays to them run side by side."""
-    lo, hi = column_min(points), column_max(points)
-    cell = ((points - lo) / np.maximum(hi - lo, 1e-300) * 1023).astype(np.uint64)
-    code = np.zeros(len(points), dtype=np.uint64)
-    for bit in range(10):
-        for axis in range(3):
-            code |= ((cell[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
-    return np.argsort(code, kind="stable").astype(np.int32)
+    return z_order(points).astype(np.int32)
 
 
 def _classify_compiled(scene, points, normals, scale, threads: int, packets: bool = True):

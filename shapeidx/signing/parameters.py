@@ -16,7 +16,7 @@ BIN_DIVISOR = 50
 #: a mismatch ("rebuild it"). A change to one format's reader raises that reader's revision
 #: instead (:attr:`shapeidx.io.base.Format.revision`): each entry records it, and a build signs
 #: again only the entries an older revision read.
-SIGNATURE_VERSION = 2  # 2: walls between touching bodies dropped (signing.mesh.shared_walls)
+SIGNATURE_VERSION = 3  # 3: stratified sampling (signing.sampling); 2: walls between touching bodies dropped
 
 #: Codes of the pair classes, as stored in class arrays.
 IN, OUT, MIXED = 0, 1, 2
