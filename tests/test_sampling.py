@@ -94,3 +94,19 @@ def test_same_seed_same_points_other_seed_other_points():
     other, _ = sample_surface(box.vertices, box.faces, 100, 2)
     assert np.array_equal(first, again)
     assert not np.allclose(first, other)
+
+
+def test_a_turned_copy_gets_the_same_points_turned(data_dir):
+    # the triangles are ordered in the surface's own frame, so a rotated and moved copy of a real
+    # part is stratified as the part is: the same seed places the same points on it, turned
+    from shapeidx.signing.pipeline import solid_of_file
+
+    solid = solid_of_file(data_dir / "kicad6/Battery/BatteryHolder_Keystone_500.wrl")
+    q, r = np.linalg.qr(np.random.default_rng(4).normal(size=(3, 3)))
+    rotation = q * np.sign(np.diag(r))
+    rotation *= np.sign(np.linalg.det(rotation))
+    shift = np.array([40.0, -3.0, 12.0])
+    points, faces_hit = sample_surface(solid.vertices, solid.faces, 1024, 9)
+    turned, turned_hit = sample_surface(solid.vertices @ rotation.T + shift, solid.faces, 1024, 9)
+    same = np.all(np.abs(turned - (points @ rotation.T + shift)) < 1e-6 * np.ptp(solid.vertices), axis=1)
+    assert same.mean() > 0.99 and (faces_hit == turned_hit).mean() > 0.99

@@ -80,10 +80,26 @@ def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int, seed: in
 
 
 def curve_order(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """The triangles' indices in the Z-order of their centroids (:func:`z_order`; ties,
-    triangles of one cell, in file order)."""
+    """The triangles' indices in the Z-order (:func:`z_order`) of their centroids in the
+    surface's own frame (:func:`own_frame`): a rotated or moved copy of a part is ordered as
+    the part is (ties, triangles of one cell, in file order)."""
     vertices = np.asarray(vertices, dtype=np.float64)
-    return z_order((vertices[faces[:, 0]] + vertices[faces[:, 1]] + vertices[faces[:, 2]]) / 3)
+    centroids = (vertices[faces[:, 0]] + vertices[faces[:, 1]] + vertices[faces[:, 2]]) / 3
+    return z_order(own_frame(centroids, triangle_areas(vertices, faces)))
+
+
+def own_frame(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``points`` in the frame of their weighted principal axes, each axis pointing to the
+    side of its larger third moment: unchanged by rotation and translation, up to rounding,
+    where the axes are distinct (a part as round as a cylinder about an axis keeps some turn)."""
+    total = weights.sum()
+    if not total > 0 or len(points) < 2:
+        return points
+    centred = points - (weights @ points) / total
+    _, axes = np.linalg.eigh((centred * weights[:, None]).T @ centred / total)
+    local = centred @ axes
+    skew = weights @ local**3
+    return local * np.where(skew < 0, -1.0, 1.0)
 
 
 #: Cells per axis of :func:`z_order`'s grid (2^10: a code fits 30 bits).
