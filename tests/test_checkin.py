@@ -72,3 +72,34 @@ def test_git_range(library, tmp_path):
     done = run("check-new", "--git", "HEAD", "--store", str(store), cwd=repo)
     assert done.returncode == 7, done.stderr
     assert "ALREADY IN THE LIBRARY" in done.stdout and PARTS[1] in done.stdout
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_pre_commit_refuses_a_duplicate_and_passes_a_new_part(library, tmp_path, data_dir):
+    import os
+
+    root, store = library
+    repo = tmp_path / "vault"
+    repo.mkdir()
+    env = {**os.environ, "PRE_COMMIT_HOME": str(tmp_path / "pc-home"), "GIT_AUTHOR_NAME": "t",
+           "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t"}
+    git = lambda *a: subprocess.run(["git", *a], cwd=repo, capture_output=True, text=True, env=env)
+    git("init", "-q")
+    entry = f"{sys.executable} -m shapeidx.cli check-new --store {store}"
+    (repo / ".pre-commit-config.yaml").write_text(
+        "repos:\n  - repo: local\n    hooks:\n      - {id: shapeidx-check-new, name: shapeidx check-new,"
+        f" entry: '{entry}', language: system, files: '\\.wrl$'}}\n")
+    git("add", ".pre-commit-config.yaml")
+    assert git("commit", "-qm", "config").returncode == 0
+    hook = subprocess.run([sys.executable, "-m", "pre_commit", "install"], cwd=repo, capture_output=True, text=True, env=env)
+    assert hook.returncode == 0, hook.stderr
+    shutil.copy(root / PARTS[2], repo / "dup.wrl")
+    git("add", "dup.wrl")
+    refused = git("commit", "-m", "add a duplicate")
+    assert refused.returncode != 0
+    assert "ALREADY IN THE LIBRARY" in refused.stdout + refused.stderr
+    git("rm", "-q", "--cached", "dup.wrl")
+    shutil.copy(data_dir / "kicad6" / "Mounting_Wuerth" / "Mounting_Wuerth_WA-SMST-3.3mm_H1mm_9774010960.wrl", repo / "new.wrl")
+    git("add", "new.wrl")
+    passed = git("commit", "-m", "add a new part")
+    assert passed.returncode == 0, passed.stdout + passed.stderr
