@@ -40,7 +40,8 @@ def file_hash(path: str) -> str:
 
 
 def _guest_table(entry, store_table, rows):
-    """A FamilyTable of the new part (row 0) and the store table's ``rows``."""
+    """A FamilyTable of the new part (row 0, named by ``entry.path``, whose suffix gives its file
+    format for the tier ``converted``) and the store table's ``rows``."""
     from ..store.layout import entries_to_columns
     from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
     from ..signing.parameters import HISTOGRAMS
@@ -65,7 +66,7 @@ def _guest_table(entry, store_table, rows):
         return None if values is None else np.concatenate([columns[name].reshape(1, -1), values])
 
     return FamilyTable(
-        paths=np.concatenate([np.array(["\0new"], dtype=object), part.paths]),
+        paths=np.concatenate([np.array([entry.path], dtype=object), part.paths]),
         rows=np.concatenate([[-1], part.rows]), histograms=hists,
         fractions=join("entries/fractions", part.fractions), means=np.concatenate([means, part.means]),
         hashes=np.concatenate([columns["entries/hash"], part.hashes]),
@@ -126,7 +127,7 @@ class Checker:
         rows = [r for r in rows if own is None or self.table.paths[r] != own]
         solid = query.solid
         st = os.stat(path)
-        entry = Entry.indexed("\0new", digest, st.st_size, st.st_mtime_ns, query.signature, solid.describe(),
+        entry = Entry.indexed("\0new/" + os.path.basename(path), digest, st.st_size, st.st_mtime_ns, query.signature, solid.describe(),
                               shape_facts(solid.vertices, solid.faces))
         dups, looks = [], []
         if rows:
