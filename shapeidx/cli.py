@@ -1200,5 +1200,115 @@ def duplicates(store, metric, with_similar, with_near, where, scale, parts, as_c
                        f"  {'yes' if p['mirrored'] else '':8s}  {printable(p['b'])}")
 
 
+@main.command("check-new", context_settings=CONTEXT)
+@click.argument("paths", nargs=-1)
+@store_option
+@click.option("--git", "git_rev", metavar="REV",
+              help="Check the part files that a commit (REV) or a range (A..B) added or changed; ':staged' for the"
+                   " files staged for the next commit (a pre-commit hook).")
+@click.option("--exclude-self", is_flag=True,
+              help="Leave each file's own entry out of the answer: the file checked as new against the store"
+                   " without it (leave one out).")
+@click.option("--look-alikes", default=5, show_default=True, type=click.IntRange(0),
+              help="Nearest look-alikes (not duplicates) reported per new part.")
+@click.option("--sheet", "sheet", metavar="OUT.html", help="Also write the answers as an HTML sheet with pictures.")
+@format_options
+def check_new(paths, store, git_rev, exclude_self, look_alikes, sheet, output_format, as_json):
+    """Is each new or changed part file already in the library? For each, the store's parts that
+    are the same part (tiers identical, same, converted, as duplicates says them: size ratio, unit
+    factor, mirror flag) and, apart, its nearest look-alikes worth reusing.
+
+    A file the store holds under the same path with the same content is not news (unchanged).
+    Exit status: 0 nothing found, 7 a duplicate found, 1 a file or the store could not be used,
+    5 a damaged store (docs/checkin.md).
+
+    \b
+    Example:
+      shapeidx check-new new/Resistor_0603.wrl --store library.shapeidx
+      shapeidx check-new --git origin/main..HEAD --store library.shapeidx --format json
+    """
+    from .errors import LoadError, ShapeidxError, StoreDamagedError, StoreLockedError
+    from .families.checkin import Checker, git_changed
+
+    files = list(paths)
+    if git_rev:
+        files += git_changed(git_rev)
+    if not files:
+        if git_rev:
+            click.echo(f"shapeidx: check-new: no part file added or changed in {git_rev}", err=True)
+            return
+        raise click.UsageError("give PATH... or --git REV")
+    reports, failed = [], False
+    with Checker(_store_path(store)) as checker:
+        for path in files:
+            try:
+                if not os.path.isfile(path):
+                    raise LoadError(path, "no such file" if not os.path.exists(path) else "not a regular file")
+                reports.append(checker.check(path, exclude_self=exclude_self, look_alikes=look_alikes))
+            except (StoreDamagedError, StoreLockedError):
+                raise
+            except (ShapeidxError, OSError) as exc:
+                failed = True
+                line = _error_line(exc)
+                if printable(path) not in line:
+                    line = line.replace("shapeidx: error: ", f"shapeidx: error: {printable(path)}: ", 1)
+                click.echo(line, err=True)
+                reports.append({"file": path, "status": "error", "reason": plain_reason(exc),
+                                "duplicates": [], "look_alikes": []})
+    fmt = chosen_format(output_format, as_json)
+    if fmt == "json":
+        emit_json(reports)
+    elif fmt != "table":
+        rows = [{"file": r["file"], "status": r["status"], "kind": kind, "tier": h["tier"], "distance": h["distance"],
+                 "size_ratio": h["size_ratio"], "unit": h["unit"], "mirrored": h["mirrored"], "path": h["path"]}
+                for r in reports for kind in ("duplicates", "look_alikes") for h in r[kind]]
+        rows += [{"file": r["file"], "status": r["status"], "kind": "", "tier": "", "distance": "", "size_ratio": "",
+                  "unit": "", "mirrored": "", "path": ""} for r in reports if not r["duplicates"] and not r["look_alikes"]]
+        emit_rows(fmt, ["file", "status", "kind", "tier", "distance", "size_ratio", "unit", "mirrored", "path"], rows)
+    else:
+        def size_of(h):
+            ratio = "?" if h["size_ratio"] is None else f"x{h['size_ratio']:.4g}"
+            return ratio + (f" (unit factor {h['unit']:.4g})" if h.get("unit") else "") + (" mirrored" if h["mirrored"] else "")
+
+        for r in reports:
+            if r["status"] == "error":
+                continue
+            if r["status"] == "unchanged":
+                click.echo(f"{printable(r['file'])}: unchanged (the store holds it under this path, same content)")
+                continue
+            head = "ALREADY IN THE LIBRARY" if r["duplicates"] else "new"
+            click.echo(f"{printable(r['file'])}: {head}")
+            for h in r["duplicates"]:
+                click.echo(f"  duplicate  {h['tier']:10s} {h['distance']:<10.4g} {size_of(h)}  {printable(h['path'])}"
+                           f"  ({h['words']})")
+            for h in r["look_alikes"]:
+                click.echo(f"  look-alike {h['tier']:10s} {h['distance']:<10.4g} {size_of(h)}  {printable(h['path'])}"
+                           f"  ({h['words']})")
+    if sheet:
+        _check_new_sheet(sheet, reports)
+    if failed:
+        sys.exit(exits.ERROR)
+    if any(r["duplicates"] for r in reports):
+        sys.exit(exits.DUPLICATES)
+
+
+def _check_new_sheet(out, reports):
+    """A plain HTML sheet of the reports (thumbnails left to query --sheet)."""
+    import html
+
+    rows = []
+    for r in reports:
+        rows.append(f"<h2>{html.escape(str(r['file']))}: {html.escape(r['status'])}</h2><table>")
+        for kind in ("duplicates", "look_alikes"):
+            for h in r[kind]:
+                rows.append(f"<tr><td>{kind}</td><td>{html.escape(h['tier'])}</td><td>{h['distance']:.4g}</td>"
+                            f"<td>{html.escape(str(h['size_ratio']))}</td><td>{'mirrored' if h['mirrored'] else ''}</td>"
+                            f"<td>{html.escape(h['path'])}</td></tr>")
+        rows.append("</table>")
+    with open(out, "w", encoding="utf-8") as f:
+        f.write("<!doctype html><meta charset=utf-8><title>shapeidx check-new</title>" + "\n".join(rows))
+    click.echo(f"wrote {out}", err=True)
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

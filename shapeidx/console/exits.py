@@ -26,6 +26,9 @@ DAMAGED = 5
 #: Not 1 (grep's "no match"): 1 already means "could not run" in every command, and a
 #: script must be able to tell an empty answer from a failure.
 NO_ANSWER = 6
+#: ``check-new``: a new part is already in the store (a duplicate of tier identical, same or
+#: converted). Distinct from 1 (could not check) and 6 (no answer), so a gate can tell them apart.
+DUPLICATES = 7
 #: A bug in shapeidx: one line, the traceback with ``SHAPEIDX_DEBUG=1``. Please report it.
 INTERNAL = 70
 #: Interrupted (Ctrl-C, SIGTERM); a build commits the work done before it exits.
@@ -41,6 +44,7 @@ EXIT_STATUSES = {
     "or check --files found entries whose files changed",
     NO_ANSWER: "no answer: the query's filters or --max-distance leave no hit, or the store has no entry yet"
     " (stderr says which)",
+    DUPLICATES: "check-new: a new part is already in the store (a duplicate of tier identical, same or converted)",
     INTERNAL: "internal error (a bug): run again with SHAPEIDX_DEBUG=1 for the traceback",
     INTERRUPTED: "interrupted (Ctrl-C or SIGTERM); a build commits its work first",
 }

@@ -1,0 +1,188 @@
+"""``shapeidx check-new``: is this new part already in the library?
+
+Each new or changed part file is signed with the store's parameters, its nearest entries
+are found on the one query road (:class:`shapeidx.search.searcher.Searcher`, metric
+:data:`~shapeidx.families.duplicates.DEFAULT_METRIC`), joined by the entries whose file
+content is the same, and each candidate pair is put in its tier by
+:func:`shapeidx.families.duplicates.pair_tiers` over a small table of the new part and its
+candidates: the same tiers, thresholds, size ratio, unit factor and mirror flag as
+``shapeidx duplicates``, never a second copy of them. Pairs of tier ``identical``, ``same``
+or ``converted`` are *duplicates*; the other candidates are *look-alikes* (``similar``,
+``near`` or a plain neighbour), nearest first.
+
+A file that the store holds under the same path with the same content is not news (it is
+reported as ``unchanged`` and checked no further). ``exclude_self`` leaves the file's own
+entry out of the answer: "checked as new against the store without it".
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+
+import numpy as np
+
+from ..errors import ShapeidxError
+from .duplicates import DEFAULT_METRIC, DEFAULT_TIERS, TIERS, pair_tiers
+
+#: Nearest entries looked at per new part.
+CANDIDATES = 20
+#: Look-alikes reported per new part.
+LOOK_ALIKES = 5
+
+
+def file_hash(path: str) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _guest_table(entry, store_table, rows):
+    """A FamilyTable of the new part (row 0, named by ``entry.path``, whose suffix gives its file
+    format for the tier ``converted``) and the store table's ``rows``."""
+    from ..store.layout import entries_to_columns
+    from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
+    from ..signing.parameters import HISTOGRAMS
+    from .table import FamilyTable, RaggedHistograms
+    from ..ragged import offsets_of
+
+    columns, counts = entries_to_columns([entry])
+    part = store_table.subset(np.asarray(rows, dtype=np.int64))
+    hists = {}
+    for name, ragged in part.histograms.items():
+        flat, lengths = counts[name]
+        guest = RaggedHistograms.from_counts(flat, lengths)
+        hists[name] = RaggedHistograms(np.concatenate([guest.p, ragged.p]),
+                                       offsets_of(np.concatenate([guest.lengths, ragged.lengths])))
+    means = np.array([[columns[f"histograms/{h}/mean"][0] for h in HISTOGRAMS]])
+    angles = None
+    if part.angles is not None:
+        raw = columns["entries/angles"].reshape(1, len(ANGLE_HISTOGRAMS), ANGLE_BINS)
+        angles = np.concatenate([angle_probabilities(raw), part.angles])
+
+    def join(name, values):
+        return None if values is None else np.concatenate([columns[name].reshape(1, -1), values])
+
+    return FamilyTable(
+        paths=np.concatenate([np.array([entry.path], dtype=object), part.paths]),
+        rows=np.concatenate([[-1], part.rows]), histograms=hists,
+        fractions=join("entries/fractions", part.fractions), means=np.concatenate([means, part.means]),
+        hashes=np.concatenate([columns["entries/hash"], part.hashes]),
+        extents=join("entries/extents", part.extents), handedness=join("entries/handedness", part.handedness),
+        missing_columns=part.missing_columns, bounds=join("entries/bounds", part.bounds),
+        moments=join("entries/moments", part.moments), angles=angles)
+
+
+class Checker:
+    """A store opened to check new parts against (``with Checker(store) as c: c.check(path)``)."""
+
+    def __init__(self, store, metric: str = DEFAULT_METRIC, scale: str = "invariant"):
+        from ..search.searcher import Searcher
+        from ..distance import METRIC_HISTOGRAMS
+        from .table import FamilyTable
+
+        self.metric, self.scale = metric, scale
+        self.searcher = Searcher(store)
+        reader = self.searcher.view.reader if hasattr(self.searcher.view, "reader") else None
+        from ..store import open_store
+
+        with open_store(store) as r:
+            self.table = FamilyTable.load(r, METRIC_HISTOGRAMS.get(metric, ()) if isinstance(METRIC_HISTOGRAMS, dict) else ())
+            status = r.column("entries/status")
+            self.stored = dict(zip(r.paths.tolist(), [h.decode() if isinstance(h, bytes) else str(h)
+                                                       for h in r.column("entries/hash")]))
+        self.by_hash = {}
+        for i, h in enumerate(self.table.hashes):
+            self.by_hash.setdefault(h.decode() if isinstance(h, bytes) else str(h), []).append(i)
+        del reader, status
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.searcher.close()
+
+    def check(self, path: str, exclude_self: bool = False, candidates: int = CANDIDATES,
+              look_alikes: int = LOOK_ALIKES) -> dict:
+        """The report on one file: ``file``, ``status`` (``unchanged``, ``duplicate``, ``new``),
+        ``duplicates`` and ``look_alikes`` (each: ``path``, ``tier``, ``distance``,
+        ``size_ratio``, ``unit``, ``mirrored``, ``words``)."""
+        from ..search.searcher import Filters
+        from ..signing.moments import shape_facts
+        from ..store.layout import Entry
+
+        digest = file_hash(path)
+        entry_name = self.searcher.entry_path_of(path)
+        if not exclude_self and entry_name is not None and self.stored.get(entry_name) == digest:
+            return {"file": path, "entry": entry_name, "status": "unchanged", "duplicates": [], "look_alikes": []}
+        query = self.searcher.query_of_part(path)
+        answer = self.searcher.search(query, top=candidates, metric=self.metric,
+                                      filters=Filters(exclude_self=exclude_self))
+        own = query.entry if exclude_self else None
+        rows = [self.table.index_of(h.relative_path) for h in answer.hits]
+        rows = [r for r in rows if r is not None]
+        rows += [r for r in self.by_hash.get(digest, []) if r not in rows]
+        rows = [r for r in rows if own is None or self.table.paths[r] != own]
+        solid = query.solid
+        st = os.stat(path)
+        entry = Entry.indexed("\0new/" + os.path.basename(path), digest, st.st_size, st.st_mtime_ns, query.signature, solid.describe(),
+                              shape_facts(solid.vertices, solid.faces))
+        dups, looks = [], []
+        if rows:
+            table = _guest_table(entry, self.table, rows)
+            b = np.arange(1, len(rows) + 1)
+            facts = pair_tiers(table, np.zeros(len(rows), np.int64), b, self.metric, self.scale)
+            root = self.searcher.root
+            for k, r in enumerate(rows):
+                tier = str(facts["tier"][k])
+                ratio, unit = float(facts["size_ratio"][k]), float(facts["unit"][k])
+                item = {"path": os.path.join(root, str(self.table.paths[r])) if root else str(self.table.paths[r]),
+                        "relative_path": str(self.table.paths[r]), "tier": tier or "look-alike",
+                        "distance": float(facts["distance"][k]),
+                        "size_ratio": ratio if np.isfinite(ratio) else None,
+                        "unit": unit if np.isfinite(unit) else None, "mirrored": bool(facts["mirrored"][k]),
+                        "words": TIER_WORDS.get(tier, TIER_WORDS[""])}
+                (dups if tier in DEFAULT_TIERS else looks).append(item)
+        order = lambda i: (TIERS.index(i["tier"]) if i["tier"] in TIERS else len(TIERS), i["distance"], i["path"])
+        dups.sort(key=order)
+        looks.sort(key=lambda i: (i["distance"], i["path"]))
+        return {"file": path, "entry": query.entry, "status": "duplicate" if dups else "new",
+                "duplicates": dups, "look_alikes": looks[:look_alikes]}
+
+
+TIER_WORDS = {
+    "identical": "the same file",
+    "same": "the same part (same surface)",
+    "converted": "the same part in another format",
+    "similar": "one body, details may differ (a series sibling)",
+    "near": "a near duplicate",
+    "": "a look-alike worth a look",
+}
+
+
+def git_changed(rev: str, cwd: str = ".") -> list[str]:
+    """The part files a commit range added or changed (``REV`` alone: ``REV^..REV``; ``A..B``; the
+    staged files for ``--git --cached``-like ``:staged``), absolute paths."""
+    import subprocess
+
+    from ..io.formats import SUFFIXES
+
+    if rev == ":staged":
+        args = ["git", "diff", "--cached", "--name-only", "--diff-filter=AM", "-z"]
+    else:
+        span = rev if ".." in rev else f"{rev}^..{rev}"
+        args = ["git", "diff", "--name-only", "--diff-filter=AM", "-z", span]
+    try:
+        top = subprocess.run(["git", "rev-parse", "--show-toplevel"], cwd=cwd, capture_output=True, text=True,
+                             check=True).stdout.strip()
+        out = subprocess.run(args, cwd=cwd, capture_output=True, check=True).stdout.decode("utf-8", "surrogateescape")
+    except FileNotFoundError:
+        raise ShapeidxError("git is not installed")
+    except subprocess.CalledProcessError as exc:
+        raise ShapeidxError(f"git cannot list the files of {rev!r}: {exc.stderr.decode(errors='replace').strip()}")
+    suffixes = tuple(s for group in SUFFIXES.values() for s in group)
+    names = [n for n in out.split("\0") if n]
+    return [os.path.join(top, n) for n in names
+            if n.lower().removesuffix(".gz").endswith(suffixes)]

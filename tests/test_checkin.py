@@ -1,0 +1,105 @@
+"""shapeidx check-new on real KiCad parts and a real store: exit statuses, not-news, leave one out."""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+PARTS = ["Battery/BatteryHolder_Keystone_500.wrl", "Battery/BatteryHolder_Keystone_104_1x23mm.wrl",
+         "Battery/BatteryHolder_Keystone_105_1x2430.wrl"]
+
+
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "shapeidx.cli", *args], capture_output=True, text=True, cwd=cwd)
+
+
+@pytest.fixture(scope="module")
+def library(data_dir, tmp_path_factory):
+    root = tmp_path_factory.mktemp("lib")
+    for name in PARTS:
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(data_dir / "kicad6" / name, root / name)
+    store = root.parent / "lib.shapeidx"
+    done = run("build", str(root), "--store", str(store), "--workers", "1", "-q")
+    assert done.returncode == 0, done.stderr
+    return root, store
+
+
+def test_copy_is_a_duplicate_and_own_file_is_not_news(library, tmp_path):
+    root, store = library
+    copy = tmp_path / "copy.wrl"
+    shutil.copy(root / PARTS[0], copy)
+    done = run("check-new", str(copy), "--store", str(store), "--format", "json")
+    assert done.returncode == 7, done.stderr
+    report = json.loads(done.stdout)[0]
+    assert report["status"] == "duplicate"
+    assert report["duplicates"][0]["tier"] == "identical"
+    assert report["duplicates"][0]["relative_path"] == PARTS[0]
+    own = run("check-new", str(root / PARTS[0]), "--store", str(store))
+    assert own.returncode == 0 and "unchanged" in own.stdout
+    alone = run("check-new", str(root / PARTS[0]), "--store", str(store), "--exclude-self", "--format", "json")
+    assert alone.returncode == 0, alone.stderr
+    assert json.loads(alone.stdout)[0]["status"] == "new"
+
+
+def test_bad_input_is_one_line_and_status_1(library, tmp_path):
+    root, store = library
+    bad = tmp_path / "bad.wrl"
+    bad.write_text("junk\n")
+    done = run("check-new", str(bad), "--store", str(store))
+    assert done.returncode == 1
+    assert done.stderr.count("\n") == 1 and str(bad) in done.stderr and "Traceback" not in done.stderr
+    missing = run("check-new", str(bad), "--store", str(tmp_path / "none.shapeidx"))
+    assert missing.returncode == 1
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_git_range(library, tmp_path):
+    root, store = library
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    git = lambda *a: subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *a], cwd=repo, check=True,
+                                    capture_output=True)
+    git("init", "-q")
+    (repo / "README").write_text("x\n")
+    git("add", "README")
+    git("commit", "-qm", "start")
+    shutil.copy(root / PARTS[1], repo / "dup.wrl")
+    git("add", "dup.wrl")
+    git("commit", "-qm", "add a duplicate")
+    done = run("check-new", "--git", "HEAD", "--store", str(store), cwd=repo)
+    assert done.returncode == 7, done.stderr
+    assert "ALREADY IN THE LIBRARY" in done.stdout and PARTS[1] in done.stdout
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_pre_commit_refuses_a_duplicate_and_passes_a_new_part(library, tmp_path, data_dir):
+    import os
+
+    root, store = library
+    repo = tmp_path / "vault"
+    repo.mkdir()
+    env = {**os.environ, "PRE_COMMIT_HOME": str(tmp_path / "pc-home"), "GIT_AUTHOR_NAME": "t",
+           "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t"}
+    git = lambda *a: subprocess.run(["git", *a], cwd=repo, capture_output=True, text=True, env=env)
+    git("init", "-q")
+    entry = f"{sys.executable} -m shapeidx.cli check-new --store {store}"
+    (repo / ".pre-commit-config.yaml").write_text(
+        "repos:\n  - repo: local\n    hooks:\n      - {id: shapeidx-check-new, name: shapeidx check-new,"
+        f" entry: '{entry}', language: system, files: '\\.wrl$'}}\n")
+    git("add", ".pre-commit-config.yaml")
+    assert git("commit", "-qm", "config").returncode == 0
+    hook = subprocess.run([sys.executable, "-m", "pre_commit", "install"], cwd=repo, capture_output=True, text=True, env=env)
+    assert hook.returncode == 0, hook.stderr
+    shutil.copy(root / PARTS[2], repo / "dup.wrl")
+    git("add", "dup.wrl")
+    refused = git("commit", "-m", "add a duplicate")
+    assert refused.returncode != 0
+    assert "ALREADY IN THE LIBRARY" in refused.stdout + refused.stderr
+    git("rm", "-q", "--cached", "dup.wrl")
+    shutil.copy(data_dir / "kicad6" / "Mounting_Wuerth" / "Mounting_Wuerth_WA-SMST-3.3mm_H1mm_9774010960.wrl", repo / "new.wrl")
+    git("add", "new.wrl")
+    passed = git("commit", "-m", "add a new part")
+    assert passed.returncode == 0, passed.stdout + passed.stderr
