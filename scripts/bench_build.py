@@ -28,7 +28,15 @@ Measured, in one run on one machine:
   measured (the facts an entry keeps beside its signature) again on one thread, in CPU
   seconds over the floor's CPU seconds (what the build would cost with no overhead of its
   own); ``--floor-only`` leaves this out, ``--floor-jobs J`` shares it (and the floor)
-  among J processes.
+  among J processes;
+* whether the per-file passes slow each other down when they run at once (``--concurrent N``):
+  the same N parts' stages timed in one process alone, then in ``--workers`` processes at
+  once, each over all N (started together); each stage's CPU at once over its CPU alone.
+  A build's workers whose stages cost more than the floor's own measure while this stays near
+  1.0 are slowed by something else than the passes' memory traffic (the machine, the build);
+* the CPU time the hypervisor took from this machine (``steal`` in ``/proc/stat``) during the
+  build and during the floor: on a shared virtual machine it is charged to nobody's process,
+  yet stretches every wall time.
 
 With ``--scheduler`` the build runs on that Dask cluster (``--workers`` is then only the
 floor's divisor: give the cluster's thread count; the memory and CPU figures are then those of
@@ -219,6 +227,48 @@ def _floor_of(tree: Path, paths: list, points: int, stages: bool = True) -> dict
     return found
 
 
+def concurrent_stages(tree: Path, store: Path, points: int, parts: int, jobs: int) -> tuple[dict, list[dict]]:
+    """The stages of the same ``parts`` parts (a fixed random sample of the ok entries) timed
+    in one process alone, then in ``jobs`` processes at once, each over all of them."""
+    import multiprocessing
+
+    from shapeidx.store import STATUS_OK, open_store
+
+    with open_store(store) as reader:
+        paths = list(reader.paths[reader.column("entries/status") == STATUS_OK])
+    sample = random.Random(0).sample(paths, min(parts, len(paths)))
+    context = multiprocessing.get_context("spawn")
+    runs = []
+    for count in (1, jobs):
+        results, start = context.Queue(), context.Barrier(count)
+        processes = [context.Process(target=_floor_at_once, args=(tree, sample, points, start, results))
+                     for _ in range(count)]
+        for process in processes:
+            process.start()
+        runs.append([results.get() for _ in processes])
+        for process in processes:
+            process.join()
+    return runs[0][0], runs[1]
+
+
+def _floor_at_once(tree: Path, paths: list, points: int, start, results) -> None:
+    """:func:`_floor_of` in a process of its own, started when every process of its run has
+    imported what it needs; its figures go to ``results``."""
+    from shapeidx.signing import pipeline  # noqa: F401 (the imports outside the timing)
+
+    start.wait()
+    results.put(_floor_of(tree, paths, points))
+
+
+def steal_ticks() -> int:
+    """The CPU ticks the hypervisor took from this machine so far (0 where unknown)."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
+        return int(fields[8])
+    except (OSError, IndexError, ValueError):
+        return 0
+
+
 def bare_query_of(solid, points: int):
     return bench.bare_query(solid, points)
 
@@ -236,6 +286,8 @@ def main() -> int:
                         help="after the build, time only the floor, not the per-file stages (half the time)")
     parser.add_argument("--floor-jobs", type=int, default=1,
                         help="processes that time the floor and the stages after the build (each on one thread)")
+    parser.add_argument("--concurrent", type=int, default=0, metavar="N",
+                        help="time N parts' stages alone, then in --workers processes at once (0: not)")
     args = parser.parse_args()
     print(f"machine: {machine()}")
     print(f"command: {shlex.join([sys.executable, *sys.argv])}")
@@ -249,7 +301,9 @@ def main() -> int:
     args.work.mkdir(parents=True, exist_ok=True)
     store = args.work / f"bench-build-{os.getpid()}.shapeidx"
     try:
+        steal_started = steal_ticks()
         build = timed_build(tree, store, args.workers, args.scheduler)
+        steal_build = steal_ticks() - steal_started
         record = build["record"]
         print(f"build: {build['command']}")
         print(f"  {record['indexed']} indexed, {record['failed']} failed in {build['wall']:.1f} s:"
@@ -260,7 +314,9 @@ def main() -> int:
         print(f"load average during the build (1-minute, sampled every second): mean {sum(loads) / len(loads):.2f},"
               f" max {max(loads):.2f}")
         print(f"load average after the build: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+        steal_started = steal_ticks()
         found = floor_seconds(tree, store, 1024, args.floor_jobs, not args.floor_only)
+        steal_floor = steal_ticks() - steal_started
         print(f"load average after the floor: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
         floor, floor_cpu, parts = found["bare"], found["bare_cpu"], found["parts"]
         ratio = build["wall"] / (floor / args.workers)
@@ -269,9 +325,13 @@ def main() -> int:
         print(f"wall / floor: {ratio:.2f} (target at most {TARGET}){'' if ratio <= TARGET else ' OVER TARGET'}")
         print(f"CPU / floor CPU: {build['cpu']:.1f} s / {floor_cpu:.1f} s = {build['cpu'] / floor_cpu:.2f}"
               f" (the build's processes together)")
+        tick = os.sysconf("SC_CLK_TCK")
+        print(f"CPU taken by the hypervisor (steal): {steal_build / tick:.1f} s during the build,"
+              f" {steal_floor / tick:.1f} s during the floor")
         stages = ("hash", "load", "solid", "signature", "facts")
         if not args.floor_only:
-            print("per-file work on one thread, CPU over the floor's CPU: "
+            where = "on one thread" if args.floor_jobs <= 1 else f"on one thread in each of {args.floor_jobs} processes at once"
+            print(f"per-file work {where}, CPU over the floor's CPU: "
                   + ", ".join(f"{stage} {found[stage] / floor_cpu:.2f}" for stage in stages)
                   + f"; together {sum(found[stage] for stage in stages) / floor_cpu:.2f}")
         profile = record.get("profile")
@@ -283,6 +343,13 @@ def main() -> int:
             if cpu["workers_total"] is not None:
                 print("  workers: " + ", ".join(f"{k} {v / floor_cpu:.3f}" for k, v in cpu["workers"].items())
                       + f"; together {cpu['workers_total'] / floor_cpu:.3f} ({profile['workers_started']} processes started)")
+        if args.concurrent:
+            alone, together = concurrent_stages(tree, store, 1024, args.concurrent, args.workers)
+            print(f"the same {alone['parts']} parts' stages in {args.workers} processes at once, CPU over their CPU alone"
+                  f" (alone: {sum(alone[s] for s in stages):.1f} s):")
+            for k, at_once in enumerate(together):
+                print(f"  process {k + 1}: " + ", ".join(f"{s} {at_once[s] / max(alone[s], 1e-9):.2f}" for s in (*stages, "bare"))
+                      + f"; together {sum(at_once[s] for s in stages) / sum(alone[s] for s in stages):.2f}")
         print(f"load average at the end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     finally:
         shutil.rmtree(store, ignore_errors=True)
