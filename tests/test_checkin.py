@@ -103,3 +103,45 @@ def test_pre_commit_refuses_a_duplicate_and_passes_a_new_part(library, tmp_path,
     git("add", "new.wrl")
     passed = git("commit", "-m", "add a new part")
     assert passed.returncode == 0, passed.stdout + passed.stderr
+
+
+def test_the_gate_answers_from_the_store_while_its_nightly_build_runs(data_dir, tmp_path):
+    """A library's cron build keeps the store current; a check-in while it runs answers from what
+    the store has committed (the duplicate is found, exit 7), and once the build is done the parts
+    it added are found too."""
+    import time
+
+    root = tmp_path / "lib"
+    for name in PARTS:
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(data_dir / "kicad6" / name, root / name)
+    store = tmp_path / "lib.shapeidx"
+    assert run("build", str(root), "--store", str(store), "--workers", "1", "-q").returncode == 0
+    arrived = sorted((data_dir / "kicad6").glob("Connector_*/*.wrl"))[:40]
+    assert len(arrived) == 40
+    for path in arrived:
+        target = root / "new" / path.parent.name / path.name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(path, target)
+    copy = tmp_path / "copy.wrl"
+    shutil.copy(root / PARTS[0], copy)
+    nightly = subprocess.Popen([sys.executable, "-m", "shapeidx.cli", "build", str(root), "--store", str(store),
+                                "--workers", "1", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while "running" not in (store / "build.json").read_text() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        during = run("check-new", str(copy), "--store", str(store), "--format", "json")
+        still_running = nightly.poll() is None
+    finally:
+        out, err = nightly.communicate(timeout=600)
+    assert nightly.returncode == 0, err
+    assert still_running, "the build ended before the check: give it more files"
+    assert during.returncode == 7, during.stderr
+    assert json.loads(during.stdout)[0]["duplicates"][0]["relative_path"] == PARTS[0]
+    newcomer = tmp_path / "newcomer.wrl"
+    shutil.copy(arrived[-1], newcomer)
+    after = run("check-new", str(newcomer), "--store", str(store), "--format", "json")
+    assert after.returncode == 7, after.stderr
+    found = [d["relative_path"] for d in json.loads(after.stdout)[0]["duplicates"]]
+    assert f"new/{arrived[-1].parent.name}/{arrived[-1].name}" in found

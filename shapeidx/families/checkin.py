@@ -39,6 +39,11 @@ def file_hash(path: str) -> str:
     return digest.hexdigest()
 
 
+def _text(digest) -> str:
+    """A stored hash as text (HDF5 gives bytes)."""
+    return digest.decode() if isinstance(digest, bytes) else str(digest)
+
+
 def _guest_table(entry, store_table, rows):
     """A FamilyTable of the new part (row 0, named by ``entry.path``, whose suffix gives its file
     format for the tier ``converted``) and the store table's ``rows``."""
@@ -79,24 +84,23 @@ class Checker:
     """A store opened to check new parts against (``with Checker(store) as c: c.check(path)``)."""
 
     def __init__(self, store, metric: str = DEFAULT_METRIC, scale: str = "invariant"):
-        from ..search.searcher import Searcher
         from ..distance import METRIC_HISTOGRAMS
+        from ..search.searcher import Searcher
+        from ..store import open_store
         from .table import FamilyTable
 
         self.metric, self.scale = metric, scale
         self.searcher = Searcher(store)
-        reader = self.searcher.view.reader if hasattr(self.searcher.view, "reader") else None
-        from ..store import open_store
-
-        with open_store(store) as r:
-            self.table = FamilyTable.load(r, METRIC_HISTOGRAMS.get(metric, ()) if isinstance(METRIC_HISTOGRAMS, dict) else ())
-            status = r.column("entries/status")
-            self.stored = dict(zip(r.paths.tolist(), [h.decode() if isinstance(h, bytes) else str(h)
-                                                       for h in r.column("entries/hash")]))
-        self.by_hash = {}
-        for i, h in enumerate(self.table.hashes):
-            self.by_hash.setdefault(h.decode() if isinstance(h, bytes) else str(h), []).append(i)
-        del reader, status
+        try:
+            with open_store(store) as reader:
+                self.table = FamilyTable.load(reader, METRIC_HISTOGRAMS[metric])
+                self.stored = dict(zip(reader.paths.tolist(), (_text(h) for h in reader.column("entries/hash"))))
+        except BaseException:
+            self.searcher.close()
+            raise
+        self.by_hash: dict[str, list[int]] = {}
+        for row, digest in enumerate(self.table.hashes):
+            self.by_hash.setdefault(_text(digest), []).append(row)
 
     def __enter__(self):
         return self
@@ -105,10 +109,11 @@ class Checker:
         self.searcher.close()
 
     def check(self, path: str, exclude_self: bool = False, candidates: int = CANDIDATES,
-              look_alikes: int = LOOK_ALIKES) -> dict:
+              look_alikes: int = LOOK_ALIKES, seed: int | None = None) -> dict:
         """The report on one file: ``file``, ``status`` (``unchanged``, ``duplicate``, ``new``),
         ``duplicates`` and ``look_alikes`` (each: ``path``, ``tier``, ``distance``,
-        ``size_ratio``, ``unit``, ``mirrored``, ``words``)."""
+        ``size_ratio``, ``unit``, ``mirrored``, ``words``). ``seed``: the new part's points drawn
+        with this seed rather than the store's (studies: no stored entry shares its points)."""
         from ..search.searcher import Filters
         from ..signing.moments import shape_facts
         from ..store.layout import Entry
@@ -117,7 +122,7 @@ class Checker:
         entry_name = self.searcher.entry_path_of(path)
         if not exclude_self and entry_name is not None and self.stored.get(entry_name) == digest:
             return {"file": path, "entry": entry_name, "status": "unchanged", "duplicates": [], "look_alikes": []}
-        query = self.searcher.query_of_part(path)
+        query = self.searcher.query_of_part(path, seed=seed)
         answer = self.searcher.search(query, top=candidates, metric=self.metric,
                                       filters=Filters(exclude_self=exclude_self))
         own = query.entry if exclude_self else None

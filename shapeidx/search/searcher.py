@@ -280,10 +280,11 @@ class Searcher:
 
     # -- what is asked
     def query_of_part(self, part, file_type: str | None = None, label: str | None = None,
-                      threads: int | None = None) -> Query:
+                      threads: int | None = None, seed: int | None = None) -> Query:
         """A part (path, file object, arrays, trimesh, Solid, or a Signature with the store's
         parameters) signed with the store's parameters; its own entry found when it is a
-        file of the store's tree."""
+        file of the store's tree. ``seed``: draw its points with this seed instead of the
+        store's (a query whose points nothing in the store shares: the honest twin question)."""
         from ..signing.histogram import Signature
 
         solid = None
@@ -298,8 +299,8 @@ class Searcher:
             from ..signing.pipeline import signature_of_solid
 
             solid = load_part(part, file_type, LoadLimits(faceting=self.params.faceting))  # faceted as the store's
-            signature = signature_of_solid(solid, self.params.points, self.params.seed, self.params.bin_divisor,
-                                           threads or 1)
+            signature = signature_of_solid(solid, self.params.points, self.params.seed if seed is None else seed,
+                                           self.params.bin_divisor, threads or 1)
         path = os.path.abspath(part) if isinstance(part, (str, os.PathLike)) else None
         entry = self.entry_path_of(part) if path is not None else None
         found = self.view.find(entry) if entry is not None else None
