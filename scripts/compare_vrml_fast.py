@@ -58,12 +58,12 @@ def compare(path: Path) -> tuple[bool, bool]:
     """(same, read by the fast path)"""
     from shapeidx.io.base import LoadLimits, read_bytes
     from shapeidx.io.vrml import fast
-    from shapeidx.io.vrml.reader import _VrmlLoad
+    from shapeidx.io.vrml.reader import VrmlLoad
 
     took_fast = False
     try:
         data = read_bytes(path)[0]
-        load = _VrmlLoad(path, LoadLimits(), data)
+        load = VrmlLoad(path, LoadLimits(), data)
         took_fast = fast.load_flat(path, data, load.limits, load.check_expansion) is not None
     except Exception:
         pass

@@ -144,9 +144,9 @@ def write_solid(solid, trsf, path: Path) -> None:
     from OCP.BRepBuilderAPI import BRepBuilderAPI_Transform
     from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
 
-    from shapeidx.io.step import _quiet_opencascade
+    from shapeidx.io.step import quiet_opencascade
 
-    _quiet_opencascade()
+    quiet_opencascade()
     writer = STEPControl_Writer()
     writer.Transfer(BRepBuilderAPI_Transform(solid, trsf, True).Shape(), STEPControl_AsIs)
     writer.Write(str(path))
@@ -174,9 +174,9 @@ def main() -> None:
     metrics = args.metrics or ["weighted", "combined-angle", "all-angle", "all"]
     scales = args.scales or ["sensitive", "invariant"]
     from shapeidx.families.duplicates import thresholds as duplicate_thresholds
-    from shapeidx.io.step import _quiet_opencascade
+    from shapeidx.io.step import quiet_opencascade
 
-    _quiet_opencascade()
+    quiet_opencascade()
     tree = Path(args.tree).resolve()
     rng = np.random.default_rng(args.seed)
 

@@ -17,7 +17,7 @@ from storetools import build, small_kicad
 
 from shapeidx.console import exits
 from shapeidx.io.formats import FORMAT_NAMES
-from shapeidx.store.writer import StoreLock
+from shapeidx.store.lock import StoreLock
 
 
 @pytest.fixture(scope="module")

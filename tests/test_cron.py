@@ -13,7 +13,7 @@ from storetools import FAST_POINTS, build, copy_tree, small_kicad
 
 from shapeidx.console import exits
 from shapeidx.store import open_store
-from shapeidx.store.writer import StoreLock
+from shapeidx.store.lock import StoreLock
 
 BROKEN = "mesh-wild/openscad-testdata/testdata/stl/unparseable.stl"
 #: "invalidvertex.stl" fails with a reason whose Python text holds a bytes repr (b'blah').

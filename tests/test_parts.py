@@ -530,7 +530,7 @@ class TestBuildAndWhereUsed:
         (both refused: 'being created'), the sub-part commands say the build stopped and how to
         build it (they said 'a first build has just begun... try again in a moment', forever),
         and while a build holds the lock they still say it is being created."""
-        from shapeidx.store.writer import StoreLock
+        from shapeidx.store.lock import StoreLock
         from shapeidx.web.app import StoreService
 
         root, query = library

@@ -44,9 +44,9 @@ HOLLERITH_OVERRUN = Path(__file__).parent / "data" / "step" / "hollerith_overrun
 
 
 def _quiet():
-    from shapeidx.io.step import _quiet_opencascade
+    from shapeidx.io.step import quiet_opencascade
 
-    _quiet_opencascade()  # the writers report to stdout otherwise
+    quiet_opencascade()  # the writers report to stdout otherwise
 
 
 def write_step(shape, path: Path, unit: str = "MM") -> Path:

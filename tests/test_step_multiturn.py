@@ -19,7 +19,8 @@ from clitools import cli
 from test_step import placement, write_assembly, write_step
 
 from shapeidx.io import LoadLimits, load
-from shapeidx.io.parts import _areas, _triangles_of, split_parts
+from shapeidx.io.parts import split_parts
+from shapeidx.io.polygons import fan_triangles, triangle_areas
 
 pytest.importorskip("OCP", reason="cadquery-ocp-novtk (OpenCASCADE) is a dependency of shapeidx")
 
@@ -103,16 +104,16 @@ END-ISO-10303-21;
 
 
 def area(mesh) -> float:
-    return float(_areas(np.asarray(mesh.vertices, dtype=np.float64), _triangles_of(mesh)).sum())
+    return float(triangle_areas(np.asarray(mesh.vertices, dtype=np.float64), fan_triangles(mesh)).sum())
 
 
 def as_read_by_opencascade(path: Path):
     """The file's shape as OpenCASCADE's plain reader gives it (no shapeidx in between)."""
     from OCP.STEPControl import STEPControl_Reader
 
-    from shapeidx.io.step import _quiet_opencascade
+    from shapeidx.io.step import quiet_opencascade
 
-    _quiet_opencascade()
+    quiet_opencascade()
     reader = STEPControl_Reader()
     assert str(reader.ReadFile(str(path))).endswith("RetDone")
     reader.TransferRoots()
@@ -174,8 +175,8 @@ class TestCylinderBand:
         boxes = [([-2, -2, 0], [2, 2, 3]), ([8, -2, 0], [12, 2, 3]), ([-2, -3, 18], [2, 0, 22])]
         owners = [np.all((v >= np.array(lo) - 1e-6) & (v <= np.array(hi) + 1e-6), axis=1) for lo, hi in boxes]
         assert all(o.sum() > 0 for o in owners) and sum(o.sum() for o in owners) == len(v)
-        triangles = _triangles_of(mesh)
-        areas = _areas(v, triangles)
+        triangles = fan_triangles(mesh)
+        areas = triangle_areas(v, triangles)
         # the three copies: the same area each
         copy_areas = [areas[owner[triangles].all(axis=1)].sum() for owner in owners]
         assert copy_areas == pytest.approx([copy_areas[0]] * 3, rel=1e-9)

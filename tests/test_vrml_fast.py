@@ -20,7 +20,7 @@ from shapeidx.errors import LoadError
 from shapeidx.io import load
 from shapeidx.io.base import LoadLimits
 from shapeidx.io.vrml import fast, scene
-from shapeidx.io.vrml.reader import _VrmlLoad
+from shapeidx.io.vrml.reader import VrmlLoad
 
 from conftest import DATA, REPO
 
@@ -66,7 +66,7 @@ def outcome(path, fast_on: bool, limits: LoadLimits | None = None):
 
 def read_by_fast_path(path, data: bytes | None = None) -> bool:
     data = path.read_bytes() if data is None else data
-    load_ = _VrmlLoad(path, LoadLimits(), data)
+    load_ = VrmlLoad(path, LoadLimits(), data)
     return fast.load_flat(path, data, load_.limits, load_.check_expansion) is not None
 
 

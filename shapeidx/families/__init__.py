@@ -9,5 +9,7 @@ candidate step, FAISS over fixed-length embeddings, is :mod:`shapeidx.store.cand
     classify.py    distance-weighted k-NN vote            (shapeidx classify)
     cluster.py     Ward on the exact matrix, or the graph (shapeidx cluster)
     duplicates.py  identical / same / near tiers           (shapeidx duplicates)
+    checkin.py     is a new part already in the store?    (shapeidx check-new)
+    cluster_plot.py  a picture of the clusters             (shapeidx cluster --plot)
     agreement.py   NMI and ARI; scores.py: the figures of shapeidx evaluate
 """

@@ -250,10 +250,10 @@ def _save(fig, output: Path) -> None:
     from matplotlib import rc_context
 
     from ..errors import ShapeidxError
-    from ..pictures.plot import _metadata
+    from ..pictures.plot import stable_metadata
 
     try:
         with rc_context({"svg.fonttype": "none", "svg.hashsalt": "shapeidx"}):
-            fig.savefig(output, dpi=150, format=output.suffix.lower()[1:], metadata=_metadata(output))
+            fig.savefig(output, dpi=150, format=output.suffix.lower()[1:], metadata=stable_metadata(output))
     except OSError as exc:
         raise ShapeidxError(f"{output}: cannot write the figure ({exc.strerror or exc})") from None

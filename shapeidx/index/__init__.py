@@ -6,6 +6,8 @@
     commit.py    outcomes into journal batches, merges
     progress.py  a progress bar on a terminal, log lines otherwise
     build.py     all of it: run_build
+dask_pool.py the per-file work on a Dask cluster (build --scheduler); remote.py its workers
+shards.py    build --shards: a store sharded by path key
 """
 
 from .build import BuildOptions, BuildSummary, run_build

@@ -33,7 +33,7 @@ import uuid
 from ..errors import ShapeidxError
 from ..store import StoreParams
 from .remote import WorkerSetupError, index_on_worker
-from .workers import DEFAULT_TIMEOUT, START_TIMEOUT, Outcome, Task, _failure, one_line
+from .workers import DEFAULT_TIMEOUT, START_TIMEOUT, Outcome, Task, failed_outcome, one_line
 
 #: Files in flight per worker thread: enough that no thread waits for the client, few enough
 #: that the scheduler and the client hold little for a tree of a million files.
@@ -180,7 +180,7 @@ class DaskPool:
             if isinstance(error, distributed.KilledWorker):
                 allowed = getattr(error, "allowed_failures", None)
                 times = "" if allowed is None else f", {allowed + 1} time{'s' * (allowed != 0)}"
-                return _failure(task, one_line(f"dask workers died while indexing this file{times}"
+                return failed_outcome(task, one_line(f"dask workers died while indexing this file{times}"
                                                " (more than the scheduler's distributed.scheduler.allowed-failures)"))
             if isinstance(error, WorkerSetupError):
                 raise ShapeidxError(str(error)) from None

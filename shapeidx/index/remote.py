@@ -16,7 +16,7 @@ so a file keeps the local guarantees wherever it runs:
 The child is a plain ``subprocess`` (not ``multiprocessing``): Dask's worker processes are
 daemonic, and daemonic processes may not start ``multiprocessing`` children. It talks over
 two pipes with :class:`multiprocessing.connection.Connection`, and it is the same loop as a
-local worker's (:func:`.workers._worker_main`).
+local worker's (:func:`.workers.worker_main`).
 
     python -m shapeidx.index.remote FD_IN FD_OUT PARENT_PID    # the child; not for users
 """
@@ -35,7 +35,7 @@ from multiprocessing.connection import Connection
 from ..errors import ShapeidxError
 from ..signing.parameters import SIGNATURE_VERSION
 from ..store import StoreParams
-from .workers import _READY, START_TIMEOUT, Outcome, Task, _failure, _worker_main, death_reason
+from .workers import READY, START_TIMEOUT, Outcome, Task, failed_outcome, worker_main, death_reason
 
 
 class WorkerSetupError(ShapeidxError):
@@ -76,7 +76,7 @@ class _Child:
         """Wait until the child has imported what indexing needs (not part of a file's time)."""
         if not self.ready and self.conn.poll(START_TIMEOUT):
             try:
-                self.ready = self.conn.recv() == _READY
+                self.ready = self.conn.recv() == READY
             except (EOFError, OSError):
                 pass
         if not self.ready:
@@ -100,7 +100,7 @@ class _Child:
         else:
             if self.process.poll() is None:  # nothing came, and it still runs: the time limit passed
                 self.kill()
-                return _failure(task, f"timed out after {timeout:g} s (the per-file limit, --timeout)"), True
+                return failed_outcome(task, f"timed out after {timeout:g} s (the per-file limit, --timeout)"), True
         try:
             status = self.process.wait(timeout=5)
         except subprocess.TimeoutExpired:
@@ -109,7 +109,7 @@ class _Child:
         if status is not None and status > 0:
             raise WorkerSetupError(f"{socket.gethostname()}: the indexing process of a dask worker failed to run"
                                    f" (exit status {status})")
-        return _failure(task, death_reason(status)), True
+        return failed_outcome(task, death_reason(status)), True
 
     def kill(self) -> None:
         if self.process.poll() is None:
@@ -156,9 +156,9 @@ def _child_main(argv: list[str]) -> None:
     incoming, outgoing, parent = int(argv[0]), int(argv[1]), int(argv[2])
     conn = _Duplex(Connection(incoming, writable=False), Connection(outgoing, readable=False))
     params, root = conn.recv()
-    # blocked as a local worker's are at its spawn: _worker_main unblocks them once it ignores them
+    # blocked as a local worker's are at its spawn: worker_main unblocks them once it ignores them
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-    _worker_main(conn, params, root, parent)
+    worker_main(conn, params, root, parent)
 
 
 if __name__ == "__main__":

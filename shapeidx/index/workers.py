@@ -367,7 +367,8 @@ def limit_memory(limit: int | None) -> bool:
     return True
 
 
-def _worker_main(conn, params: StoreParams, root: str, parent: int, memory_limit: int | None = None) -> None:
+def worker_main(conn, params: StoreParams, root: str, parent: int, memory_limit: int | None = None) -> None:
+    """A worker process's loop: say :data:`READY`, then index each task received on ``conn`` until told to stop."""
     from ..io.contained import run_here
     from ..system import keep_freed_memory
 
@@ -382,7 +383,7 @@ def _worker_main(conn, params: StoreParams, root: str, parent: int, memory_limit
     signal.pthread_sigmask(signal.SIG_UNBLOCK, _PARENT_SIGNALS)  # blocked since the spawn
     from ..signing import pipeline  # noqa: F401 (imported before the first file's clock starts)
 
-    conn.send(_READY)
+    conn.send(READY)
     while True:
         try:
             task = conn.recv()
@@ -394,7 +395,7 @@ def _worker_main(conn, params: StoreParams, root: str, parent: int, memory_limit
 
 
 #: What a worker sends once it has imported what indexing needs.
-_READY = "ready"
+READY = "ready"
 #: Seconds a new worker may take to start (imports on a loaded machine) before the build gives up.
 START_TIMEOUT = 120.0
 
@@ -415,7 +416,7 @@ class _Worker:
     def __init__(self, context, params: StoreParams, root: str, memory_limit: int | None = None):
         self.conn, child = context.Pipe()
         self.process = context.Process(
-            target=_worker_main, args=(child, params, root, os.getpid(), memory_limit), daemon=True
+            target=worker_main, args=(child, params, root, os.getpid(), memory_limit), daemon=True
         )
         # the new process inherits blocked signals: none can reach it before it ignores them
         previous = signal.pthread_sigmask(signal.SIG_BLOCK, _PARENT_SIGNALS)
@@ -439,7 +440,7 @@ class _Worker:
             return
         if wait([self.conn, self.process.sentinel], START_TIMEOUT) and self.conn.poll():
             try:
-                self.ready = self.conn.recv() == _READY
+                self.ready = self.conn.recv() == READY
             except (EOFError, OSError):
                 pass
 
@@ -576,9 +577,9 @@ class WorkerPool:
                 # Python itself failed in the worker (a broken installation, not a bad file):
                 # recording every file as failed would hide it, and they would not be retried
                 raise ShapeidxError(f"a worker process failed to run (exit status {worker.process.exitcode})")
-            return _failure(task, death_reason(worker.process.exitcode)), True
+            return failed_outcome(task, death_reason(worker.process.exitcode)), True
         if time.monotonic() >= worker.deadline:
-            return _failure(task, f"timed out after {self.timeout:g} s (the per-file limit, --timeout)"), True
+            return failed_outcome(task, f"timed out after {self.timeout:g} s (the per-file limit, --timeout)"), True
         return None, False
 
     def close(self) -> None:
@@ -594,7 +595,7 @@ class WorkerPool:
         self.workers = []
 
 
-def _failure(task: Task, reason: str) -> Outcome:
+def failed_outcome(task: Task, reason: str) -> Outcome:
     """A file whose worker died or timed out: failed, with what is known of it."""
     try:
         stat = os.stat(task.absolute)

@@ -10,7 +10,13 @@ reason. gzip compression is detected from the content, for every format.
     vrml/                         VRML 1.0 and 2.0 (a package of its own: lexer, parser, ...)
     step.py                       STEP and IGES solids, faceted by OpenCASCADE (faceting.py)
     base.py                       PolygonMesh, Format, LoadLimits, reading (gzipped) bytes
+    formats.py                    the formats' names and suffixes: the one list
     registry.py                   the formats, and load / load_bytes / format_of over them
+    contained.py                  native readers in a child process: a crash or hang, one error line
+    text.py                       decoding text files of unknown encoding
+    metadata.py                   what a file says of itself (title, product id)
+    parts.py                      a file's sub-parts (solids, bodies) for build --parts;
+                                  polygons.py the fans, areas and label rows it needs
 
 Names are loaded on first use (:mod:`shapeidx._lazy`): ``shapeidx.io.faceting`` and the
 command line's option defaults must not import every reader.

@@ -41,6 +41,7 @@ import numpy as np
 
 from ..errors import LoadError
 from .base import LoadLimits, PolygonMesh, read_bytes
+from .polygons import fan_triangles, members_of, triangle_areas
 
 __all__ = ["SubPart", "split_parts", "own_frame", "MAX_PARTS", "SAME_TOLERANCE", "PARTS_VERSION"]
 
@@ -96,10 +97,10 @@ def split_parts(path, limits: LoadLimits | None = None, format_name: str | None 
     path = Path(path)
     name = format_name or format_of(path)
     if name in ("step", "iges"):
-        from .step import _contained
+        from .step import run_opencascade
 
         # OpenCASCADE in a child process (a build worker is its own): a crash costs one error line
-        return _contained(_solid_model_parts, path, limits)
+        return run_opencascade(_solid_model_parts, path, limits)
     if name == "vrml":
         from .vrml.groups import vrml_groups
 
@@ -114,13 +115,13 @@ def split_parts(path, limits: LoadLimits | None = None, format_name: str | None 
 
 def _solid_model_parts(path: Path, limits: LoadLimits) -> list[SubPart] | None:
     from .faceting import Faceting
-    from .step import _quiet_opencascade, read_shape, sniff_solid_model, tessellate, triangles_of, unwound
+    from .step import quiet_opencascade, read_shape, sniff_solid_model, tessellate, triangles_of, unwound
 
     data, _ = read_bytes(path, limits)
     kind = sniff_solid_model(data)
     if kind == "step" and len(_SOLID_ENTITY.findall(data, 0, len(data))) <= 1:
         return None  # one solid and no assembly: the file is its one part (no OpenCASCADE read)
-    _quiet_opencascade()
+    quiet_opencascade()
     solids = _named_solids(path, data) if kind == "step" else None
     if solids is None:  # IGES, or a STEP file XCAF cannot read: the plain transfer's solids, unnamed
         solids = [("", solid) for solid in _solids_of(read_shape(path, data, limits).shape)]  # unwound there
@@ -270,7 +271,7 @@ def _same_groups(invariants: list) -> list[list[int]]:
 def _largest(parts: list[SubPart]) -> list[SubPart]:
     """Largest first (by area of one copy), at most :data:`MAX_PARTS`."""
     def area(part):
-        return float(_areas(part.mesh.vertices, _triangles_of(part.mesh)).sum())
+        return float(triangle_areas(part.mesh.vertices, fan_triangles(part.mesh)).sum())
 
     return sorted(parts, key=area, reverse=True)[:MAX_PARTS]
 
@@ -280,7 +281,7 @@ def _largest(parts: list[SubPart]) -> list[SubPart]:
 
 def _mesh_parts(mesh: PolygonMesh) -> list[SubPart] | None:
     """The connected bodies of a mesh (VRML, STL, OBJ, OFF, PLY), identical ones counted once."""
-    triangles = _triangles_of(mesh)
+    triangles = fan_triangles(mesh)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     if len(triangles) == 0:
         return None
@@ -289,7 +290,7 @@ def _mesh_parts(mesh: PolygonMesh) -> list[SubPart] | None:
     count = int(labels.max()) + 1 if len(labels) else 0
     if count <= 1:
         return None
-    areas = _areas(vertices, triangles)
+    areas = triangle_areas(vertices, triangles)
     total = float(areas.sum())
     bodies = [mine for mine in members_of(labels) if float(areas[mine].sum()) > MIN_AREA_SHARE * total]
     if len(bodies) <= 1:
@@ -309,15 +310,15 @@ def _grouped_parts(grouped: list[tuple[str, PolygonMesh]]) -> list[SubPart] | No
     pieces = []  # (name, mesh, triangles, area)
     for name, mesh in grouped:
         vertices = np.asarray(mesh.vertices, dtype=np.float64)
-        triangles = _triangles_of(mesh)
+        triangles = fan_triangles(mesh)
         if len(triangles) == 0:
             continue
         polygon_of = np.repeat(np.arange(len(mesh.face_sizes)), np.asarray(mesh.face_sizes) - 2)
         labels = _components(_merge_coincident(vertices, triangles), len(vertices))
-        areas = _areas(vertices, triangles)
+        areas = triangle_areas(vertices, triangles)
         for mine in members_of(labels):
             piece = _polygons_of(mesh, np.unique(polygon_of[mine]))
-            pieces.append((name, piece, _triangles_of(piece), float(areas[mine].sum())))
+            pieces.append((name, piece, fan_triangles(piece), float(areas[mine].sum())))
     total = sum(piece[3] for piece in pieces)
     pieces = [piece for piece in pieces if piece[3] > MIN_AREA_SHARE * total]  # specks left out
     if not pieces:
@@ -345,30 +346,6 @@ def _polygons_of(mesh: PolygonMesh, polygons: np.ndarray) -> PolygonMesh:
                        local.reshape(-1).astype(np.int64), mesh.format)
 
 
-def members_of(labels: np.ndarray) -> list[np.ndarray]:
-    """The indices holding each label, label by label (one sort: a mesh of a million separate
-    triangles has a million labels)."""
-    labels = np.asarray(labels)
-    if len(labels) == 0:
-        return []
-    order = np.argsort(labels, kind="stable")
-    cuts = np.flatnonzero(np.diff(labels[order])) + 1
-    return np.split(order, cuts)
-
-
-def _triangles_of(mesh: PolygonMesh) -> np.ndarray:
-    """Polygons fanned into triangles (the split needs only connectivity and areas)."""
-    sizes = np.asarray(mesh.face_sizes, dtype=np.int64)
-    corners = np.asarray(mesh.face_indices, dtype=np.int64)
-    if len(sizes) == 0:
-        return np.zeros((0, 3), dtype=np.int64)
-    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-    fans = sizes - 2
-    first = np.repeat(starts, fans)
-    step = np.arange(int(fans.sum())) - np.repeat(np.cumsum(fans) - fans, fans)
-    return np.stack([corners[first], corners[first + step + 1], corners[first + step + 2]], axis=1)
-
-
 def _merge_coincident(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Triangles with coincident vertices (within 1e-9 of the extent) given one index."""
     extent = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0))) or 1.0
@@ -388,11 +365,6 @@ def _components(triangles: np.ndarray, n_vertices: int) -> np.ndarray:
     _, labels = connected_components(graph, directed=False)
     _, labels = np.unique(labels[:k], return_inverse=True)
     return labels.reshape(-1)
-
-
-def _areas(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    a, b, c = (vertices[triangles[:, i]] for i in range(3))
-    return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
 
 
 def _sub_mesh(vertices: np.ndarray, triangles: np.ndarray, mesh: PolygonMesh) -> PolygonMesh:
@@ -447,7 +419,7 @@ def own_frame(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     _, axes = np.linalg.eigh(covariance)
     axes = axes[:, ::-1]  # largest spread first
     centres = moved[triangles].mean(axis=1)
-    weights = _areas(moved, triangles)
+    weights = triangle_areas(moved, triangles)
     for k in range(3):
         if np.dot(weights, (centres @ axes[:, k]) ** 3) < 0:
             axes[:, k] = -axes[:, k]

@@ -126,7 +126,7 @@ def read_step(path, data: bytes | None = None, limits: LoadLimits | None = None)
         data, _ = read_bytes(path, limits)
     kind = check_solid_model(Path(path), data)  # the cheap refusals need no child process
     try:
-        return _contained(_read_step, path, limits, kind, data)
+        return run_opencascade(_read_step, path, limits, kind, data)
     except LoadError as exc:
         problem = _iges_directory_problem(data) if kind == "iges" and "crashed reading it" in exc.reason else None
         if problem:  # what OpenCASCADE died of, most likely
@@ -134,7 +134,8 @@ def read_step(path, data: bytes | None = None, limits: LoadLimits | None = None)
         raise
 
 
-def _contained(function, path, limits: LoadLimits, *args):
+def run_opencascade(function, path, limits: LoadLimits, *args):
+    """``function(path, limits, *args)`` run by OpenCASCADE in a contained process (time and memory bounded)."""
     return run_contained(function, (Path(path), limits) + args, path, "OpenCASCADE",
                          limits.max_seconds, limits.max_bytes)
 
@@ -174,7 +175,7 @@ def faceting_report(path, faceting: Faceting | None = None, limits: LoadLimits |
     """
     limits = limits or LoadLimits()
     faceting = faceting or limits.faceting or Faceting()
-    return _contained(_faceting_report, path, limits, faceting, seed)
+    return run_opencascade(_faceting_report, path, limits, faceting, seed)
 
 
 def _faceting_report(path: Path, limits: LoadLimits, faceting: Faceting, seed: int) -> dict:
@@ -207,7 +208,7 @@ def read_shape(path: Path, data: bytes | None, limits: LoadLimits, kind: str | N
         data, _ = read_bytes(path, limits)
     if kind is None:
         kind = check_solid_model(path, data)
-    _quiet_opencascade()
+    quiet_opencascade()
     # OpenCASCADE reads from a file name: gzip-compressed or in-memory content goes through
     # a private temporary copy (also spares OCCT unusual characters in the real name)
     with tempfile.TemporaryDirectory(prefix="shapeidx-step-") as folder:
@@ -423,7 +424,7 @@ def _file_units(reader) -> list:
 _QUIET = False
 
 
-def _quiet_opencascade() -> None:
+def quiet_opencascade() -> None:
     """Stop OpenCASCADE's messenger from writing to stdout (it would mix with our output)."""
     global _QUIET
     if _QUIET:

@@ -123,7 +123,7 @@ def plot_signatures(named: list, output: str | os.PathLike, title: str | None = 
 
     try:
         with rc_context({"svg.fonttype": "none", "svg.hashsalt": "shapeidx"}):  # SVG text stays text
-            fig.savefig(output, dpi=150, format=output.suffix.lower()[1:], metadata=_metadata(output))
+            fig.savefig(output, dpi=150, format=output.suffix.lower()[1:], metadata=stable_metadata(output))
     except OSError as exc:
         from ..errors import ShapeidxError
 
@@ -131,7 +131,8 @@ def plot_signatures(named: list, output: str | os.PathLike, title: str | None = 
     return output
 
 
-def _metadata(output: Path) -> dict:
+def stable_metadata(output: Path) -> dict:
+    """Matplotlib's ``metadata`` for ``output`` that leaves out the creation date."""
     # no creation date: the same parts give the same file (docs stay byte-stable)
     suffix = output.suffix.lower()
     if suffix == ".svg":

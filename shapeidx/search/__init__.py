@@ -6,7 +6,9 @@
     distances.py  the distances from a query to the store's entries: the one place they are
                   computed (lower bounds, exact distances, the candidate step)
     hits.py       Hit and Answer: the same fields on every surface
+    blocks.py     the block bounds a long-lived process (serve, a held Searcher) prunes with
     sharded.py    a sharded store: every shard's exact top k (here or on Dask workers), merged
+    where_used.py the files holding a sub-part like a given one, nearest first
 
 Names load on first use.
 """

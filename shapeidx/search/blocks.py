@@ -48,7 +48,7 @@ from ..distance.metrics import REGISTRY
 from ..distance.metrics import metric as metric_record
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
 from ..signing.parameters import CLASS_NAMES, HISTOGRAMS
-from .distances import RANK_THREADS, _coarse, distances, entry_features
+from .distances import RANK_THREADS, coarse_query, distances, entry_features
 
 #: Entries per block.
 BLOCK = 256
@@ -281,7 +281,7 @@ class BlockIndex:
             query_p = np.asarray(signature.histograms[h].p, dtype=np.float64)
             l1 = np.zeros(blocks)
             for factor, lo, hi in self.levels[h]:  # each level's bound holds: the larger one
-                coarse = _coarse(query_p, factor) if len(query_p) else np.zeros(0)
+                coarse = coarse_query(query_p, factor) if len(query_p) else np.zeros(0)
                 width = max(lo.shape[1], len(coarse))
                 q = np.zeros(width)
                 q[: len(coarse)] = coarse
@@ -324,7 +324,7 @@ class BlockIndex:
         for h in record.histograms:
             p, bins = self.cached[h]
             query_p = np.asarray(signature.histograms[h].p, dtype=np.float64)
-            coarse = _coarse(query_p, self.fine[h]) if len(query_p) else np.zeros(0)
+            coarse = coarse_query(query_p, self.fine[h]) if len(query_p) else np.zeros(0)
             width = max(p.shape[1], len(coarse))
             q = np.zeros(width, dtype=np.float32)
             q[: len(coarse)] = coarse

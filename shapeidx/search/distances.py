@@ -49,7 +49,7 @@ def histogram_distances(view, h: str, query_p, positions=None, coarse: bool = Fa
         outs.append(out)
         with view.checked(i):
             blocks = section.blocks(h, "coarse" if coarse else "counts")
-        query = _coarse(query_p, section.coarse) if coarse else query_p
+        query = coarse_query(query_p, section.coarse) if coarse else query_p
         for part in _halves(blocks, len(query_p)) if pool is not None else [blocks]:
             jobs.append((i, part, out, query))
     rank = _bound_blocks if coarse else _rank_blocks
@@ -124,7 +124,7 @@ def _at_positions(view, h: str, query_p: np.ndarray, positions: np.ndarray, coar
     out = np.zeros(len(positions))
     for i, mine, rank_positions in view.by_file(positions):
         section = view.sections[i]
-        query = _coarse(query_p, section.coarse) if coarse else query_p
+        query = coarse_query(query_p, section.coarse) if coarse else query_p
         with view.checked(i):
             starts, slot = section.slots(h)
             blocks = section.blocks(h, "coarse" if coarse else "counts")
@@ -140,7 +140,8 @@ def _at_positions(view, h: str, query_p: np.ndarray, positions: np.ndarray, coar
     return out
 
 
-def _coarse(query_p: np.ndarray, factor: int) -> np.ndarray:
+def coarse_query(query_p: np.ndarray, factor: int) -> np.ndarray:
+    """The query's probabilities summed ``factor`` bins at a time, as the stored ``rank/H/coarse``."""
     padded = np.zeros(-(-len(query_p) // factor) * factor)
     padded[: len(query_p)] = query_p
     return padded.reshape(-1, factor).sum(axis=1)

@@ -466,7 +466,7 @@ class Searcher:
 
     def empty_reason(self) -> str:
         """Why a store has nothing to rank: no entry yet (a build runs, stopped, or none ran), or none ok."""
-        from ..store.writer import read_build_state
+        from ..store.lock import read_build_state
 
         total = len(self.reader)
         if total:

@@ -7,6 +7,7 @@
     classify.py    -> distances and IN / OUT / MIXED classes of every pair (3.2.2, 3.2.3)
     occlusion.py      the ray queries classify needs, through Embree
     histogram.py   -> Signature: four D2 histograms and the class fractions (3.2.4)
+    angles.py      -> the normal-angle histograms of the same pairs (beyond the paper)
     moments.py     beside it: size, principal radii, handedness, moments (exact integrals)
     pipeline.py    the road above in three functions: solid_of_file, signature_of_solid,
                    signature_of_file

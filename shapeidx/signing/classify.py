@@ -48,7 +48,7 @@ from scipy.spatial.distance import pdist
 
 from ..io.base import column_max, column_min
 from .mesh import unit_normals
-from .occlusion import NativeScene, OcclusionScene, _thread_pool, native_pairs
+from .occlusion import NativeScene, OcclusionScene, thread_pool, native_pairs
 from .sampling import z_order
 from .parameters import CLASS_NAMES, IN, MIXED, OUT  # noqa: F401 (re-exported: the class codes)
 
@@ -250,7 +250,7 @@ def _classify_compiled(scene, points, normals, scale, threads: int, packets: boo
     else:  # row i holds m - 1 - i pairs: cut the rows where the pair count is shared evenly
         done = np.cumsum(np.arange(m - 1, -1, -1))
         cuts = [0, *np.searchsorted(done, [len(distance) * k / threads for k in range(1, threads)]).tolist(), m]
-        list(_thread_pool(threads).map(rows, cuts[:-1], cuts[1:]))
+        list(thread_pool(threads).map(rows, cuts[:-1], cuts[1:]))
     return distance, classes
 
 

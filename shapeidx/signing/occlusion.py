@@ -56,7 +56,7 @@ class OcclusionScene:
             return query(slice(None))
         self.blocked(points[:1], points[1:2])  # commit the scene once, before the threads race to
         chunks = [slice(c[0], c[-1] + 1) for c in np.array_split(np.arange(len(start_rows)), threads) if len(c)]
-        return np.concatenate(list(_thread_pool(threads).map(query, chunks)))
+        return np.concatenate(list(thread_pool(threads).map(query, chunks)))
 
 
 @lru_cache(maxsize=1)
@@ -68,7 +68,8 @@ def embree_device():
 
 
 @lru_cache(maxsize=2)
-def _thread_pool(threads: int):
+def thread_pool(threads: int):
+    """The process's pool of ``threads`` threads for Embree queries (kept: one per thread count)."""
     from concurrent.futures import ThreadPoolExecutor
 
     return ThreadPoolExecutor(max_workers=threads, thread_name_prefix="shapeidx-embree")

@@ -3,9 +3,9 @@ roads that need it, the one-off query, ``duplicates`` and ``cluster``.
 
 Two questions, one step each, both ending in the exact distance:
 
-* **one part against every entry** (a query: :func:`query_candidates`). Every entry's
-  distance is bounded from below by that of its coarse histograms (``rank/H/coarse``, every
-  8 bins summed, memory-mapped; :meth:`~shapeidx.store.ranked.RankedView.nearest`), and exact
+* **one part against every entry** (a query: :func:`shapeidx.search.distances.nearest`). Every
+  entry's distance is bounded from below by that of its coarse histograms (``rank/H/coarse``,
+  every 8 bins summed, memory-mapped; :mod:`shapeidx.store.ranked`), and exact
   distances are computed only where the bound cannot rule an entry out. For the paper's
   metrics the answer is therefore exact, bit for bit (recall 1 by construction, measured at
   10^6 entries by ``scripts/bench_store.py recall``); for the others (no bound) every entry is
@@ -307,13 +307,3 @@ def candidate_pairs(table, metric: str, k: int, method: str = "auto", threads: i
     _, first = np.unique(which.ravel(), return_index=True)
     a, b = pairs // max(n, 1), pairs % max(n, 1)
     return a, b, exact.ravel()[valid][first], neighbours, neighbour_distances
-
-
-def query_candidates(view, signature, metric: str, top: int, first: int | None = None, exclude: int | None = None,
-                     max_distance: float | None = None):
-    """The query's candidate step over a :class:`~shapeidx.store.ranked.RankedView`: positions
-    and exact distances of a set of live entries holding every entry of the exact ``top``
-    nearest (and ``first``), found with the coarse lower bounds; None for a metric that has no
-    bound (then every entry is ranked exactly). See the module docstring.
-    """
-    return view.nearest(signature, metric, top, first, exclude, max_distance)

@@ -50,6 +50,9 @@ from .layout import (
     write_columns,
     write_counts,
 )
+from .lock import StoreLock
+from .metadata import METADATA_FILE, load_table
+from .reader import StoreBeingCreated, check_store_directory, damaged, open_store, resolve_store_path
 
 
 @dataclass
@@ -142,8 +145,6 @@ class CheckReport:
 
 def usable_store_path(store) -> Path:
     """The store path of the command line (``--store``, ``$SHAPEIDX_STORE``, the default)."""
-    from .reader import resolve_store_path
-
     return resolve_store_path(store)
 
 
@@ -344,13 +345,9 @@ def _store_files(store: Path) -> tuple[list, int | None, dict]:
 
 def check_store(store, files: bool = False) -> CheckReport:
     """Check a store (see the module docstring); ``files``: also hash every entry's file."""
-    from .reader import check_store_directory
-
     store = Path(store)
     check_store_directory(store)
     if not main_file(store).exists():
-        from .reader import open_store
-
         open_store(store).close()  # the reader's one line: not a store, being created, or damaged (5)
     report = CheckReport(store)
     sources, points, attrs = _store_files(store)
@@ -372,7 +369,6 @@ def check_store(store, files: bool = False) -> CheckReport:
                             " merge that rewrites the main file adds them (build --full does)")
     if not report.problems:  # every file sound: is one missing? (a gap in the journal)
         from ..errors import StoreDamagedError
-        from .reader import open_store
 
         try:
             open_store(store).close()
@@ -390,8 +386,6 @@ def check_store(store, files: bool = False) -> CheckReport:
 def _check_parts(store: Path, report: CheckReport) -> None:
     """The sub-parts store (``STORE/parts``) checked as a store of its own, its problems
     named ``parts/FILE`` in ``report`` (its entries ``FILE#n`` have no file of their own to hash)."""
-    from .reader import StoreBeingCreated
-
     sub = parts_store(store)
     if not sub.is_dir() or owner_of_parts(store) is not None:
         return
@@ -409,7 +403,6 @@ def _check_parts(store: Path, report: CheckReport) -> None:
 def _check_metadata(store: Path, report: CheckReport) -> None:
     """The --metadata table (STORE/metadata.h5), read as every command reads it."""
     from ..errors import StoreDamagedError
-    from .metadata import METADATA_FILE, load_table
 
     try:
         load_table(store)
@@ -422,8 +415,6 @@ def _check_metadata(store: Path, report: CheckReport) -> None:
 
 def _check_files(store: Path, root: str | None, report: CheckReport) -> None:
     """Every entry's file (of the merged view) still exists and hashes as stored."""
-    from .reader import open_store
-
     with open_store(store) as reader:
         hashes = reader.column("entries/hash")
         for path, digest in zip(reader.paths, hashes):
@@ -450,7 +441,6 @@ def refuse_damaged(store: Path) -> None:
     very file passed before or was written by the store's own merge (``STORE/verified``,
     :mod:`shapeidx.store.verified`); the caller holds the lock.
     """
-    from .reader import damaged
     from .verified import identity, is_verified, mark_verified
 
     store = Path(store)
@@ -529,8 +519,6 @@ def rebuild_ranking(store: Path, scans: list | None = None) -> list[str]:
 def repair_ranking(store: Path) -> list[str]:
     """``check --repair``: :func:`rebuild_ranking` of the store and of its sub-parts store
     (``STORE/parts``), each under its own lock; returns what was done."""
-    from .writer import StoreLock
-
     done = []
     sub = parts_store(store)
     for target in (Path(store), sub) if sub.is_dir() and main_file(sub).exists() else (Path(store),):

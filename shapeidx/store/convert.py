@@ -17,6 +17,7 @@ import os
 from pathlib import Path
 
 from .files import is_one_file_store, journal_dir, main_file, thumbs_dir
+from .lock import StoreLock
 
 #: The old layout's files beside ``STORE``: suffix -> where it goes in the directory (None: dropped).
 _SIBLINGS = ((".journal", journal_dir), (".thumbs", thumbs_dir), (".verified", None))
@@ -24,8 +25,6 @@ _SIBLINGS = ((".journal", journal_dir), (".thumbs", thumbs_dir), (".verified", N
 
 def convert_one_file_store(store: Path, wait: bool = False, on_wait=None, timeout: float | None = None) -> bool:
     """Convert ``store`` if it is a one-file store (or a conversion was interrupted); True if it did."""
-    from .writer import StoreLock
-
     store = Path(store)
     staging = store.with_name(store.name + ".converting")
     if not is_one_file_store(store) and not staging.is_dir():

@@ -34,6 +34,7 @@ from ..errors import ShapeidxError, printable
 from .files import write_atomically
 from .layout import CONTENT_HASH, as_text, checked, object_array, strings_hash, utc_now
 from .rank import path_keys
+from .reader import damaged
 
 METADATA_FILE = "metadata.h5"
 #: Names the path column may have (case-insensitive), first found wins.
@@ -190,8 +191,6 @@ def load_table(store: Path) -> MetadataTable | None:
     StoreDamagedError
         The file fails its checks.
     """
-    from .reader import damaged
-
     path = metadata_path(store)
     if not path.exists():
         return None

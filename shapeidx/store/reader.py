@@ -36,6 +36,7 @@ from .layout import (
     object_array,
     strings_hash,
 )
+from .lock import lock_held
 
 
 #: Journal files of at most this many entries (a build's batches) are read whole and verified
@@ -542,9 +543,8 @@ def _open_main(path: Path) -> _SourceFile:
             raise damaged(path, f"its main file {main.name} is missing") from None
         if lock_path(path).exists():
             from .files import build_command
-            from .writer import _lock_held
 
-            if not _lock_held(path):  # its first build was killed before it committed anything
+            if not lock_held(path):  # its first build was killed before it committed anything
                 raise StoreBeingCreated(f"the store {path} holds nothing yet: its first build stopped before committing"
                                         f" anything; '{build_command(path)}' builds it") from None
             raise StoreBeingCreated(f"the store {path} is being created: a first build has just begun and committed"

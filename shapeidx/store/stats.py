@@ -6,8 +6,9 @@ import numpy as np
 
 from ..signing.parameters import HISTOGRAMS
 from .layout import STATUS_FAILED, STATUS_OK
-from .reader import StoreReader
-from .writer import read_build_state
+from .lock import read_build_state
+from .metadata import load_table
+from .reader import StoreBeingCreated, StoreReader, open_store
 
 
 def describe_store(reader: StoreReader) -> dict:
@@ -71,7 +72,6 @@ def _parts_facts(store) -> dict | None:
     """
     from .files import parts_store
     from .layout import COUNT_COLUMN, PARENT_COLUMN
-    from .reader import StoreBeingCreated, open_store
 
     path = parts_store(store)
     if not path.is_dir():
@@ -91,8 +91,6 @@ def _parts_facts(store) -> dict | None:
 
 def _metadata_facts(store) -> dict | None:
     """Rows, keys and source of the store's metadata table (``build --metadata``), or None."""
-    from .metadata import load_table
-
     table = load_table(store)
     if table is None:
         return None

@@ -7,6 +7,7 @@
     reader.py    files, gzip, Inline, limits -> a PolygonMesh
     fast.py      flat VRML 2.0 (KiCad) read by the compiled _scan.c in one pass; any
                  other file, or no compiled module, goes the way above
+    groups.py    a file's parts as its grouping nodes (DEF Transforms) give them (build --parts)
 """
 
 from .reader import FORMATS, load_vrml

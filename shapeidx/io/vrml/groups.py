@@ -31,10 +31,11 @@ from pathlib import Path
 import numpy as np
 
 from ..base import LoadLimits, PolygonMesh, read_bytes
+from ..polygons import fan_triangles, members_of, triangle_areas
 from . import fast
 from .geometry import Placement
 from .parser import Node
-from .reader import _VrmlLoad
+from .reader import VrmlLoad
 from .scene import V1_SEPARATORS, V2_GROUPS, MeshBuilder, SceneWalker
 
 __all__ = ["vrml_groups"]
@@ -111,7 +112,7 @@ class _LabelledBuilder(MeshBuilder):
         self.block_labels.extend([self.label] * (len(self.size_blocks) - before))
 
 
-class _GroupsLoad(_VrmlLoad):
+class _GroupsLoad(VrmlLoad):
     def __init__(self, path: Path, limits: LoadLimits, data: bytes):
         super().__init__(path, limits, data)
         self.walker = _MarkingWalker(self.resolve_inline, self.warnings, self.where)
@@ -135,11 +136,9 @@ class _GroupsLoad(_VrmlLoad):
         vertices, sizes, corners = builder.arrays()
         if len(sizes) == 0:
             return None
-        from ..parts import _areas, _triangles_of, members_of
-
         labels = np.repeat(np.array(builder.block_labels, dtype=np.int64), [len(s) for s in builder.size_blocks])
         whole = PolygonMesh(vertices, sizes, corners, f"vrml{top.version}")
-        areas = _areas(vertices, _triangles_of(whole))  # of the fans, polygon by polygon
+        areas = triangle_areas(vertices, fan_triangles(whole))  # of the fans, polygon by polygon
         areas = np.bincount(np.repeat(np.arange(len(sizes)), sizes - 2), weights=areas, minlength=len(sizes))
         fmt = f"vrml{top.version}"
         found = []

@@ -71,10 +71,10 @@ def load_vrml(path, limits: LoadLimits | None = None, data: bytes | None = None)
         One line naming the file, the line when known, and the reason.
     """
     limits = limits or LoadLimits()
-    return _VrmlLoad(Path(path), limits, data).run()
+    return VrmlLoad(Path(path), limits, data).run()
 
 
-class _VrmlLoad:
+class VrmlLoad:
     """One call of :func:`load_vrml`: the files it reads and what it found."""
 
     def __init__(self, path: Path, limits: LoadLimits, data: bytes | None = None):
