@@ -17,26 +17,18 @@ entry out of the answer: "checked as new against the store without it".
 
 from __future__ import annotations
 
-import hashlib
 import os
 
 import numpy as np
 
 from ..errors import ShapeidxError
+from ..io.base import file_hash
 from .duplicates import DEFAULT_METRIC, DEFAULT_TIERS, TIERS, pair_tiers
 
 #: Nearest entries looked at per new part.
 CANDIDATES = 20
 #: Look-alikes reported per new part.
 LOOK_ALIKES = 5
-
-
-def file_hash(path: str) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def _text(digest) -> str:
