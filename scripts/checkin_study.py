@@ -13,7 +13,7 @@ Each question is asked with the new parts' points drawn with each ``--query-seed
 three seeds other than the store's: no stored entry shares a query's points) and reported as
 the mean over the seeds with their spread.
 
-    .venv/bin/python scripts/checkin_study.py --store /work/stores/lib.shapeidx [--random 500] [--xexp]
+    .venv/bin/python scripts/checkin_study.py --store /work/stores/lib.shapeidx [--random 500] [--xexp] [--metric M]
 """
 
 import argparse
@@ -21,12 +21,16 @@ import os
 import random
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import DATA  # noqa: E402
+
+from shapeidx.families.checkin import CANDIDATES  # noqa: E402
+from shapeidx.families.duplicates import DEFAULT_TIERS  # noqa: E402
 
 SEEDS = (7, 8, 9)
 
@@ -63,17 +67,20 @@ def xexp(checker, seed) -> dict:
 
     rows = []
     for path in sorted((DATA / "xexp-dev" / "kicad2017").glob("*.wrl")):
-        report = checker.check(str(path), seed=seed)
-        twin = [d for d in report["duplicates"] if os.path.basename(d["relative_path"]) == path.name]
-        look = [d for d in report["look_alikes"] if os.path.basename(d["relative_path"]) == path.name]
+        # every candidate kept as a look-alike, so the twin's tier is known wherever it ranks
+        report = checker.check(str(path), seed=seed, look_alikes=CANDIDATES)
+        twin = [d for d in report["duplicates"] + report["look_alikes"]
+                if os.path.basename(d["relative_path"]) == path.name]
         rows.append({"name": path.name, "same_model": path.name not in EXCLUDED, "status": report["status"],
-                     "twin_tier": twin[0]["tier"] if twin else ("look-alike" if look else None),
+                     "twin_tier": twin[0]["tier"] if twin else None,
                      "first": report["duplicates"][0] if report["duplicates"] else None})
     positives = [r for r in rows if r["same_model"]]
+    tiers = Counter(r["twin_tier"] or "not among the candidates" for r in positives)
+    remodelled = Counter(r["twin_tier"] or "not among the candidates" for r in rows if not r["same_model"])
     flagged = [r for r in rows if r["status"] == "duplicate"]
-    right = [r for r in flagged if r["twin_tier"] not in (None, "look-alike") and r["same_model"]]
-    return {"rows": rows, "positives": len(positives), "flagged": len(flagged), "right": len(right),
-            "recall": len([r for r in positives if r["twin_tier"] not in (None, "look-alike")]) / len(positives),
+    right = [r for r in flagged if r["twin_tier"] in DEFAULT_TIERS and r["same_model"]]
+    return {"rows": rows, "positives": len(positives), "tiers": tiers, "remodelled": remodelled, "flagged": len(flagged), "right": len(right),
+            "recall": len([r for r in positives if r["twin_tier"] in DEFAULT_TIERS]) / len(positives),
             "precision": len(right) / max(len(flagged), 1)}
 
 
@@ -89,6 +96,7 @@ def main():
     ap.add_argument("--max-members", type=int, default=0, help="check at most this many members (0: all)")
     ap.add_argument("--query-seed", type=int, action="append", help=f"repeatable (default {SEEDS})")
     ap.add_argument("--xexp", action="store_true", help="only the xexp-dev/kicad2017 question")
+    ap.add_argument("--metric", default=None, help="the gate's metric (default: check-new's own)")
     args = ap.parse_args()
     from shapeidx.cli import _family_table
     from shapeidx.families.checkin import Checker
@@ -96,7 +104,9 @@ def main():
 
     seeds = args.query_seed or SEEDS
     started = time.time()
-    with Checker(args.store) as checker:
+    metric = {"metric": args.metric} if args.metric else {}
+    with Checker(args.store, **metric) as checker:
+        print(f"metric {checker.metric}, {CANDIDATES} candidates per part")
         if args.xexp:
             runs = [xexp(checker, seed) for seed in seeds]
             first = runs[0]
@@ -106,9 +116,13 @@ def main():
             print("precision (a part reported as a duplicate is a same-model pair whose twin is among them):",
                   spread([r["precision"] for r in runs]))
             print("flagged:", [r["flagged"] for r in runs])
+            for label, key in (("same-model twins", "tiers"), ("remodelled parts", "remodelled")):
+                names = sorted({t for run in runs for t in run[key]})
+                print(f"{label}, their twin's tier by seed:",
+                      "; ".join(f"{t} {'/'.join(str(run[key][t]) for run in runs)}" for t in names))
             for k, row in enumerate(first["rows"]):
                 tiers = [run["rows"][k]["twin_tier"] for run in runs]
-                if not row["same_model"] or any(t in (None, "look-alike") for t in tiers):
+                if not row["same_model"] or any(t is None for t in tiers):
                     firsts = [run["rows"][k]["first"] for run in runs]
                     other = next((f for f in firsts if f and os.path.basename(f["relative_path"]) != row["name"]), None)
                     print(f"  {row['name']}: {'same model' if row['same_model'] else 'remodelled'}; twin by seed: {tiers}"

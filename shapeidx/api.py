@@ -20,6 +20,7 @@ from __future__ import annotations
 
 
 
+from .distance.metrics import default_metric
 from .signing.parameters import DEFAULT_POINTS, DEFAULT_SEED
 
 
@@ -118,7 +119,7 @@ def open_store(path):
     return Searcher(path)
 
 
-def query(store, part=None, top: int = 10, metric: str = "weighted", entry: str | None = None,
+def query(store, part=None, top: int = 10, metric: str = default_metric("query"), entry: str | None = None,
           file_type: str | None = None, where=(), exclude_self: bool = False, max_distance: float | None = None,
           scale: str = "invariant", parts: bool = False) -> list:
     """The entries of ``store`` nearest to ``part`` (or to its entry ``entry``), nearest first.
@@ -134,7 +135,8 @@ def query(store, part=None, top: int = 10, metric: str = "weighted", entry: str 
         How many hits.
     metric : str
         A name of the metric registry, :data:`shapeidx.distance.METRICS` (one record
-        each in :mod:`shapeidx.distance.metrics`); ``"weighted"``, the paper's, by default.
+        each in :mod:`shapeidx.distance.metrics`); by default the query's
+        (:func:`shapeidx.distance.default_metric`), the paper's Weighted.
     entry : str, optional
         Instead of ``part``, an entry of the store (its path relative to the root).
     file_type : str, optional

@@ -26,6 +26,7 @@ from .console.params import (
     PART_FORMATS,
     STORE_ENV,
     FiniteFloat,
+    default_metric,
     duplicate_metrics,
     metric_help,
 )
@@ -409,10 +410,11 @@ def build(ctx, directory, store, points, seed, linear_deflection, angular_deflec
         ctx.exit(EXIT_FAILED_FILES)
 
 
-def metric_option(default: str, choices=None):
-    """``--metric``: its choices and help come from the metric registry (shapeidx.distance.metrics)."""
-    return click.option("--metric", type=click.Choice(choices or METRICS), default=default, show_default=True,
-                        help=metric_help())
+def metric_option(task: str, choices=None):
+    """``--metric``: its choices, help and ``task``'s default come from the metric registry
+    (shapeidx.distance.metrics)."""
+    return click.option("--metric", type=click.Choice(choices or METRICS), default=default_metric(task),
+                        show_default=True, help=metric_help())
 
 
 where_option = click.option(
@@ -426,7 +428,7 @@ where_option = click.option(
 @click.argument("files", nargs=-1, metavar="[FILE|DIR|-]...")
 @store_option
 @click.option("--top", "-k", default=10, show_default=True, type=click.IntRange(1), help="How many hits per query.")
-@metric_option("weighted")
+@metric_option("query")
 @click.option("--id", "entries", metavar="PATH", multiple=True,
               help="Query with an entry of the store: its path relative to the indexed folder, or a path"
                    " (absolute or from here) of a file inside it. May be repeated.")
@@ -565,7 +567,7 @@ def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bo
               help="Ask about an entry of the store instead of PART: a sub-part FILE#n, or a file of the indexed folder"
                    " (one part: its FILE#1; several: the whole file).")
 @click.option("--top", "-k", default=10, show_default=True, type=click.IntRange(1), help="How many files.")
-@metric_option("all-angle")
+@metric_option("where-used")
 @click.option("--max-distance", type=FiniteFloat(0), metavar="D",
               help="Only sub-parts within D; each file's count is then of all its sub-parts within D.")
 @click.option("--scale", type=click.Choice(("sensitive", "invariant")), default="sensitive", show_default=True,
@@ -1005,7 +1007,7 @@ def _empty_store_error(store):
 @click.argument("parts", nargs=-1, required=True)
 @store_option
 @click.option("--k", "-k", "k", default=None, type=click.IntRange(1), help="Voters [default: 3, measured on kicad6].")
-@metric_option("combined-angle")
+@metric_option("classify")
 @click.option("--label-depth", default=1, show_default=True, type=click.IntRange(1),
               help="An entry's label is its first N folders.")
 @click.option("--labels", "labels_file", metavar="FILE.csv",
@@ -1063,7 +1065,7 @@ def classify(parts, store, k, metric, label_depth, labels_file, where, scale, ou
 @click.option("--threshold", type=click.FloatRange(0),
               help="Cut Ward's tree at this height instead (in units of the distance; beyond 4,000 entries"
                    " inside each family of the neighbour graph).")
-@metric_option("combined-angle")
+@metric_option("cluster")
 @where_option
 @scale_option
 @click.option("--csv", "as_csv", is_flag=True, help="Rows of path,cluster,distance.")
@@ -1123,7 +1125,7 @@ def _no_entry_kept(where):
 
 @main.command(context_settings=CONTEXT)
 @store_option
-@metric_option("combined-angle", choices=duplicate_metrics())  # only metrics whose duplicate thresholds were measured
+@metric_option("duplicates", choices=duplicate_metrics())  # only metrics whose duplicate thresholds were measured
 @click.option("--similar", "with_similar", is_flag=True,
               help="Also report tier similar: one body whose details (pins, pitch) may differ; measured imprecise,"
                    " docs/duplicates.md.")
@@ -1211,9 +1213,10 @@ def duplicates(store, metric, with_similar, with_near, where, scale, parts, as_c
                    " without it (leave one out).")
 @click.option("--look-alikes", default=5, show_default=True, type=click.IntRange(0),
               help="Nearest look-alikes (not duplicates) reported per new part.")
+@metric_option("check-new", choices=duplicate_metrics())  # the tiers need measured thresholds
 @click.option("--sheet", "sheet", metavar="OUT.html", help="Also write the answers as an HTML sheet with pictures.")
 @format_options
-def check_new(paths, store, git_rev, exclude_self, look_alikes, sheet, output_format, as_json):
+def check_new(paths, store, git_rev, exclude_self, look_alikes, metric, sheet, output_format, as_json):
     """Is each new or changed part file already in the library? For each, the store's parts that
     are the same part (tiers identical, same, converted, as duplicates says them: size ratio, unit
     factor, mirror flag) and, apart, its nearest look-alikes worth reusing.
@@ -1239,7 +1242,7 @@ def check_new(paths, store, git_rev, exclude_self, look_alikes, sheet, output_fo
             return
         raise click.UsageError("give PATH... or --git REV")
     reports, failed = [], False
-    with Checker(_store_path(store)) as checker:
+    with Checker(_store_path(store), metric=metric) as checker:
         for path in files:
             try:
                 if not os.path.isfile(path):

@@ -163,7 +163,7 @@ def test_store_ranking_equals_pairwise_compare(small_store):
         pairwise = [compare(signatures[3], s)[metric] for s in signatures]
         np.testing.assert_array_equal(ranked[metric], pairwise)
     # all-angle is ALL's D plus the weighted angle term, computed here from the histograms
-    from shapeidx.distance.combined import ALL_ANGLE_WEIGHT
+    from shapeidx.distance.metrics import ALL_ANGLE_WEIGHT
 
     a, b = signatures[0], signatures[5]
     by_hand = compare(a, b)["all"] + ALL_ANGLE_WEIGHT * np.abs(angle_probabilities(a.angles)[ALL] - angle_probabilities(b.angles)[ALL]).sum()

@@ -298,9 +298,9 @@ class TestInSample:
             def __init__(self, root):
                 self.attrs = {"root": root}
 
-        assert in_sample(Reader(f"/data/{trained['collection']}"), 10, 2) == {"learned_on": trained["collection"]}
-        assert in_sample(Reader("/data/other"), trained["models"], trained["classes"]) is not None
-        assert in_sample(Reader("/data/other"), 10, 2) is None
+        assert in_sample(Reader(f"/data/{trained['collection']}"), 10, 2, "combined") == {"learned_on": trained["collection"]}
+        assert in_sample(Reader("/data/other"), trained["models"], trained["classes"], "combined") is not None
+        assert in_sample(Reader("/data/other"), 10, 2, "combined") is None
 
     def test_evaluate_prints_the_mark(self, data_dir, tmp_path):
         from storetools import copy_tree

@@ -10,7 +10,7 @@ import math
 
 import click
 
-from ..distance.metrics import METRICS, duplicate_metrics, metric_help  # noqa: F401 (the registry imports nothing heavy)
+from ..distance.metrics import METRICS, default_metric, duplicate_metrics, metric_help  # noqa: F401 (the registry imports nothing heavy)
 from ..io.formats import FORMAT_NAMES as PART_FORMATS  # noqa: F401 (the list of formats imports nothing)
 #: = shapeidx.signing.parameters.DEFAULT_POINTS, DEFAULT_SEED
 DEFAULT_POINTS = 1024

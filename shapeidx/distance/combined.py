@@ -46,7 +46,7 @@ import numpy as np
 from ..signing.angles import ANGLE_HISTOGRAMS, angle_probabilities
 from ..signing.histogram import Signature
 from ..signing.parameters import HISTOGRAMS
-from .metrics import ANGLE_METRICS, METRICS, REGISTRY, metric
+from .metrics import ALL_ANGLE_WEIGHT, ANGLE_METRICS, METRICS, REGISTRY, metric
 from .paper import histogram_distance
 
 #: The per-pair quantities all metrics are made of, in the order of the combined weights.
@@ -59,14 +59,9 @@ ANGLE_FEATURES = tuple(f"angle_{h}" for h in ANGLE_HISTOGRAMS) + tuple(f"helling
 #: The learned metrics: their features, in the order of their weights, and their weights' file
 #: (from the registry, :mod:`shapeidx.distance.metrics`).
 LEARNED = {name: (m.features, m.learned) for name, m in REGISTRY.items() if m.learned}
-#: Metrics made on a learned one, by the learned metric whose weights they use.
-LEARNED_FROM = {"unified": "combined-angle"}
 #: Angle distances a metric reads: ``"hellinger"`` (``hellinger_angle_*``), ``"l1"`` (``angle_*``).
 ANGLE_KINDS = {name: tuple(kind for kind, prefix in (("hellinger", "hellinger_angle_"), ("l1", "angle_"))
                            if any(f.startswith(prefix) for f in m.features)) for name, m in REGISTRY.items()}
-#: all-angle = D(ALL) + this times the L1 distance of the ALL angle histograms. Chosen on half A
-#: of the KiCad 2017 / KiCad 6 twin pairs (scripts/twin_study.py; docs/twins.md gives half B).
-ALL_ANGLE_WEIGHT = 5e-4
 #: unified = combined-angle x min(1, all-angle / this) ** UNIFIED_POWER: below this all-angle
 #: distance a pair counts as the same part. Both chosen on half A of the twin pairs
 #: (scripts/twin_study.py) and on kicad6 with combined-angle's weights cross-validated by class

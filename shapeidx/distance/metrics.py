@@ -22,6 +22,12 @@ from dataclasses import dataclass
 #: The D2 histograms, in the order the store keeps them (= shapeidx.signing.parameters.HISTOGRAMS).
 _HISTOGRAMS = ("all", "in", "out", "mixed")
 _CLASSES = _HISTOGRAMS[1:]
+#: all-angle = D(ALL) + this times the L1 distance of the ALL angle histograms. Chosen on half A
+#: of the KiCad 2017 / KiCad 6 twin pairs (scripts/twin_study.py; docs/twins.md gives half B).
+ALL_ANGLE_WEIGHT = 5e-4
+#: What a metric is chosen for when none is named: each task's default is the metric whose
+#: :attr:`Metric.defaults` names it (docs/results.md and docs/unified.md measured the choice).
+TASKS = ("query", "compare", "where-used", "duplicates", "check-new", "classify", "cluster")
 
 
 @dataclass(frozen=True)
@@ -55,9 +61,15 @@ class Metric:
         entries the bound cannot rule out.
     learned : str or None
         The file of learned weights it reads (shipped as package data), if any.
-    embedding : str
-        Which vectors the all-pairs candidate step (:mod:`shapeidx.store.candidates`) builds
-        for it: ``"histograms"`` (the D2 histograms) or ``"angles"`` (the angle histograms).
+    defaults : tuple of str
+        The tasks (:data:`TASKS`) that use it when no ``--metric`` is given: every command,
+        the API, the web page and the scripts ask :func:`default_metric`, never a name.
+    learned_from : str or None
+        For a metric made on a learned one (unified on combined-angle), that metric: its
+        weights are the ones learned (and checked in-sample by ``evaluate``) for it.
+    linear : tuple of (str, float)
+        For a metric with no learned weights, the weight of each per-pair feature in its
+        first-order form (:attr:`terms`).
     """
 
     name: str
@@ -70,12 +82,40 @@ class Metric:
     paper: bool = False
     bounded: bool = True
     learned: str | None = None
-    embedding: str = "histograms"
+    defaults: tuple = ()
+    learned_from: str | None = None
+    linear: tuple = ()
 
     def value(self, features: dict):
         """The distance from per-pair ``features``."""
         module, function = self.formula.split(":")
         return getattr(importlib.import_module(module, __package__), function)(features)
+
+    @property
+    def weights_of(self) -> str | None:
+        """The learned metric whose weights this one uses (itself, ``learned_from``), or None."""
+        return self.name if self.learned else self.learned_from
+
+    @property
+    def terms(self) -> dict:
+        """``{feature: weight}``: the metric as a weighted sum of per-pair features, to first
+        order. Exact for the learned metrics, combined (a weighted sum) and all-angle; unified
+        is combined-angle's sum away from twins; Weighted's class gaps get a small weight of
+        their own (a fraction gap separates parts, Weighted divides each D by the classes'
+        agreement). The all-pairs candidate step (:mod:`shapeidx.store.candidates`) embeds it."""
+        if self.weights_of:
+            from .combined import learned_weights
+
+            return dict(learned_weights(self.weights_of)["weights"])
+        return dict(self.linear)
+
+    @property
+    def monotone(self) -> bool:
+        """Whether its formula never decreases when a feature grows, so the block bounds of a
+        query hold for it (``bounded``, and no negative learned weight)."""
+        if not self.weights_of:
+            return self.bounded
+        return self.bounded and all(w >= 0 for w in self.terms.values())
 
     @property
     def duplicate_thresholds(self) -> dict | None:
@@ -106,27 +146,32 @@ REGISTRY: dict[str, Metric] = {
     m.name: m
     for m in (
         Metric("all", "ALL (plain D2)", "the paper's ALL: plain D2 of all pairs (Osada et al.), no IN/OUT/MIXED split",
-               histograms=("all",), features=_d("all"), formula=".paper:all_distance", paper=True),
+               histograms=("all",), features=_d("all"), formula=".paper:all_distance", paper=True,
+               linear=((_d("all")[0], 1.0),)),
         Metric("avg3", "AvgOf3", "the paper's AvgOf3: mean D of the IN, OUT and MIXED histograms",
-               histograms=_CLASSES, features=_d(*_CLASSES), formula=".paper:avg3", paper=True),
+               histograms=_CLASSES, features=_d(*_CLASSES), formula=".paper:avg3", paper=True,
+               linear=tuple((f, 1 / 3) for f in _d(*_CLASSES))),
         Metric("avg4", "AvgOf4", "the paper's AvgOf4: mean D of the ALL, IN, OUT and MIXED histograms",
-               histograms=_HISTOGRAMS, features=_d(*_HISTOGRAMS), formula=".paper:avg4", paper=True),
-        Metric("weighted", "Weighted", "the paper's Weighted: each class's D weighted by 1 / (1 - the gap of its class fractions); query's default",
-               histograms=_CLASSES, features=_d(*_CLASSES) + _gaps(), formula=".paper:weighted", paper=True),
+               histograms=_HISTOGRAMS, features=_d(*_HISTOGRAMS), formula=".paper:avg4", paper=True,
+               linear=tuple((f, 1 / 4) for f in _d(*_HISTOGRAMS))),
+        Metric("weighted", "Weighted", "the paper's Weighted: each class's D weighted by 1 / (1 - the gap of its class fractions)",
+               histograms=_CLASSES, features=_d(*_CLASSES) + _gaps(), formula=".paper:weighted", paper=True,
+               defaults=("query", "compare"), linear=tuple((f, 1.0) for f in _d(*_CLASSES)) + tuple((f, 0.06) for f in _gaps())),
         Metric("combined", "combined", "learned: the four D, class-fraction gaps and class-mean ratios (NCA on kicad6)",
                histograms=_HISTOGRAMS, features=_d(*_HISTOGRAMS) + _gaps() + _scales(),
                formula=".combined:combined", learned="combined_metric.json"),
         Metric("combined-angle", "combined-angle",
                "learned: normal-angle histograms (Hellinger) and class features; best for parts of the same kind",
                histograms=(), features=_gaps() + _scales() + _angle("hellinger"), formula=".combined:combined_angle",
-               angles=True, learned="combined_angle_metric.json", embedding="angles"),
+               angles=True, learned="combined_angle_metric.json", defaults=("duplicates", "check-new", "classify", "cluster")),
         Metric("all-angle", "all-angle",
                "plain D2 plus the ALL normal-angle histogram: for the same part from another exporter",
-               histograms=("all",), features=_d("all") + _angle("", ("all",)), formula=".combined:all_angle", angles=True),
+               histograms=("all",), features=_d("all") + _angle("", ("all",)), formula=".combined:all_angle", angles=True,
+               defaults=("where-used",), linear=((_d("all")[0], 1.0), (_angle("", ("all",))[0], ALL_ANGLE_WEIGHT))),
         Metric("unified", "unified",
                "combined-angle, with pairs all-angle finds to be the same part (another exporter) moved first: one metric for kinds and twins",
                histograms=("all",), features=_d("all") + _angle("", ("all",)) + _gaps() + _scales() + _angle("hellinger"),
-               formula=".combined:unified", angles=True, embedding="angles"),
+               formula=".combined:unified", angles=True, learned_from="combined-angle"),
     )
 }
 
@@ -155,6 +200,14 @@ def metric(name: str) -> Metric:
         raise ValueError(f"unknown metric {name!r}; expected one of {', '.join(METRICS)}") from None
 
 
+def default_metric(task: str) -> str:
+    """The metric ``task`` (one of :data:`TASKS`) uses when none is named."""
+    chosen = [name for name, m in REGISTRY.items() if task in m.defaults]
+    if len(chosen) != 1:
+        raise ValueError(f"task {task!r} has {len(chosen)} default metrics; expected one of {', '.join(TASKS)}")
+    return chosen[0]
+
+
 def label(name: str) -> str:
     """What tables call ``name`` (the name itself for an unknown one)."""
     return REGISTRY[name].label if name in REGISTRY else name
@@ -173,12 +226,13 @@ def duplicate_metrics() -> tuple:
 def markdown_table() -> str:
     """The metric table of the README and docs/cli.md (``python scripts/docs_tables.py`` writes
     it there; tests/test_docs.py checks that they hold this very table)."""
-    rows = ["| `--metric` | label | what it is | reads | `duplicates` |", "|---|---|---|---|---|"]
+    rows = ["| `--metric` | label | what it is | reads | `duplicates` | the default of |", "|---|---|---|---|---|---|"]
     for m in REGISTRY.values():
         reads = ", ".join([f"D of {'/'.join(h.upper() for h in m.histograms)}"] if m.histograms else [])
         extra = [what for what, used in (("class fractions", any(f.startswith("gap_") for f in m.features)),
                                          ("class means", any(f.startswith("scale_") for f in m.features)),
                                          ("normal-angle histograms", m.angles)) if used]
         reads = "; ".join([reads] + extra if reads else extra)
-        rows.append(f"| `{m.name}` | {m.label} | {m.summary} | {reads} | {'yes' if m.duplicate_thresholds else 'no'} |")
+        defaults = ", ".join(f"`{task}`" for task in m.defaults)
+        rows.append(f"| `{m.name}` | {m.label} | {m.summary} | {reads} | {'yes' if m.duplicate_thresholds else 'no'} | {defaults} |")
     return "\n".join(rows) + "\n"

@@ -14,8 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..distance import ANGLE_FEATURES, ANGLE_METRICS, FEATURES, LEARNED, METRICS, metric_values
-from ..distance.combined import LEARNED_FROM
+from ..distance import ANGLE_FEATURES, ANGLE_METRICS, FEATURES, LEARNED, METRICS, REGISTRY, metric_values
 from ..errors import ShapeidxError
 from ..search.distances import entry_features
 from ..signing.parameters import HISTOGRAMS
@@ -73,8 +72,8 @@ def check_labelled_tree(directory, follow_outside_links: bool = False) -> None:
         )
 
 
-def in_sample(reader, models: int, classes: int, metric: str = "combined") -> dict | None:
-    """``{"learned_on": name}`` when the combined metric's weights were learned on this collection.
+def in_sample(reader, models: int, classes: int, metric: str) -> dict | None:
+    """``{"learned_on": name}`` when the weights of the learned ``metric`` were learned on this collection.
 
     Judged by the indexed folder's name, or its size (models and classes) equal to the
     training collection's: figures measured on it are in-sample and flatter the metric.
@@ -254,9 +253,9 @@ def _evaluate_once(reader, data: LabelledFeatures, metrics, per_class: bool, cro
 
         entry.update(family_scores(matrices[name], data.labels))
         result["metrics"][name] = entry
-    for metric in list(LEARNED) + list(LEARNED_FROM):
-        if metric in result["metrics"]:
-            learned = in_sample(reader, result["models"], result["classes"], LEARNED_FROM.get(metric, metric))
+    for metric in result["metrics"]:
+        if metric in REGISTRY and REGISTRY[metric].weights_of:
+            learned = in_sample(reader, result["models"], result["classes"], REGISTRY[metric].weights_of)
             result["metrics"][metric]["in_sample"] = learned is not None
             if learned:
                 result["metrics"][metric].update(learned)

@@ -2,7 +2,7 @@
 
 Each new or changed part file is signed with the store's parameters, its nearest entries
 are found on the one query road (:class:`shapeidx.search.searcher.Searcher`, metric
-:data:`~shapeidx.families.duplicates.DEFAULT_METRIC`), joined by the entries whose file
+``default_metric("check-new")`` unless another is given), joined by the entries whose file
 content is the same, and each candidate pair is put in its tier by
 :func:`shapeidx.families.duplicates.pair_tiers` over a small table of the new part and its
 candidates: the same tiers, thresholds, size ratio, unit factor and mirror flag as
@@ -23,7 +23,8 @@ import numpy as np
 
 from ..errors import ShapeidxError
 from ..io.base import file_hash
-from .duplicates import DEFAULT_METRIC, DEFAULT_TIERS, TIERS, pair_tiers
+from ..distance.metrics import default_metric
+from .duplicates import DEFAULT_TIERS, TIERS, pair_tiers
 
 #: Nearest entries looked at per new part.
 CANDIDATES = 20
@@ -75,7 +76,7 @@ def _guest_table(entry, store_table, rows):
 class Checker:
     """A store opened to check new parts against (``with Checker(store) as c: c.check(path)``)."""
 
-    def __init__(self, store, metric: str = DEFAULT_METRIC, scale: str = "invariant"):
+    def __init__(self, store, metric: str = default_metric("check-new"), scale: str = "invariant"):
         from ..distance import METRIC_HISTOGRAMS
         from ..search.searcher import Searcher
         from ..store import open_store

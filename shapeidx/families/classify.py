@@ -14,11 +14,12 @@ from collections import defaultdict
 
 import numpy as np
 
+from ..distance.metrics import default_metric
 from ..errors import ShapeidxError
 
 #: Voters (measured by leave-one-out on kicad6, docs/results.md).
 DEFAULT_K = 3
-DEFAULT_METRIC = "combined-angle"
+DEFAULT_METRIC = default_metric("classify")
 #: Smallest weight a voter gets (share of the nearest voter's).
 WEIGHT_FLOOR = 0.05
 

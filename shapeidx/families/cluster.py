@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..distance.metrics import default_metric
 from ..errors import ShapeidxError
 from ..store.candidates import candidate_pairs
 from ..distance.scale import check_scale, ratio_within_band
@@ -67,7 +68,7 @@ LEIDEN_ITERATIONS = 2
 LEIDEN_SEED = 22
 #: Default K = N / this (kicad6: 520 parts in 52 folders).
 DEFAULT_CLUSTERS_PER_ENTRY = 10
-DEFAULT_METRIC = "combined-angle"
+DEFAULT_METRIC = default_metric("cluster")
 #: Finite stand-in for "apart" (pairs outside the size band under --scale sensitive).
 APART = 1e6
 #: ``--scale sensitive`` in the matrix road: a pair's distance grows by this share of the

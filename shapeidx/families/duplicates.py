@@ -57,13 +57,14 @@ from collections import Counter
 
 import numpy as np
 
+from ..distance.metrics import default_metric
 from ..errors import ShapeidxError
 from ..store.candidates import OVERFETCH as OVERFETCH_MOMENTS
 from .chirality import mirror_relation
 from ..distance.scale import check_scale
 
 TIERS = ("identical", "same", "converted", "similar", "near")
-DEFAULT_METRIC = "combined-angle"
+DEFAULT_METRIC = default_metric("duplicates")
 #: Tiers reported unless asked otherwise: those whose precision docs/duplicates.md measured
 #: high enough (0.9 or more) on the whole library.
 DEFAULT_TIERS = ("identical", "same", "converted")

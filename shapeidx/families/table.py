@@ -266,7 +266,7 @@ class FamilyTable:
         assert set(FEATURES) <= set(features)
         return features
 
-    def pair_distances(self, a: np.ndarray, b: np.ndarray, metric: str = "combined") -> np.ndarray:
+    def pair_distances(self, a: np.ndarray, b: np.ndarray, metric: str) -> np.ndarray:
         """Distance by ``metric`` between entries ``a[k]`` and ``b[k]``, for every k."""
         if metric not in METRICS:
             raise ValueError(f"unknown metric {metric!r}; expected one of {', '.join(METRICS)}")

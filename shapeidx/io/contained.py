@@ -30,7 +30,6 @@ measured in docs/reliability.md.
 from __future__ import annotations
 
 import multiprocessing
-import os
 import signal
 import threading
 from multiprocessing.connection import wait

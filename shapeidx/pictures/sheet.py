@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..distance.metrics import label as metric_label
+from ..distance.metrics import default_metric, label as metric_label
 from ..signing.histogram import Signature
 from ..signing.parameters import BIN_DIVISOR, HISTOGRAMS
 
@@ -465,7 +465,7 @@ def where_used_sheet(searcher, answer, query, output: str | os.PathLike, thumbna
     return write_sheet(output, f"Where {Path(part.label).name} is used", part, cards, meta, scale.describe())
 
 
-def compare_sheet(output, a, b, sig_a: Signature, sig_b: Signature, distances: dict, metric: str = "weighted") -> Path:
+def compare_sheet(output, a, b, sig_a: Signature, sig_b: Signature, distances: dict, metric: str = default_metric("compare")) -> Path:
     """The sheet of ``shapeidx compare A B``: A as the query, B as the one hit."""
     from .thumbcache import ThumbnailCache, default_cache_dir
 

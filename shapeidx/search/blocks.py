@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..distance.combined import class_scales, learned_weights, signature_means
+from ..distance.combined import class_scales, signature_means
 from ..distance.metrics import REGISTRY
 from ..distance.metrics import metric as metric_record
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
@@ -181,15 +181,6 @@ def _l1_rows(p: np.ndarray, at: np.ndarray, q: np.ndarray, step: int = 4096) -> 
     return out
 
 
-def _monotone(name: str) -> bool:
-    """Whether the block bound holds for the metric: its formula grows with every feature
-    (the paper's four do; a learned one when none of its weights is negative)."""
-    record = REGISTRY[name]
-    if record.learned:
-        return all(w >= 0 for w in learned_weights(name)["weights"].values())
-    return True
-
-
 def float16_slack(columns: int) -> float:
     """What keeping probabilities (summing to 1) in float16 may take off their L1 distance to
     anything: each is off by at most half a unit in the last place, ``2^-11`` of it when
@@ -270,7 +261,7 @@ class BlockIndex:
         in one line: angles the store or the query lacks)."""
         if REGISTRY[metric].angles and (not self.angles_known or signature.angles is None):
             return False
-        return _monotone(metric)
+        return REGISTRY[metric].monotone
 
     def bounds(self, signature, metric: str) -> np.ndarray:
         """A lower bound of the ``metric`` distance from ``signature`` to every entry of each block."""

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..distance.metrics import default_metric
 from ..errors import StoreError
 from ..io.metadata import FILE_KEYS
 from .distances import RANK_THREADS, nearest
@@ -378,7 +379,7 @@ class Searcher:
                 return mask, "no entry but the query's own is left (--exclude-self)"
         return mask, None
 
-    def search(self, query: Query, top: int = 10, metric: str = "weighted", filters: Filters | None = None,
+    def search(self, query: Query, top: int = 10, metric: str = default_metric("query"), filters: Filters | None = None,
                threads: int = RANK_THREADS, among: np.ndarray | None = None, among_reason: str = "") -> Answer:
         """The ``top`` entries nearest to ``query`` by ``metric`` among those ``filters`` keep.
 

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..distance.metrics import default_metric
 from ..errors import StoreError
 from ..store.shards import shard_of_paths, shard_paths
 from .hits import Answer, Hit, absolute
@@ -269,7 +270,7 @@ class ShardedSearcher:
             label = os.fspath(part) if path is not None else getattr(part, "name", None) or type(part).__name__
         return Query(str(label), signature, None, entry, path, solid)
 
-    def search(self, query: Query, top: int = 10, metric: str = "weighted", filters: Filters | None = None,
+    def search(self, query: Query, top: int = 10, metric: str = default_metric("query"), filters: Filters | None = None,
                threads: int | None = None) -> Answer:
         """Every shard's exact top ``top``, merged (see the module docstring)."""
         from ..distance.metrics import metric as metric_record

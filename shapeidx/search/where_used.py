@@ -21,12 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..distance.metrics import default_metric
 from .distances import RANK_THREADS, nearest
 from .hits import absolute
 
 #: where-used's metric: plain D2 with the normal angles ranked the files holding a KiCad pin
 #: or body first best (docs/assemblies.md: R-precision 1.00 against 0.86 for ``weighted``).
-DEFAULT_METRIC = "all-angle"
+DEFAULT_METRIC = default_metric("where-used")
 #: With ``scale="sensitive"``: the largest relative difference of principal radii between the
 #: query and a sub-part it can be (measured on KiCad: 0.02 loses 8 % of the files that hold
 #: the part, 0.05 none, and keeps the precision at 0.96).

@@ -42,13 +42,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..distance import METRIC_HISTOGRAMS
-from ..distance.combined import class_scales, learned_weights
+from ..distance import metric as metric_record
+from ..distance.combined import class_scales
 from ..signing.parameters import CLASS_NAMES, HISTOGRAMS
 
 #: The normal-angle histograms' order (shapeidx.signing.angles.ANGLE_HISTOGRAMS, which a
 #: query's start does not import).
 ANGLE_HISTOGRAMS = ("all",) + CLASS_NAMES
+#: The histogram blocks of an embedding vector, in order (after the class blocks).
+BLOCK_ORDER = tuple(f"d2_{h}" for h in HISTOGRAMS) + tuple(f"angle_{h}" for h in ANGLE_HISTOGRAMS)
 
 #: Coarse bins per histogram in the embedding, and stored bins per coarse bin: 48 x 3 covers
 #: distances up to 2.9 times the mean (the rest of the tail is the last bin).
@@ -129,10 +131,11 @@ def stored_d2_basis(reader, rows: np.ndarray, histograms) -> dict:
 
 def embedding_weights(metric: str) -> dict:
     """Per block of the basis (:func:`embedding_basis`), the factor ``metric`` puts on it: a
-    number, or one per column.
+    number, or one per column, made from the metric record's first-order terms alone
+    (:attr:`shapeidx.distance.Metric.terms`: no metric is known here by its name).
 
-    Every metric is a weighted sum of per-pair distances (the histograms' ``D`` or Hellinger
-    distances, the class-fraction and class-scale gaps): the L1 norm of the vector of those
+    Every metric is, to first order, a weighted sum of per-pair distances (the histograms' ``D``,
+    L1 or Hellinger distances, the class-fraction and class-scale gaps): the L1 norm of the vector of those
     weighted terms. Each block is scaled by its term's weight, so that the Euclidean distance
     of two vectors is the L2 norm of the same vector of terms (within a factor sqrt(terms)
     of the metric, and equal to it for a pair that differs in one term). A Hellinger distance
@@ -146,26 +149,24 @@ def embedding_weights(metric: str) -> dict:
     docs/performance-families.md.)
     """
     d2 = 2.0 / (FINE_PER_COARSE * REFERENCE_BINS)
-    if metric == "unified":  # combined-angle's distance but where all-angle finds a twin: its neighbours
-        return embedding_weights("combined-angle")
-    if metric in ("combined", "combined-angle"):
-        w = learned_weights(metric)["weights"]
-        weights = {"fractions": np.array([w[f"gap_{c}"] for c in CLASS_NAMES]),
-                   "scales": np.array([w[f"scale_{c}"] for c in CLASS_NAMES])}
-        if metric == "combined":
-            weights.update({f"d2_{h}": w[f"d_{h}"] * d2 for h in HISTOGRAMS})
+    # a term's distance -> the Euclidean distance of its block: D of the coarse bins (d_),
+    # Hellinger (hellinger_angle_: |sqrt p - sqrt q| / sqrt 2), L1 (angle_: about 2 |sqrt p - sqrt q|)
+    factors = (("d_", "d2_", lambda w: w * d2), ("hellinger_angle_", "angle_", lambda w: w / np.sqrt(2)),
+               ("angle_", "angle_", lambda w: 2.0 * w))
+    classes = {"gap_": np.zeros(len(CLASS_NAMES)), "scale_": np.zeros(len(CLASS_NAMES))}
+    blocks = {}
+    for feature, w in metric_record(metric).terms.items():
+        for prefix, block, scaled in factors:
+            if feature.startswith(prefix):
+                blocks[block + feature[len(prefix):]] = scaled(w)
+                break
         else:
-            weights.update({f"angle_{h}": w[f"hellinger_angle_{h}"] / np.sqrt(2) for h in ANGLE_HISTOGRAMS})
-        return weights
-    if metric == "all-angle":
-        from ..distance.combined import ALL_ANGLE_WEIGHT
-
-        return {"d2_all": d2, "angle_all": 2.0 * ALL_ANGLE_WEIGHT}
-    hists = METRIC_HISTOGRAMS[metric]
-    share = 1.0 if metric in ("all", "weighted") else 1.0 / len(hists)
-    weights = {f"d2_{h}": d2 * share for h in hists}
-    if metric == "weighted":  # Weighted divides each D by the classes' agreement: a fraction gap separates parts
-        weights["fractions"] = np.full(3, 0.02 * 3.0)
+            prefix, _, name = feature.partition("_")
+            classes[prefix + "_"][CLASS_NAMES.index(name)] = w
+    # fixed block order (the class blocks first): a metric's vector does not depend on its terms' order
+    weights = {block: values for block, values in (("fractions", classes["gap_"]), ("scales", classes["scale_"]))
+               if np.any(values)}
+    weights.update(sorted(blocks.items(), key=lambda item: BLOCK_ORDER.index(item[0])))
     return weights
 
 
@@ -193,7 +194,7 @@ def embedding_basis(table, blocks) -> dict:
     return out
 
 
-def embed(table, metric: str = "combined") -> np.ndarray:
+def embed(table, metric: str) -> np.ndarray:
     """(N, dim) float32 vectors of a :class:`~shapeidx.families.table.FamilyTable`'s entries.
 
     Euclidean distance between two vectors is a stand-in for the ``metric`` distance of the

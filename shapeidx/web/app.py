@@ -36,14 +36,15 @@ from pathlib import Path
 import numpy as np
 
 from ..distance import compare
-from ..distance.metrics import METRICS
+from ..distance.metrics import METRICS, default_metric
 from ..errors import LoadError, ShapeidxError, UsageError
 from ..pictures.similarity import SimilarityScale, closer_than
 from ..pictures.thumbcache import StoreThumbnails
-from ..search.where_used import DEFAULT_METRIC as WHERE_USED_METRIC
 from ..signing.histogram import Signature
 from ..signing.parameters import HISTOGRAMS
 
+#: The metric of a search and of a where-used question that names none (the registry's defaults).
+QUERY_METRIC, WHERE_USED_METRIC = default_metric("query"), default_metric("where-used")
 #: Largest upload accepted, bytes (``serve --max-upload`` changes it).
 MAX_UPLOAD = 64 * 1024 * 1024
 #: Largest ``top`` a request may ask for.
@@ -137,7 +138,7 @@ class StoreService:
         self._uploads: OrderedDict = OrderedDict()
         self._listing = None
         self.max_upload = MAX_UPLOAD
-        self.scale("weighted")  # the default metric's calibration before the first query
+        self.scale(QUERY_METRIC)  # the default metric's calibration before the first query
         from ..search.blocks import WARM_MIN
 
         if len(self.searcher) >= WARM_MIN:  # a big store: every query prunes in blocks from the first
@@ -175,6 +176,7 @@ class StoreService:
             "max_upload": self.max_upload,
             "parts": self.parts is not None,
             "sub_parts": len(self.parts) if self.parts is not None else 0,
+            "query_metric": QUERY_METRIC,
             "where_used_metric": WHERE_USED_METRIC,
         }
 
@@ -489,7 +491,7 @@ class ShardedStoreService(StoreService):
         self.max_upload = MAX_UPLOAD
         self.parts = None
         self.part_thumbs = None
-        self.scale("weighted")
+        self.scale(QUERY_METRIC)
         self.searcher.warm()  # each big shard builds its block index where it is
 
     def info(self) -> dict:
@@ -592,7 +594,7 @@ def _flag(params, name: str) -> bool:
     raise RequestError(400, f"{name} must be 1 or 0, not {value[:40]!r}")
 
 
-def _metric(params, default: str = "weighted") -> str:
+def _metric(params, default: str = QUERY_METRIC) -> str:
     """The metric asked for; absent: ``query``'s default (the paper's Weighted), or where-used's."""
     metric = params.get("metric") or default
     if metric not in METRICS:
@@ -739,7 +741,7 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD, host: str = 
                     raise RequestError(422, f"{upload.filename or 'upload'}: the file is empty")
                 uses = _uses(form)
                 top, metric, parts = (_int(form, "top", 10, 1, MAX_TOP),
-                                      _metric(form, WHERE_USED_METRIC if uses else "weighted"), _flag(form, "parts"))
+                                      _metric(form, WHERE_USED_METRIC if uses else QUERY_METRIC), _flag(form, "parts"))
                 if parts or uses:
                     service.parts_searcher()  # 409 before signing, when the store has no sub-parts
                 result = await anyio.to_thread.run_sync(service.query_upload, upload.filename or "upload", data, top,

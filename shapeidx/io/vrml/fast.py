@@ -19,7 +19,6 @@ import os
 
 import numpy as np
 
-from ...errors import LoadError
 from ..base import LoadLimits, PolygonMesh
 
 try:

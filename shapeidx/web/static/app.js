@@ -46,7 +46,7 @@ function clearError() { document.getElementById("error").hidden = true; }
 function busy(on) { document.getElementById("busy").hidden = !on; }
 
 function params() { return new URLSearchParams(location.hash.split("?")[1] || ""); }
-function metricValue() { return document.getElementById("metric").value || "weighted"; }
+function metricValue() { return document.getElementById("metric").value || (state.info ? state.info.query_metric : ""); }
 function topValue() { return document.getElementById("top").value || "10"; }
 // the where field: conditions separated by ";" (KEY=VALUE, KEY>=N, KEY~GLOB, ...)
 // "1" when the sub-parts are ranked (the checkbox, shown only when the store has them)
@@ -291,7 +291,7 @@ async function start() {
   try {
     state.info = await api("/api/store");
     for (const m of state.info.metrics) select.append(h("option", {value: m.name, text: m.label, title: m.summary}));
-    select.value = "weighted";
+    select.value = state.info.query_metric;
     const names = Object.keys(state.info.formats).map(f => f.toUpperCase()).join(", ");
     document.getElementById("drop").textContent = `…or drop a part file here (${names}; gzipped too)`;
     document.getElementById("file").setAttribute("accept", state.info.suffixes.concat(state.info.suffixes.map(s => s + ".gz"), [".gz"]).join(","));
