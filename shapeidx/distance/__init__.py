@@ -15,10 +15,10 @@ from .._lazy import attach
 
 _NAMES = {
     **dict.fromkeys(["Metric", "REGISTRY", "METRICS", "PAPER_METRICS", "ANGLE_METRICS", "BOUNDED_METRICS", "metric",
-                     "label", "duplicate_metrics"], ".metrics"),
+                     "label", "duplicate_metrics", "default_metric", "learned_weights", "TASKS"], ".metrics"),
     **dict.fromkeys(["MIN_AGREEMENT", "histogram_distance"], ".paper"),
     **dict.fromkeys(["ANGLE_FEATURES", "FEATURES", "LEARNED", "combined_weights", "compare", "features_between",
-                     "learned_weights", "metric_values"], ".combined"),
+                     "metric_values"], ".combined"),
     **dict.fromkeys(["METRIC_HISTOGRAMS", "HistogramBank", "distances_to_many", "features_to_many"], ".bank"),
 }
 __all__ = sorted(_NAMES)

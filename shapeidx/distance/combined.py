@@ -37,16 +37,13 @@ function serves a pair (:func:`compare`) and a whole store (:mod:`.bank`).
 
 from __future__ import annotations
 
-import json
-from functools import lru_cache
-from importlib import resources
 
 import numpy as np
 
 from ..signing.angles import ANGLE_HISTOGRAMS, angle_probabilities
 from ..signing.histogram import Signature
 from ..signing.parameters import HISTOGRAMS
-from .metrics import ALL_ANGLE_WEIGHT, ANGLE_METRICS, METRICS, REGISTRY, metric
+from .metrics import ALL_ANGLE_WEIGHT, ANGLE_METRICS, METRICS, REGISTRY, learned_weights, metric
 from .paper import histogram_distance
 
 #: The per-pair quantities all metrics are made of, in the order of the combined weights.
@@ -150,16 +147,6 @@ def unified_of(combined_angle_distance, all_angle_distance):
     cross-validated figures of :mod:`shapeidx.evaluation`)."""
     discount = np.minimum(1.0, np.asarray(all_angle_distance) / UNIFIED_TWIN_DISTANCE) ** UNIFIED_POWER
     return combined_angle_distance * discount
-
-
-@lru_cache(maxsize=None)
-def learned_weights(metric: str = "combined") -> dict:
-    """The learned weights of a metric of :data:`LEARNED` and how they were obtained."""
-    names, file = LEARNED[metric]
-    data = json.loads(resources.files(__package__).joinpath(file).read_text())
-    if set(data["weights"]) != set(names):
-        raise ValueError(f"{file} does not match the features of metric {metric}")
-    return data
 
 
 def combined_weights() -> dict:

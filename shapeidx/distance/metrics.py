@@ -17,7 +17,10 @@ formula names the module and function that computes it, imported on first use.
 from __future__ import annotations
 
 import importlib
+import json
 from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
 
 #: The D2 histograms, in the order the store keeps them (= shapeidx.signing.parameters.HISTOGRAMS).
 _HISTOGRAMS = ("all", "in", "out", "mixed")
@@ -104,8 +107,6 @@ class Metric:
         their own (a fraction gap separates parts, Weighted divides each D by the classes'
         agreement). The all-pairs candidate step (:mod:`shapeidx.store.candidates`) embeds it."""
         if self.weights_of:
-            from .combined import learned_weights
-
             return dict(learned_weights(self.weights_of)["weights"])
         return dict(self.linear)
 
@@ -185,10 +186,20 @@ BOUNDED_METRICS = tuple(name for name, m in REGISTRY.items() if m.bounded)
 ANGLE_METRICS = tuple(name for name, m in REGISTRY.items() if m.angles)
 
 
-def _thresholds() -> dict:
-    import json
-    from importlib import resources
+@lru_cache(maxsize=None)
+def learned_weights(name: str) -> dict:
+    """The learned weights of the learned metric ``name`` (its record's ``learned`` file) and
+    how they were obtained (KeyError: not a learned metric)."""
+    record = REGISTRY[name]
+    if not record.learned:
+        raise KeyError(name)
+    data = json.loads(resources.files(__package__).joinpath(record.learned).read_text())
+    if set(data["weights"]) != set(record.features):
+        raise ValueError(f"{record.learned} does not match the features of metric {name}")
+    return data
 
+
+def _thresholds() -> dict:
     return json.loads(resources.files(__package__).joinpath("thresholds.json").read_text())
 
 

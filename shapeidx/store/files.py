@@ -28,6 +28,8 @@ from pathlib import Path
 
 import h5py
 
+from .shards import owner_of_shard
+
 _BATCH_NAME = re.compile(r"^batch-(\d{10})\.h5$")
 #: The folder of a store that holds its sub-parts' store (``build --parts``).
 PARTS = "parts"
@@ -50,17 +52,20 @@ def owner_of_parts(store) -> Path | None:
 
 def build_command(store, root: str | None = None) -> str:
     """The command that builds ``store``: a sub-parts store is built through its owner
-    (``build OWNER --parts``): a build into ``OWNER/parts`` itself would fill it with whole files."""
+    (``build OWNER --parts``): a build into ``OWNER/parts`` itself would fill it with whole files;
+    a shard through its sharded store (a build into one shard would put every file in it)."""
     folder, owner = root or "DIR", owner_of_parts(store)
     if owner is not None:
         return f"shapeidx build {folder} --store {owner} --parts"
-    return f"shapeidx build {folder} --store {store}"
+    sharded = owner_of_shard(store)
+    return f"shapeidx build {folder} --store {sharded if sharded is not None else store}"
 
 
 def recovery_commands(store, root: str | None = None) -> tuple[str, str]:
     """(repair, check): the commands that repair and check ``store`` (a sub-parts store through
     its owner: ``build --parts --repair``, ``check --store OWNER``; see :func:`build_command`)."""
     owner = owner_of_parts(store)
+    owner = owner_of_shard(store if owner is None else owner) or owner
     return f"{build_command(store, root)} --repair", f"shapeidx check --store {owner if owner is not None else store}"
 
 

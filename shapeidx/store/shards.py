@@ -38,6 +38,15 @@ def is_sharded(store) -> bool:
     return manifest_path(Path(store)).is_file()
 
 
+def owner_of_shard(store) -> Path | None:
+    """The sharded store whose shard ``store`` is (``OWNER/shards/K``), or None for any other store."""
+    store = Path(store)
+    if store.parent.name != "shards" or not store.name.isdigit():
+        return None
+    owner = store.parent.parent
+    return owner if is_sharded(owner) else None
+
+
 def shard_count(store) -> int:
     """The number of shards of a sharded store (StoreError: a bad manifest, in one line)."""
     path = manifest_path(Path(store))
