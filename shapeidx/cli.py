@@ -678,7 +678,7 @@ def plot(parts, output, entries, store, labels, title, points, seed):
 @click.option("--failed", "list_failed", is_flag=True, help="List every failed file with its reason.")
 @format_options
 def stats(store, list_failed, output_format, as_json):
-    """Entries by status, parameters and size of the store.
+    """Entries by status, parameters and size of the store (of every shard of a sharded store).
 
     \b
     Example:
@@ -686,12 +686,22 @@ def stats(store, list_failed, output_format, as_json):
       shapeidx stats --store parts.shapeidx --failed --format tsv
     """
     from .store import describe_store, open_store
+    from .store.shards import is_sharded, shard_paths
+    from .store.stats import describe_sharded
 
     fmt = chosen_format(output_format, as_json)
     store_path = _store_path(store)
-    with open_store(store_path) as reader:
-        facts = describe_store(reader)
-        failed = _failed_entries(reader) if list_failed else None
+    if is_sharded(store_path):
+        facts = describe_sharded(store_path)
+        failed = []
+        if list_failed:
+            for path in shard_paths(store_path):
+                with open_store(path) as reader:
+                    failed += _failed_entries(reader)
+    else:
+        with open_store(store_path) as reader:
+            facts = describe_store(reader)
+            failed = _failed_entries(reader) if list_failed else None
     if list_failed:
         if not failed:
             click.echo(f"shapeidx: no failed file in {printable(facts['store'])} ({facts['entries']:,} entries)", err=True)
@@ -713,6 +723,10 @@ def stats(store, list_failed, output_format, as_json):
     click.echo(f"{facts['store']}: {_size(facts['bytes'])}, updated {facts['updated']}")
     click.echo(f"  root        {facts['root']}")
     click.echo(f"  entries     {facts['entries']:,}: {facts['ok']:,} ok, {facts['failed']:,} failed")
+    if "shards" in facts:
+        click.echo(f"  shards      {len(facts['shards'])} (build --shards): "
+                   + ", ".join(f"{s['entries']:,}" for s in facts["shards"]) + " entries"
+                   + ("; their parameters differ: shard 0's shown" if facts["parameters_differ"] else ""))
     click.echo(f"  parameters  {p['points']} points, bin divisor {p['bin_divisor']}, seed {p['seed']} ({p['seed_policy']})")
     click.echo(f"  faceting    STEP/IGES: linear deflection {p['linear_deflection']:g} of the diagonal,"
                f" angular {p['angular_deflection']:g} rad")
@@ -808,10 +822,10 @@ main.add_command(click.Command("info", callback=stats.callback, params=stats.par
 @click.option("--repair", is_flag=True, help="Rebuild damaged or missing ranking arrays (written before layout 3) from the checked entries; takes the store's lock.")
 @format_options
 def check(store, check_files, repair, output_format, as_json):
-    """Verify a store and its sub-parts (build --parts): structure, offsets, totals, checksums
-    (and with --files, that every entry's file still hashes the same). Exits 5 naming the
-    first problems. --repair rebuilds the ranking arrays (derived data) of files where they
-    are damaged or missing.
+    """Verify a store and its sub-parts (build --parts), or every shard of a sharded store (build
+    --shards): structure, offsets, totals, checksums (and with --files, that every entry's file
+    still hashes the same). Exits 5 naming the first problems. --repair rebuilds the ranking
+    arrays (derived data) of files where they are damaged or missing.
 
     \b
     Example:
@@ -825,10 +839,13 @@ def check(store, check_files, repair, output_format, as_json):
     if repair:
         from .store.check import repair_ranking
 
+        from .store.shards import is_sharded, shard_paths
+
         path = _store_path(store)
         check_store(path)  # no store, not a store: one line, before taking the lock
-        for line in repair_ranking(path):
-            click.echo(line, err=True)
+        for one in shard_paths(path) if is_sharded(path) else [path]:
+            for line in repair_ranking(one):
+                click.echo(line, err=True)
     report = check_store(_store_path(store), files=check_files)
     if fmt == "json":
         emit_json(report.to_dict())

@@ -236,3 +236,42 @@ def test_serve_answers_a_sharded_store_as_one_store(trees, cluster):
             service.close()
     with pytest.raises(Exception, match="not a sharded store"):
         open_service(one, cluster.address)
+
+
+def test_stats_of_a_sharded_store_are_its_shards_summed(trees):
+    _, _, parts, one, sharded = trees
+    whole, single = cli_json("stats", "--store", sharded), cli_json("stats", "--store", one)
+    # the reference: the ordinary store of the same tree, and each shard opened on its own
+    assert (whole["entries"], whole["ok"], whole["failed"]) == (single["entries"], single["ok"], single["failed"])
+    assert [s["entries"] for s in whole["shards"]] == [len(open_store(s)) for s in shard_paths(sharded)]
+    assert whole["parameters"] == single["parameters"] and not whole["parameters_differ"]
+    assert whole["build"]["state"] == "finished" and whole["build"]["indexed"] == len(parts)
+    text = cli("stats", "--store", sharded).output
+    assert f"entries     {len(parts):,}: {len(parts):,} ok, 0 failed" in text and f"shards      {SHARDS} " in text
+
+
+def test_check_takes_a_sharded_store_whole_and_names_the_damaged_shard(trees, tmp_path):
+    tree, _, parts, _, sharded = trees
+    report = cli_json("check", "--store", sharded, "--files")
+    assert report["ok"] and report["entries"] == len(parts) and report["files_hashed"] == len(parts)
+    assert [s["entries"] for s in report["shards"]] == [len(open_store(s)) for s in shard_paths(sharded)]
+    store = tmp_path / "damaged.shapeidx"
+    shutil.copytree(sharded, store)
+    main = shard_paths(store)[1] / "main.h5"
+    data = bytearray(main.read_bytes())
+    middle = len(data) // 2
+    data[middle : middle + 4000] = bytes(b ^ 0x5A for b in data[middle : middle + 4000])
+    main.write_bytes(data)
+    result = cli("check", "--store", store)
+    assert result.exit_code == 5, result.output
+    assert "problem: shards/1/main.h5: " in result.stderr and "Traceback" not in result.output + result.stderr
+    assert f"'shapeidx build DIR --store {store} --repair'" in result.stdout
+    # a query meets the damage in one line naming the sharded store's own commands, not the shard's
+    asked = cli("query", "--id", parts[0], "--store", store)
+    assert asked.exit_code == 5 and "Traceback" not in asked.output + asked.stderr, asked.output + asked.stderr
+    assert f"'shapeidx check --store {store}' lists every problem" in asked.stderr
+    assert f"--store {store} --repair'" in asked.stderr
+    # the command it names repairs it (the copy's root is the tree the store was built from)
+    assert build(tree, store, "--workers", "1", "--repair").exit_code == 0
+    healed = cli_json("check", "--store", store)
+    assert healed["ok"] and healed["entries"] == len(parts)

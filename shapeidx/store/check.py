@@ -53,6 +53,7 @@ from .layout import (
 from .lock import StoreLock
 from .metadata import METADATA_FILE, load_table
 from .reader import StoreBeingCreated, check_store_directory, damaged, open_store, resolve_store_path
+from .shards import is_sharded, shard_paths
 
 
 @dataclass
@@ -118,8 +119,19 @@ class CheckReport:
     notes: list = field(default_factory=list)
     #: The check of the store's sub-parts (``STORE/parts``, ``build --parts``); None: it has none.
     parts: "CheckReport | None" = None
+    #: A sharded store's: each shard's check, in shard order; None: not a sharded store.
+    shards: "list | None" = None
 
     def summary(self) -> str:
+        if self.shards is not None:
+            where = f"{self.files} file(s) of {len(self.shards)} shards"
+            if self.problems:
+                repair, _ = recovery_commands(self.store)
+                return (f"{self.store}: DAMAGED: {len(self.problems)} problem(s) in {where};"
+                        f" '{repair}' rebuilds the damaged entries")
+            sums = "checksums verified" if self.checksummed else "some files have no checksums"
+            hashed = f", {self.files_hashed} files hash as stored" if self.files_hashed else ""
+            return f"{self.store}: ok: {self.entries} entries in {where}, {sums}{hashed}"
         if self.problems:
             repair, _ = recovery_commands(self.parts.store if self.parts and self.parts.problems else self.store)
             return (f"{self.store}: DAMAGED: {len(self.problems)} problem(s) in {self.files} file(s);"
@@ -140,6 +152,7 @@ class CheckReport:
             "problems": [p.to_dict() for p in self.problems],
             "notes": self.notes,
             "parts": None if self.parts is None else self.parts.to_dict(),
+            "shards": None if self.shards is None else [shard.to_dict() for shard in self.shards],
         }
 
 
@@ -347,6 +360,8 @@ def check_store(store, files: bool = False) -> CheckReport:
     """Check a store (see the module docstring); ``files``: also hash every entry's file."""
     store = Path(store)
     check_store_directory(store)
+    if is_sharded(store):
+        return _check_sharded(store, files)
     if not main_file(store).exists():
         open_store(store).close()  # the reader's one line: not a store, being created, or damaged (5)
     report = CheckReport(store)
@@ -380,6 +395,31 @@ def check_store(store, files: bool = False) -> CheckReport:
     if files and not report.problems:
         _check_files(store, attrs.get("root"), report)
     _check_parts(store, report)
+    return report
+
+
+def _check_sharded(store: Path, files: bool) -> CheckReport:
+    """A sharded store: every shard checked as a store of its own (its sub-parts too), its
+    problems named ``shards/K/FILE``, its notes ``shards/K: ...``."""
+    report = CheckReport(store, shards=[])
+    for path in shard_paths(store):
+        name = f"shards/{path.name}"
+        try:
+            shard = check_store(path, files=files)
+        except StoreBeingCreated:
+            report.notes.append(f"{name}: its first build has committed nothing yet")
+            continue
+        except StoreError as exc:
+            shard = CheckReport(path, problems=[Problem(name, "store", str(exc))])
+            report.problems.extend(shard.problems)
+        else:
+            report.problems.extend(Problem(f"{name}/{p.file}", p.what, p.problem) for p in shard.problems)
+        report.shards.append(shard)
+        report.entries += shard.entries
+        report.files += shard.files
+        report.files_hashed += shard.files_hashed
+        report.checksummed &= shard.checksummed
+        report.notes.extend(f"{name}: {note}" for note in shard.notes)
     return report
 
 

@@ -95,3 +95,46 @@ def _metadata_facts(store) -> dict | None:
     if table is None:
         return None
     return {"rows": len(table), "keys": list(table.columns), "source": table.source, "sha256": table.sha256}
+
+
+def describe_sharded(store) -> dict:
+    """What ``shapeidx stats`` shows of a sharded store (``build --shards``): its shards' facts
+    (:func:`describe_store`) summed, the parameters they share, and each shard's own in ``shards``.
+    A shard that cannot be opened says so in one line, as the store it is."""
+    from collections import Counter
+
+    from .shards import shard_paths
+
+    shards = []
+    for path in shard_paths(store):
+        with open_store(path) as reader:
+            shards.append(describe_store(reader))
+    total = {key: sum(s[key] for s in shards) for key in ("entries", "ok", "failed", "bytes", "journal_batches")}
+    reasons, older = Counter(), Counter()
+    for s in shards:
+        reasons.update({item["reason"]: item["count"] for item in s["failure_reasons"]})
+        older.update(s["older_reader"])
+    builds = [s["build"] for s in shards]
+    facts = dict(shards[0])
+    facts.update(total, store=str(store), updated=max(str(s["updated"] or "") for s in shards) or None,
+                 created=min(str(s["created"] or "") for s in shards) or None, build=_sharded_build(builds),
+                 parts=None, older_reader=dict(older),
+                 failure_reasons=[{"reason": r, "count": c} for r, c in sorted(reasons.items(), key=lambda rc: (-rc[1], rc[0]))],
+                 parameters_differ=any(s["parameters"] != shards[0]["parameters"] for s in shards),
+                 shards=[{key: s[key] for key in ("store", "entries", "ok", "failed", "bytes", "updated", "build")}
+                         for s in shards])
+    return facts
+
+
+def _sharded_build(builds: list) -> dict | None:
+    """The shards' last builds as one: running while any shard's runs, stopped or interrupted
+    when any shard's was; finished (counts summed) when every shard's finished."""
+    if any(b is None for b in builds):
+        return None
+    for state in ("running", "stopped", "interrupted"):
+        for b in builds:
+            if b.get("state") == state:
+                return b
+    counts = ("indexed", "unchanged", "removed", "failed")
+    return {"state": "finished", "at": max(str(b.get("at", "")) for b in builds),
+            **{k: sum(int(b.get(k, 0)) for b in builds) for k in counts if all(k in b for b in builds)}}
