@@ -409,15 +409,8 @@ class Searcher:
         if answer.reason is not None:
             return answer
         own = query.own if keep is None or query.own is None or keep[query.own] else None
-        from .blocks import WARM_MIN
-
-        self._searches += 1
-        if self._blocks is None and self._searches > 1 and len(self.view) >= WARM_MIN:
-            self.warm()  # a second query: a long-lived searcher, whose next queries the blocks serve
-        if self._blocks is not None and self._blocks.serves(metric, query.signature):
-            chosen, exact = self._blocks.nearest(query.signature, metric, top, keep, filters.max_distance, threads)
-        else:
-            chosen, exact = nearest(self.view, query.signature, metric, top, keep, own, filters.max_distance, threads)
+        self.asked()
+        chosen, exact = self.rank(query.signature, metric, top, keep, own, filters.max_distance, threads)
         valid = np.isfinite(exact)
         if filters.max_distance is not None:
             valid &= exact <= filters.max_distance
@@ -430,6 +423,25 @@ class Searcher:
         chosen, exact = chosen[valid], exact[valid]
         answer.hits = self._hits(chosen, exact, top, own)
         return answer
+
+    def asked(self) -> None:
+        """Count a question; the second one warms a big store (a long-lived searcher, whose
+        next questions the block index serves)."""
+        from .blocks import WARM_MIN
+
+        self._searches += 1
+        if self._blocks is None and self._searches > 1 and len(self.view) >= WARM_MIN:
+            self.warm()
+
+    def rank(self, signature, metric: str, top: int, keep: np.ndarray | None = None, first: int | None = None,
+             max_distance: float | None = None, threads: int = RANK_THREADS):
+        """Positions and exact distances of a set of entries holding every entry of the
+        ``top``-nearest answer (the contract of :func:`shapeidx.search.distances.nearest`):
+        by the block index where it is built and serves ``metric``, else entry by entry.
+        Every question of this store (search, where-used) is ranked here."""
+        if self._blocks is not None and self._blocks.serves(metric, signature):
+            return self._blocks.nearest(signature, metric, top, keep, max_distance, threads)
+        return nearest(self.view, signature, metric, top, keep, first, max_distance, threads)
 
     def _hits(self, positions: np.ndarray, distances: np.ndarray, top: int, first: int | None) -> list:
         from ..store.layout import object_array

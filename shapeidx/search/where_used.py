@@ -7,8 +7,9 @@
             print(use.rank, use.distance, use.path, use.count, use.part)
 
 Every sub-entry of the store (``FILE#n``, :mod:`shapeidx.io.parts`; a file that is one part
-is its own ``FILE#1``) is ranked by its distance to the query, through the same distances as
-``query`` (:func:`shapeidx.search.distances.nearest`); the files are then ranked by their
+is its own ``FILE#1``) is ranked by its distance to the query on the road of ``query``
+(:meth:`shapeidx.search.searcher.Searcher.rank`: the same distances, and the block index of a
+warm store), as many as it takes to find ``top`` files; the files are then ranked by their
 nearest sub-part. A file's ``count`` is how many times it holds that nearest sub-part; with
 ``max_distance`` it is how many times it holds any sub-part within that distance, and
 ``parts`` lists them.
@@ -22,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..distance.metrics import default_metric
-from .distances import RANK_THREADS, nearest
+from .distances import RANK_THREADS
 from .hits import absolute
 
 #: where-used's metric: plain D2 with the normal angles ranked the files holding a KiCad pin
@@ -132,11 +133,23 @@ def where_used(searcher, query, top: int = 10, metric: str = DEFAULT_METRIC, max
         if not keep.any():
             answer.reason = f"no sub-part has the query's size within {same_size:g}"
             return answer
-    positions, distances = nearest(searcher.view, query.signature, metric, n, keep, query.own, max_distance, threads)
-    valid = np.isfinite(distances)
-    positions, distances = positions[valid], distances[valid]
-    order = np.lexsort((positions, distances))
-    positions, distances = positions[order], distances[order]
+    searcher.asked()
+    # the nearest sub-entries on the search's road, more of them until `top` files are among those
+    # surely complete (up to the wanted-th distance: the rank's contract); every one within max_distance
+    wanted = n if max_distance is not None else min(n, max(64, 4 * top))
+    while True:
+        positions, distances = searcher.rank(query.signature, metric, wanted, keep, query.own, max_distance, threads)
+        valid = np.isfinite(distances)
+        positions, distances = positions[valid], distances[valid]
+        order = np.lexsort((positions, distances))
+        positions, distances = positions[order], distances[order]
+        if wanted >= n or len(distances) < wanted:
+            break  # every ranked sub-entry is here
+        complete = distances <= distances[wanted - 1]
+        if len(set(parents[positions[complete]].tolist())) >= top:
+            positions, distances = positions[complete], distances[complete]
+            break
+        wanted = min(n, 4 * wanted)
     uses: dict = {}
     for position, distance in zip(positions.tolist(), distances.tolist()):
         parent = parents[position]
