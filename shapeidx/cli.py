@@ -695,7 +695,7 @@ def stats(store, list_failed, output_format, as_json):
         facts = describe_sharded(store_path)
         failed = []
         if list_failed:
-            for path in shard_paths(store_path):
+            for path in (p for p in shard_paths(store_path) if p.exists()):
                 with open_store(path) as reader:
                     failed += _failed_entries(reader)
     else:
@@ -724,9 +724,11 @@ def stats(store, list_failed, output_format, as_json):
     click.echo(f"  root        {facts['root']}")
     click.echo(f"  entries     {facts['entries']:,}: {facts['ok']:,} ok, {facts['failed']:,} failed")
     if "shards" in facts:
-        click.echo(f"  shards      {len(facts['shards'])} (build --shards): "
+        click.echo(f"  shards      {len(facts['shards']) + len(facts['shards_not_built'])} (build --shards): "
                    + ", ".join(f"{s['entries']:,}" for s in facts["shards"]) + " entries"
-                   + ("; their parameters differ: shard 0's shown" if facts["parameters_differ"] else ""))
+                   + ("; their parameters differ: shard 0's shown" if facts["parameters_differ"] else "")
+                   + (f"; {len(facts['shards_not_built'])} not built yet (the next build makes them)"
+                      if facts["shards_not_built"] else ""))
     click.echo(f"  parameters  {p['points']} points, bin divisor {p['bin_divisor']}, seed {p['seed']} ({p['seed_policy']})")
     click.echo(f"  faceting    STEP/IGES: linear deflection {p['linear_deflection']:g} of the diagonal,"
                f" angular {p['angular_deflection']:g} rad")

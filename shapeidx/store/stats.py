@@ -105,22 +105,28 @@ def describe_sharded(store) -> dict:
 
     from .shards import shard_paths
 
-    shards = []
+    shards, missing = [], []
     for path in shard_paths(store):
+        if not path.exists():  # made as the sharded build reaches it: a first build was stopped before
+            missing.append(str(path))
+            continue
         with open_store(path) as reader:
             shards.append(describe_store(reader))
+    if not shards:
+        open_store(shard_paths(store)[0])  # the reader's one line: no store yet, run the build
     total = {key: sum(s[key] for s in shards) for key in ("entries", "ok", "failed", "bytes", "journal_batches")}
     reasons, older = Counter(), Counter()
     for s in shards:
         reasons.update({item["reason"]: item["count"] for item in s["failure_reasons"]})
         older.update(s["older_reader"])
-    builds = [s["build"] for s in shards]
+    builds = [s["build"] for s in shards] + [None] * len(missing)
     facts = dict(shards[0])
     facts.update(total, store=str(store), updated=max(str(s["updated"] or "") for s in shards) or None,
                  created=min(str(s["created"] or "") for s in shards) or None, build=_sharded_build(builds),
                  parts=None, older_reader=dict(older),
                  failure_reasons=[{"reason": r, "count": c} for r, c in sorted(reasons.items(), key=lambda rc: (-rc[1], rc[0]))],
                  parameters_differ=any(s["parameters"] != shards[0]["parameters"] for s in shards),
+                 shards_not_built=missing,
                  shards=[{key: s[key] for key in ("store", "entries", "ok", "failed", "bytes", "updated", "build")}
                          for s in shards])
     return facts
