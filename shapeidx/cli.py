@@ -973,10 +973,8 @@ def _family_table(store, metric=None):
     from .distance import METRIC_HISTOGRAMS
     from .families.table import FamilyTable
     from .signing.parameters import HISTOGRAMS
-    from .store import open_store
 
-    with open_store(_store_path(store)) as reader:
-        table = FamilyTable.load(reader, METRIC_HISTOGRAMS[metric] if metric else HISTOGRAMS)
+    table = FamilyTable.load_store(_store_path(store), METRIC_HISTOGRAMS[metric] if metric else HISTOGRAMS)
     if table.missing_columns:
         click.echo(f"shapeidx: warning: {_store_path(store)} predates the size and handedness columns"
                    f" ({', '.join(table.missing_columns)}): sizes and mirroring unknown for its older entries;"
@@ -1006,11 +1004,16 @@ def _table_keep(store, table, where):
 
     from .search import Searcher, parse_where
     from .search.where import keep_mask
+    from .store.shards import is_sharded, shard_paths
 
-    with Searcher(_store_path(store)) as searcher:
-        mask = keep_mask(parse_where(where), searcher.metadata_column, searcher.metadata_keys())
-        kept = set(map(str, searcher.metadata_column("path")[mask])) if mask is not None else None
-    return None if kept is None else np.array([str(p) in kept for p in table.paths], dtype=bool)
+    path, kept = _store_path(store), set()
+    for one in shard_paths(path) if is_sharded(path) else [path]:  # a sharded store: each shard's metadata
+        with Searcher(one) as searcher:
+            mask = keep_mask(parse_where(where), searcher.metadata_column, searcher.metadata_keys())
+            if mask is None:
+                return None
+            kept.update(map(str, searcher.metadata_column("path")[mask]))
+    return np.array([str(p) in kept for p in table.paths], dtype=bool)
 
 
 def _empty_store_error(store):
@@ -1018,8 +1021,11 @@ def _empty_store_error(store):
     from .errors import NoAnswer
     from .search import Searcher
 
-    with Searcher(_store_path(store)) as searcher:
-        return NoAnswer(f"store {_store_path(store)} has no indexed entries: {searcher.empty_reason()}")
+    from .store.shards import is_sharded, shard_paths
+
+    path = _store_path(store)
+    with Searcher(shard_paths(path)[0] if is_sharded(path) else path) as searcher:
+        return NoAnswer(f"store {path} has no indexed entries: {searcher.empty_reason()}")
 
 
 @main.command(context_settings=CONTEXT)

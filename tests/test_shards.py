@@ -275,3 +275,22 @@ def test_check_takes_a_sharded_store_whole_and_names_the_damaged_shard(trees, tm
     assert build(tree, store, "--workers", "1", "--repair").exit_code == 0
     healed = cli_json("check", "--store", store)
     assert healed["ok"] and healed["entries"] == len(parts)
+
+
+def test_duplicates_and_clusters_of_a_sharded_store_are_those_of_one_store(trees, tmp_path):
+    tree, table, parts, _, _ = trees
+    copy = tmp_path / "parts"
+    shutil.copytree(tree, copy)
+    for part in parts[:3]:  # identical twins under other names (likely in other shards), so groups exist
+        shutil.copy(copy / part, copy / part.replace(".wrl", "_copy.wrl"))
+    one, sharded = tmp_path / "one.shapeidx", tmp_path / "sharded.shapeidx"
+    assert build(copy, one, "--workers", "1").exit_code == 0
+    assert build(copy, sharded, "--workers", "1", "--shards", SHARDS).exit_code == 0
+    for command in (("duplicates", "--similar", "--near"), ("cluster", "--clusters", "5")):
+        for where in ((), ("--where", "path~*_copy.wrl")):
+            whole = cli(*command, "--store", sharded, *where, "--json")
+            single = cli(*command, "--store", one, *where, "--json")
+            assert whole.exit_code == 0, whole.output + whole.stderr
+            assert json.loads(whole.stdout) == json.loads(single.stdout)
+    groups = cli_json("duplicates", "--store", sharded)
+    assert len(groups) >= 3 and all(any(m.endswith("_copy.wrl") for m in g["members"]) for g in groups[:3])

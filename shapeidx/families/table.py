@@ -202,6 +202,51 @@ class FamilyTable:
             angles=angle_probabilities(reader.column("entries/angles")[rows].reshape(len(rows), len(ANGLE_HISTOGRAMS), ANGLE_BINS)),
         )
 
+    @classmethod
+    def load_store(cls, store, histograms=HISTOGRAMS) -> "FamilyTable":
+        """The ok entries of the store at ``store``: an ordinary store (:meth:`load`), or every
+        shard of a sharded one (``build --shards``) joined into one table sorted by path, as
+        one store holding them all would give (``rows``: each entry's row in its own shard)."""
+        from ..store import open_store
+        from ..store.shards import is_sharded, shard_paths
+
+        if not is_sharded(store):
+            with open_store(store) as reader:
+                return cls.load(reader, histograms)
+        tables = []
+        for path in shard_paths(store):
+            with open_store(path) as reader:
+                tables.append(cls.load(reader, histograms))
+        return cls.joined(tables)
+
+    @classmethod
+    def joined(cls, tables: list) -> "FamilyTable":
+        """One table of the entries of ``tables`` (of stores with no path in common), sorted by path."""
+        paths = np.concatenate([t.paths for t in tables])
+        order = np.argsort(paths.astype(str), kind="stable")
+
+        def join(values):
+            return None if any(v is None for v in values) else np.concatenate(values)[order]
+
+        histograms = {}
+        for h in tables[0].histograms:
+            ragged = [t.histograms[h] for t in tables]
+            everything = RaggedHistograms(np.concatenate([r.p for r in ragged]),
+                                          offsets_of(np.concatenate([r.lengths for r in ragged])))
+            histograms[h] = _take_ragged(everything, order)
+        basis = None
+        if all(t.d2_basis for t in tables):
+            basis = {h: np.concatenate([t.d2_basis[h] for t in tables])[order] for h in tables[0].d2_basis}
+        return cls(
+            paths=paths[order], rows=join([t.rows for t in tables]), histograms=histograms,
+            fractions=join([t.fractions for t in tables]), means=join([t.means for t in tables]),
+            hashes=join([t.hashes for t in tables]), extents=join([t.extents for t in tables]),
+            handedness=join([t.handedness for t in tables]),
+            missing_columns=sorted({c for t in tables for c in t.missing_columns}),
+            bounds=join([t.bounds for t in tables]), moments=join([t.moments for t in tables]),
+            angles=join([t.angles for t in tables]), d2_basis=basis,
+        )
+
     def __len__(self) -> int:
         return len(self.paths)
 
