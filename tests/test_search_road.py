@@ -230,3 +230,34 @@ def test_what_step_files_say_of_themselves_is_metadata(data_dir, tmp_path):
                       "--where", f"product_id={product.group(1)}")
     assert [h["relative_path"] for h in answer["hits"]] == [first.name]
     assert answer["hits"][0]["metadata"] == {"title": product.group(2), "product_id": product.group(1)}
+
+
+def test_every_searcher_offers_the_query_interface(tmp_path, data_dir):
+    """A sharded store's searcher answers the query road's surfaces as one store's does: the
+    same methods with the same parameters (Searcher.search also takes classify's voter mask)."""
+    import inspect
+
+    from clitools import cli
+    from storetools import FAST_POINTS, small_kicad
+
+    from shapeidx.search.searcher import QUERY_ATTRIBUTES, QUERY_INTERFACE, Searcher
+    from shapeidx.search.sharded import ShardedSearcher, open_searcher
+
+    def parameters(cls, name):
+        return [(p.name, p.default) for p in inspect.signature(getattr(cls, name)).parameters.values()
+                if p.name not in ("threads", "among", "among_reason")]
+
+    for name in QUERY_INTERFACE:
+        assert parameters(Searcher, name) == parameters(ShardedSearcher, name), name
+    tree = small_kicad(data_dir, tmp_path, ["LED_SMD"])
+    for extra in ((), ("--shards", "2")):
+        store = tmp_path / f"s{len(extra)}.shapeidx"
+        assert cli("build", tree, "--store", store, "--points", FAST_POINTS, "--workers", "1", *extra).exit_code == 0
+        with open_searcher(store) as searcher:
+            assert isinstance(searcher, ShardedSearcher if extra else Searcher)
+            assert all(getattr(searcher, a) is not None for a in QUERY_ATTRIBUTES)
+            part = sorted(tree.rglob("*.wrl"))[0]
+            answer = searcher.search(searcher.query_of_part(part), top=3)
+            assert answer.hits[0].path == str(part) and answer.hits[0].distance == 0
+            drawn = searcher.query_of_part(part, seed=7).signature  # its points drawn again: another signature
+            assert drawn.seed == 7 and drawn.fractions != searcher.signature_of(answer.hits[0].relative_path).fractions

@@ -294,3 +294,13 @@ def test_duplicates_and_clusters_of_a_sharded_store_are_those_of_one_store(trees
             assert json.loads(whole.stdout) == json.loads(single.stdout)
     groups = cli_json("duplicates", "--store", sharded)
     assert len(groups) >= 3 and all(any(m.endswith("_copy.wrl") for m in g["members"]) for g in groups[:3])
+    # check-new gates a sharded library as one store: a copy found, a changed file news, the same report
+    new = tmp_path / "new.wrl"
+    shutil.copy(copy / parts[5], new)
+    for args in ((new, copy / parts[0]), (copy / parts[1], "--exclude-self")):
+        whole = cli("check-new", *args, "--store", sharded, "--format", "json")
+        single = cli("check-new", *args, "--store", one, "--format", "json")
+        assert whole.exit_code == single.exit_code and whole.exit_code in (0, 7), whole.output + whole.stderr
+        assert json.loads(whole.stdout) == json.loads(single.stdout)
+    report = json.loads(cli("check-new", new, "--store", sharded, "--format", "json").stdout)[0]
+    assert report["status"] == "duplicate" and report["duplicates"][0]["relative_path"] == parts[5]

@@ -78,16 +78,19 @@ class Checker:
 
     def __init__(self, store, metric: str = default_metric("check-new"), scale: str = "invariant"):
         from ..distance import METRIC_HISTOGRAMS
-        from ..search.searcher import Searcher
+        from ..search.sharded import open_searcher
         from ..store import open_store
+        from ..store.shards import is_sharded, shard_paths
         from .table import FamilyTable
 
         self.metric, self.scale = metric, scale
-        self.searcher = Searcher(store)
+        self.searcher = open_searcher(store)  # an ordinary store, or every shard of a sharded one
         try:
-            with open_store(store) as reader:
-                self.table = FamilyTable.load(reader, METRIC_HISTOGRAMS[metric])
-                self.stored = dict(zip(reader.paths.tolist(), (_text(h) for h in reader.column("entries/hash"))))
+            self.table = FamilyTable.load_store(store, METRIC_HISTOGRAMS[metric])
+            self.stored = {}  # every entry's file hash, failed ones too: a file not changed is not news
+            for path in shard_paths(store) if is_sharded(store) else [store]:
+                with open_store(path) as reader:
+                    self.stored.update(zip(reader.paths.tolist(), (_text(h) for h in reader.column("entries/hash"))))
         except BaseException:
             self.searcher.close()
             raise

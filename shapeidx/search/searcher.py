@@ -114,6 +114,44 @@ def entry_path_in(root, file) -> str | None:
         return None
 
 
+#: What every searcher of a store offers (:class:`Searcher`, and
+#: :class:`~shapeidx.search.sharded.ShardedSearcher` for a sharded store, both opened by
+#: :func:`~shapeidx.search.sharded.open_searcher`): the methods the query road's surfaces call
+#: (query, serve, check-new, sheets), with the same parameters, and the attributes beside them.
+QUERY_INTERFACE = ("search", "query_of_part", "query_of_entry", "entry_path_of", "resolve_entry", "signature_of",
+                   "metadata_keys", "present_metadata_keys", "warm", "close", "__enter__", "__exit__")
+QUERY_ATTRIBUTES = ("store", "root", "params")
+
+
+def sign_part(params, part, file_type: str | None = None, threads: int | None = None, seed: int | None = None):
+    """``(signature, solid)`` of a part signed with a store's parameters ``params`` (faceted as
+    the store's; ``seed``: its points drawn with this seed instead); a Signature is taken as it
+    is when made with the store's points and seed (solid None)."""
+    from ..signing.histogram import Signature
+
+    if isinstance(part, Signature):
+        if (part.points, part.seed) != (params.points, params.seed):
+            raise StoreError(f"the signature was made with {part.points} points and seed {part.seed};"
+                             f" the store's are {params.points} and {params.seed}")
+        return part, None
+    from ..io import LoadLimits
+    from ..signing.part import load_part
+    from ..signing.pipeline import signature_of_solid
+
+    solid = load_part(part, file_type, LoadLimits(faceting=params.faceting))
+    return signature_of_solid(solid, params.points, params.seed if seed is None else seed, params.bin_divisor,
+                              threads or 1), solid
+
+
+def label_of(part, label: str | None = None) -> str:
+    """What an answer calls its query: ``label``, else the path given, else the object's name."""
+    if label is not None:
+        return str(label)
+    if isinstance(part, (str, os.PathLike)):
+        return os.fspath(part)
+    return str(getattr(part, "name", None) or type(part).__name__)
+
+
 class Searcher:
     """A store opened to answer queries (see the module docstring).
 
@@ -286,29 +324,12 @@ class Searcher:
         parameters) signed with the store's parameters; its own entry found when it is a
         file of the store's tree. ``seed``: draw its points with this seed instead of the
         store's (a query whose points nothing in the store shares: the honest twin question)."""
-        from ..signing.histogram import Signature
-
-        solid = None
-        if isinstance(part, Signature):
-            if (part.points, part.seed) != (self.params.points, self.params.seed):
-                raise StoreError(f"the signature was made with {part.points} points and seed {part.seed};"
-                                 f" the store's are {self.params.points} and {self.params.seed}")
-            signature = part
-        else:
-            from ..io import LoadLimits
-            from ..signing.part import load_part
-            from ..signing.pipeline import signature_of_solid
-
-            solid = load_part(part, file_type, LoadLimits(faceting=self.params.faceting))  # faceted as the store's
-            signature = signature_of_solid(solid, self.params.points, self.params.seed if seed is None else seed,
-                                           self.params.bin_divisor, threads or 1)
+        signature, solid = sign_part(self.params, part, file_type, threads, seed)
         path = os.path.abspath(part) if isinstance(part, (str, os.PathLike)) else None
         entry = self.entry_path_of(part) if path is not None else None
         found = self.view.find(entry) if entry is not None else None
         own = self.view.position_of(found) if found is not None else None
-        if label is None:
-            label = os.fspath(part) if path is not None else getattr(part, "name", None) or type(part).__name__
-        return Query(str(label), signature, own, entry if own is not None else None, path, solid)
+        return Query(label_of(part, label), signature, own, entry if own is not None else None, path, solid)
 
     def query_of_entry(self, entry: str | os.PathLike) -> Query:
         """An entry of the store (its path relative to the root, or a path of a file inside

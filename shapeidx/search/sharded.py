@@ -32,7 +32,7 @@ from ..distance.metrics import default_metric
 from ..errors import StoreError
 from ..store.shards import shard_of_paths, shard_paths
 from .hits import Answer, Hit, absolute
-from .searcher import Filters, Query, Searcher, entry_path_in
+from .searcher import Filters, Query, Searcher, entry_path_in, label_of, sign_part
 
 
 def open_searcher(store, scheduler: str | None = None, parts: bool = False):
@@ -257,18 +257,12 @@ class ShardedSearcher:
         return self._each(function, [(self.shards[k], *arguments)], [k])[0]
 
     def query_of_part(self, part, file_type: str | None = None, label: str | None = None,
-                      threads: int | None = None) -> Query:
-        from ..io import LoadLimits
-        from ..signing.part import load_part
-        from ..signing.pipeline import signature_of_solid
-
-        solid = load_part(part, file_type, LoadLimits(faceting=self.params.faceting))
-        signature = signature_of_solid(solid, self.params.points, self.params.seed, self.params.bin_divisor, threads or 1)
+                      threads: int | None = None, seed: int | None = None) -> Query:
+        """As :meth:`Searcher.query_of_part` (its own entry looked up by the shard that holds it)."""
+        signature, solid = sign_part(self.params, part, file_type, threads, seed)
         path = os.path.abspath(part) if isinstance(part, (str, os.PathLike)) else None
         entry = self.entry_path_of(part) if path is not None else None
-        if label is None:
-            label = os.fspath(part) if path is not None else getattr(part, "name", None) or type(part).__name__
-        return Query(str(label), signature, None, entry, path, solid)
+        return Query(label_of(part, label), signature, None, entry, path, solid)
 
     def search(self, query: Query, top: int = 10, metric: str = default_metric("query"), filters: Filters | None = None,
                threads: int | None = None) -> Answer:

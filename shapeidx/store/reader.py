@@ -550,8 +550,8 @@ def _open_main(path: Path) -> _SourceFile:
             raise StoreBeingCreated(f"the store {path} is being created: a first build has just begun and committed"
                                     " nothing yet; try again in a moment") from None
         if (path / "shards.json").is_file():
-            raise StoreError(f"{path} is a sharded store: build, query, serve, check, stats, duplicates"
-                             " and cluster take it whole;"
+            raise StoreError(f"{path} is a sharded store: build, query, serve, check, stats, duplicates,"
+                             " cluster and check-new take it whole;"
                              f" other commands take one shard ({path}/shards/K)") from None
         raise StoreError(f"{path} is not a shapeidx store (it holds no {main.name})") from None
     except PermissionError:
