@@ -112,11 +112,13 @@ def open_store(path):
     ``signature(i)``, ``params`` and ``attrs`` read the store's entries
     (:class:`~shapeidx.store.StoreReader`). Held open, a store of at least 50,000 entries
     builds its block index on its second query (``warm()`` builds it at once), after which
-    every query prunes in blocks (docs/performance.md, *A warm searcher*).
+    every query prunes in blocks (docs/performance.md, *A warm searcher*). A sharded store
+    (``build --shards``) opens as a :class:`~shapeidx.search.sharded.ShardedSearcher`, which
+    offers the query interface (:data:`shapeidx.search.searcher.QUERY_INTERFACE`) over every shard.
     """
-    from .search import Searcher
+    from .search.sharded import open_searcher
 
-    return Searcher(path)
+    return open_searcher(path)
 
 
 def query(store, part=None, top: int = 10, metric: str = default_metric("query"), entry: str | None = None,
@@ -168,6 +170,7 @@ def query(store, part=None, top: int = 10, metric: str = default_metric("query")
         A ``where`` on a key the store does not have, or not of the form KEY OP VALUE.
     """
     from .search import Filters, Searcher, parse_where
+    from .search.sharded import ShardedSearcher, open_searcher
     from .system import available_cores
 
     if (part is None) == (entry is None):
@@ -175,7 +178,7 @@ def query(store, part=None, top: int = 10, metric: str = default_metric("query")
     filters = Filters(exclude_self, max_distance, scale, parse_where(where))
     if parts and isinstance(store, Searcher) and not store.parts:
         raise ValueError("parts=True ranks the sub-parts: give the store's path, or a Searcher(store, parts=True)")
-    searcher = store if isinstance(store, Searcher) else Searcher(store, parts=parts)
+    searcher = store if isinstance(store, (Searcher, ShardedSearcher)) else open_searcher(store, parts=parts)
     try:
         question = searcher.query_of_entry(entry) if entry is not None else searcher.query_of_part(
             part, file_type, threads=available_cores())

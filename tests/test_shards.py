@@ -304,3 +304,14 @@ def test_duplicates_and_clusters_of_a_sharded_store_are_those_of_one_store(trees
         assert json.loads(whole.stdout) == json.loads(single.stdout)
     report = json.loads(cli("check-new", new, "--store", sharded, "--format", "json").stdout)[0]
     assert report["status"] == "duplicate" and report["duplicates"][0]["relative_path"] == parts[5]
+
+
+def test_the_api_opens_and_queries_a_sharded_store_as_one_store(trees):
+    import shapeidx
+
+    tree, _, parts, one, sharded = trees
+    part = tree / parts[2]
+    assert shapeidx.query(sharded, part, top=5, where=WHERE) == shapeidx.query(one, part, top=5, where=WHERE)
+    with shapeidx.open_store(sharded) as searcher:
+        hits = shapeidx.query(searcher, entry=parts[2], top=3, metric="combined-angle")
+    assert hits == shapeidx.query(one, entry=parts[2], top=3, metric="combined-angle") and hits[0]["distance"] == 0
