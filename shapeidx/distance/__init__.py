@@ -1,7 +1,8 @@
 """Distances between signatures.
 
     metrics.py   the registry: one record per metric (name, label, what it reads, its formula,
-                 whether it can be bounded, its embedding, its duplicate thresholds)
+                 whether it can be bounded, its first-order terms, its learned weights, the
+                 tasks it is the default of, its duplicate thresholds)
     paper.py     the paper's D and its four distances: ALL, AvgOf3, AvgOf4, Weighted (3.2.5)
     combined.py  the learned combined distances (combined, combined-angle), all-angle, and every
                  metric from per-pair features (metric_values)

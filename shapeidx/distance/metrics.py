@@ -4,11 +4,12 @@ A :class:`Metric` says what a distance is called (``--metric`` name, label, one 
 it is for), what it reads (the D2 histograms and per-pair features its formula combines,
 whether it needs the normal-angle histograms), how it is computed (its formula over
 per-pair features, so one function serves a pair and a whole store), whether a coarse
-lower bound can rule entries out (the candidate step of a query), how the all-pairs
-candidate step embeds it, and whether ``duplicates`` has measured thresholds for it. The
-command line's choices and help, the web page's menu, the labels of every table and sheet,
-and the metric table of docs/cli.md are made from :data:`REGISTRY`; a test checks that they
-are.
+lower bound can rule entries out (the candidate step of a query), its first-order terms
+(what the all-pairs candidate step embeds), which learned weights it uses, which tasks it is
+the default of (:func:`default_metric`), and whether ``duplicates`` has measured thresholds
+for it. The command line's choices, defaults and help, the web page's menu and default, the
+labels of every table and sheet, and the metric table of docs/cli.md are made from
+:data:`REGISTRY`; tests check that they are and that no other module names a default.
 
 This module imports nothing heavy (the command line reads it to build ``--help``): a
 formula names the module and function that computes it, imported on first use.
