@@ -659,9 +659,9 @@ def plot(parts, output, entries, store, labels, title, points, seed):
         raise click.UsageError(f"{len(labels)} --label for {len(parts) + len(entries)} parts")
     signatures = []
     if entries:
-        from .search import Searcher
+        from .search import open_searcher
 
-        with Searcher(_store_path(store)) as searcher:
+        with open_searcher(_store_path(store)) as searcher:
             stored = [searcher.query_of_entry(entry).signature for entry in entries]
             points, seed = points or searcher.params.points, searcher.params.seed if seed is None else seed
     for part in parts:
@@ -1051,14 +1051,14 @@ def classify(parts, store, k, metric, label_depth, labels_file, where, scale, ou
     """
     from .families.classify import DEFAULT_K, classify_parts
     from .families.labels import labels_from_csv, labels_from_paths
-    from .search import Filters, Searcher, parse_where
+    from .search import Filters, open_searcher, parse_where
     from .system import available_cores
 
     filters = Filters(scale=scale, where=parse_where(where))
-    with Searcher(_store_path(store)) as searcher:
+    with open_searcher(_store_path(store)) as searcher:
         if len(searcher) == 0:
             raise _empty_store_error(store)
-        paths = searcher.metadata_column("path")
+        paths = searcher.entry_paths()
         if labels_file:
             labels, unknown = labels_from_csv(labels_file, paths)
             if unknown:
@@ -1066,7 +1066,8 @@ def classify(parts, store, k, metric, label_depth, labels_file, where, scale, ou
                            f" (first: {unknown[0]!r})", err=True)
         else:
             labels = labels_from_paths(paths, label_depth)
-        results = classify_parts(searcher, list(parts), labels, k or DEFAULT_K, metric, filters, available_cores())
+        results = classify_parts(searcher, list(parts), dict(zip(paths, labels)), k or DEFAULT_K, metric, filters,
+                                 available_cores())
     fmt = chosen_format(output_format, as_json)
     if fmt == "json":
         emit_json(results)

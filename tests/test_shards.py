@@ -317,3 +317,26 @@ def test_the_api_opens_and_queries_a_sharded_store_as_one_store(trees):
     with shapeidx.open_store(sharded) as searcher:
         hits = shapeidx.query(searcher, entry=parts[2], top=3, metric="combined-angle")
     assert hits == shapeidx.query(one, entry=parts[2], top=3, metric="combined-angle") and hits[0]["distance"] == 0
+
+
+def test_classify_and_plot_take_a_sharded_store_as_one_store(trees, tmp_path):
+    tree, table, parts, one, sharded = trees
+    labels = tmp_path / "labels.csv"
+    with open(labels, "w", newline="") as f:
+        csv.writer(f).writerows([("path", "label")] + [(p, "odd" if k % 2 else "even") for k, p in enumerate(parts)])
+    asked = [parts[0], parts[7], str(tree / parts[4])]
+    for extra in ((), ("--where", WHERE[0]), ("--labels", labels, "-k", 5), ("--metric", "all-angle")):
+        whole = cli("classify", *asked, "--store", sharded, *extra, "--json")
+        single = cli("classify", *asked, "--store", one, *extra, "--json")
+        assert whole.exit_code == 0, whole.output + whole.stderr
+        assert json.loads(whole.stdout) == json.loads(single.stdout)
+    answer = json.loads(cli("classify", parts[0], "--store", sharded, "--json").stdout)[0]
+    assert answer["label"] == parts[0].split("/")[0] and parts[0] not in [n["path"] for n in answer["neighbours"]]
+    # no voter left: the same answer as one store's
+    whole = cli("classify", parts[0], "--store", sharded, "--where", "material=gold")
+    assert whole.output == cli("classify", parts[0], "--store", one, "--where", "material=gold").output
+    assert whole.exit_code == 0 and "(no voter)" in whole.output
+    for store in (sharded, one):
+        out = cli("plot", "--id", parts[3], "--id", parts[9], "--store", store, "-o", tmp_path / f"{store.stem}.png")
+        assert out.exit_code == 0, out.output + out.stderr
+    assert (tmp_path / "sharded.png").read_bytes() == (tmp_path / "one.png").read_bytes()

@@ -94,22 +94,23 @@ def leave_one_out(matrix: np.ndarray, labels: np.ndarray, k: int = DEFAULT_K) ->
     return {"accuracy": float(correct.mean()) if n else float("nan"), "predicted": predicted, "confidence": confidence}
 
 
-def classify_parts(searcher, parts, labels: np.ndarray, k: int = DEFAULT_K, metric: str = DEFAULT_METRIC,
+def classify_parts(searcher, parts, labels: dict, k: int = DEFAULT_K, metric: str = DEFAULT_METRIC,
                    filters=None, threads: int = 1) -> list[dict]:
     """Classify each part (a file, or an entry path of the store) by the store's labelled entries.
 
-    The voters are found by the one search road (:class:`~shapeidx.search.Searcher`): the
-    ``k + 1`` nearest labelled entries that ``filters`` keep (``--where``, ``--scale``), the
-    part's own entry left out.
+    The voters are found by the one search road (a searcher of
+    :func:`~shapeidx.search.open_searcher`: one store or a sharded one): the ``k + 1`` nearest
+    labelled entries that ``filters`` keep (``--where``, ``--scale``), the part's own entry
+    left out.
 
     Parameters
     ----------
-    searcher : an open :class:`~shapeidx.search.Searcher`
+    searcher : an open searcher (:data:`~shapeidx.search.searcher.QUERY_INTERFACE`)
     parts : list of str
         Files to sign (with the store's parameters), or relative paths of store entries. A
         part that is itself in the store does not vote for itself.
-    labels : (len(searcher),) object
-        Label of every ranked entry (None: not a voter), in the searcher's order.
+    labels : dict
+        The label of each entry path (None or absent: not a voter).
     k, metric : see :func:`vote`
     filters : :class:`~shapeidx.search.Filters`, optional
 
@@ -124,27 +125,27 @@ def classify_parts(searcher, parts, labels: np.ndarray, k: int = DEFAULT_K, metr
 
     from ..search import Filters
 
-    is_voter = np.array([lab is not None for lab in labels], dtype=bool)
-    if not is_voter.any():
+    voters = frozenset(path for path, label in labels.items() if label is not None)
+    if not voters:
         raise ShapeidxError(
             f"store {searcher.store} has no labelled entries (no part lies in a folder deep enough for the labels);"
             " give --labels FILE or a smaller --label-depth"
         )
     filters = replace(filters or Filters(), exclude_self=True)
-    by_path = dict(zip(searcher.metadata_column("path"), labels))
+    entries = set(searcher.entry_paths())
     results = []
     for part in parts:
-        if searcher.view.find(part) is not None:  # a path of the store
+        if part in entries:  # a path of the store
             query = searcher.query_of_entry(part)
         elif os.path.exists(part):  # a file, perhaps inside the indexed folder
             query = searcher.query_of_part(part, threads=threads)
         else:
             raise ShapeidxError(f"{part}: no such file, and no entry of that path in {searcher.store}")
-        answer = searcher.search(query, k + 1, metric, filters, among=is_voter,
+        answer = searcher.search(query, k + 1, metric, filters, among=voters,
                                  among_reason="no labelled entry is left to vote")
         hits = answer.hits
         distances = np.array([hit.distance for hit in hits], dtype=np.float64)
-        voter_labels = np.array([by_path[hit.relative_path] for hit in hits], dtype=object)
+        voter_labels = np.array([labels[hit.relative_path] for hit in hits], dtype=object)
         result = vote(distances, voter_labels, k)
         results.append({
             "path": part,

@@ -22,6 +22,7 @@ Filtered hits are exact: the same as ranking only the entries the filters keep.
 from __future__ import annotations
 
 import os
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -117,9 +118,10 @@ def entry_path_in(root, file) -> str | None:
 #: What every searcher of a store offers (:class:`Searcher`, and
 #: :class:`~shapeidx.search.sharded.ShardedSearcher` for a sharded store, both opened by
 #: :func:`~shapeidx.search.sharded.open_searcher`): the methods the query road's surfaces call
-#: (query, serve, check-new, sheets), with the same parameters, and the attributes beside them.
+#: (query, serve, check-new, classify, plot, sheets), with the same parameters, and the
+#: attributes beside them.
 QUERY_INTERFACE = ("search", "query_of_part", "query_of_entry", "entry_path_of", "resolve_entry", "signature_of",
-                   "metadata_keys", "present_metadata_keys", "warm", "close", "__enter__", "__exit__")
+                   "entry_paths", "metadata_keys", "present_metadata_keys", "warm", "close", "__enter__", "__exit__")
 QUERY_ATTRIBUTES = ("store", "root", "params")
 
 
@@ -401,14 +403,13 @@ class Searcher:
         return mask, None
 
     def search(self, query: Query, top: int = 10, metric: str = default_metric("query"), filters: Filters | None = None,
-               threads: int = RANK_THREADS, among: np.ndarray | None = None, among_reason: str = "") -> Answer:
+               threads: int = RANK_THREADS, among: Collection[str] | None = None, among_reason: str = "") -> Answer:
         """The ``top`` entries nearest to ``query`` by ``metric`` among those ``filters`` keep.
 
         Ties are broken by path, and the query's own entry wins its ties (so a part of the
         store comes before its identical twins). An answer with no hit says why
-        (:attr:`Answer.reason`). ``among``: a boolean mask over the ranked entries that
-        narrows them further (``classify``: the labelled voters), ``among_reason`` what to
-        say when it leaves none.
+        (:attr:`Answer.reason`). ``among``: the entry paths (a set) that narrow them further
+        (``classify``: the labelled voters), ``among_reason`` what to say when it leaves none.
         """
         from ..distance.metrics import metric as metric_record
 
@@ -423,6 +424,7 @@ class Searcher:
             return answer
         keep, answer.reason = self.keep(query, filters)
         if among is not None and answer.reason is None:
+            among = self._among_mask(among)
             keep = among if keep is None else keep & among
             if not keep.any():
                 answer.reason = among_reason or "no entry is left to rank"
@@ -444,6 +446,19 @@ class Searcher:
         chosen, exact = chosen[valid], exact[valid]
         answer.hits = self._hits(chosen, exact, top, own)
         return answer
+
+    def _among_mask(self, among) -> np.ndarray:
+        """``among`` (entry paths) as a mask over the ranked entries; the last one is kept, as
+        classify asks with one set of voters for every part."""
+        held = self._cache.get("among")
+        if held is None or held[0] is not among:
+            mask = np.fromiter((p in among for p in self.metadata_column("path")), dtype=bool, count=len(self.view))
+            held = self._cache["among"] = (among, mask)
+        return held[1]
+
+    def entry_paths(self) -> list:
+        """The paths of the ranked (ok) entries, as the store names them."""
+        return [str(p) for p in self.metadata_column("path")]
 
     def asked(self) -> None:
         """Count a question; the second one warms a big store (a long-lived searcher, whose

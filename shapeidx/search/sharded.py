@@ -134,7 +134,13 @@ def shard_entry(path: str, entry: str):
     return _searcher(path).query_of_entry(entry).signature
 
 
-def search_shard(path: str, signature, entry: str | None, top: int, metric: str, filters: Filters) -> dict:
+def shard_entry_paths(path: str) -> list:
+    """The paths of the shard's ranked entries."""
+    return _searcher(path).entry_paths()
+
+
+def search_shard(path: str, signature, entry: str | None, top: int, metric: str, filters: Filters,
+                 among=None, among_reason: str = "") -> dict:
     """The shard's exact top ``top`` (run where the shard is): each hit as (distance, not the
     query's own entry, relative path, metadata), in the store's order; the counts; why none."""
     import time
@@ -146,7 +152,7 @@ def search_shard(path: str, signature, entry: str | None, top: int, metric: str,
         found = searcher.view.find(entry)
         own = searcher.view.position_of(found) if found is not None else None
     query = Query(entry or "", signature, own, entry if own is not None else None)
-    answer = searcher.search(query, top, metric, filters)
+    answer = searcher.search(query, top, metric, filters, among=among, among_reason=among_reason)
     return {"hits": [(hit.distance, hit.relative_path != query.entry, hit.relative_path, hit.metadata)
                      for hit in answer.hits],
             "considered": answer.considered, "entries": answer.entries, "reason": answer.reason,
@@ -252,6 +258,10 @@ class ShardedSearcher:
         """The stored signature of the entry named ``entry`` (its path relative to the root)."""
         return self.query_of_entry(entry).signature
 
+    def entry_paths(self) -> list:
+        """The paths of every shard's ranked entries, sorted."""
+        return sorted(p for paths in self._each(shard_entry_paths, [(path,) for path in self.shards]) for p in paths)
+
     def on_shard(self, k: int, function, *arguments):
         """``function(shard k's path, *arguments)``, where shard ``k`` is."""
         return self._each(function, [(self.shards[k], *arguments)], [k])[0]
@@ -265,16 +275,17 @@ class ShardedSearcher:
         return Query(label_of(part, label), signature, None, entry, path, solid)
 
     def search(self, query: Query, top: int = 10, metric: str = default_metric("query"), filters: Filters | None = None,
-               threads: int | None = None) -> Answer:
-        """Every shard's exact top ``top``, merged (see the module docstring)."""
+               threads: int | None = None, among=None, among_reason: str = "") -> Answer:
+        """Every shard's exact top ``top``, merged (see the module docstring); ``among`` and
+        ``among_reason`` as :meth:`Searcher.search`'s, asked of every shard."""
         from ..distance.metrics import metric as metric_record
 
         metric_record(metric)
         filters = filters or Filters()
         if top < 1:
             raise ValueError(f"top must be at least 1, not {top}")
-        answers = self._each(search_shard, [(path, query.signature, query.entry, top, metric, filters)
-                                            for path in self.shards])
+        answers = self._each(search_shard, [(path, query.signature, query.entry, top, metric, filters, among,
+                                             among_reason) for path in self.shards])
         self.last_seconds = [a["seconds"] for a in answers]  # each shard's own time (benchmarks)
         found = [hit for answer in answers for hit in answer["hits"]]
         found.sort(key=lambda hit: hit[:3])
