@@ -593,7 +593,7 @@ def where_used(part, store, entry, top, metric, max_distance, scale, same_size, 
       shapeidx where-used pin.step --store lib.shapeidx --sheet pin-uses.html
     """
     from .errors import NoAnswer
-    from .search import Searcher
+    from .search import open_searcher
     from .search.where_used import question_of_entry, where_used as rank_uses
     from .system import available_cores
 
@@ -604,7 +604,7 @@ def where_used(part, store, entry, top, metric, max_distance, scale, same_size, 
         from .errors import ShapeidxError
 
         raise ShapeidxError(f"{sheet}: no folder {os.path.dirname(os.path.abspath(sheet))} to write the sheet in")
-    with Searcher(_store_path(store), parts=True) as searcher:
+    with open_searcher(_store_path(store), parts=True) as searcher:
         if entry:
             question = question_of_entry(searcher, entry)
         else:
@@ -967,14 +967,14 @@ scale_option = click.option(
          " a factor 2 are kept apart.")
 
 
-def _family_table(store, metric=None):
-    """The store's ok entries for pair work (the histograms ``metric`` reads; all without one),
-    with one line on stderr for an old store's missing columns."""
+def _family_table(store, metric=None, parts: bool = False):
+    """The store's ok entries (``parts``: sub-entries) for pair work (the histograms ``metric``
+    reads; all without one), with one line on stderr for an old store's missing columns."""
     from .distance import METRIC_HISTOGRAMS
     from .families.table import FamilyTable
     from .signing.parameters import HISTOGRAMS
 
-    table = FamilyTable.load_store(_store_path(store), METRIC_HISTOGRAMS[metric] if metric else HISTOGRAMS)
+    table = FamilyTable.load_store(_store_path(store), METRIC_HISTOGRAMS[metric] if metric else HISTOGRAMS, parts)
     if table.missing_columns:
         click.echo(f"shapeidx: warning: {_store_path(store)} predates the size and handedness columns"
                    f" ({', '.join(table.missing_columns)}): sizes and mirroring unknown for its older entries;"
@@ -982,21 +982,7 @@ def _family_table(store, metric=None):
     return table
 
 
-def _parts_store_of(store):
-    """The parts store of ``store`` (``build --parts``), or a one-line error naming how to make it."""
-    from .errors import StoreError
-    from .store import open_store
-    from .store.files import parts_store
-
-    path = parts_store(_store_path(store))
-    if not path.is_dir():
-        open_store(_store_path(store)).close()  # no store at all: that error first
-        raise StoreError(f"the store {_store_path(store)} has no sub-parts: build it with 'shapeidx build DIR --store"
-                         f" {_store_path(store)} --parts' (docs/assemblies.md)")
-    return path
-
-
-def _table_keep(store, table, where):
+def _table_keep(store, table, where, parts: bool = False):
     """``--where`` as a keep-mask over the table's entries (None: no condition)."""
     if not where:
         return None
@@ -1004,10 +990,10 @@ def _table_keep(store, table, where):
 
     from .search import Searcher, parse_where
     from .search.where import keep_mask
-    from .store.shards import is_sharded, shard_paths
+    from .store.reader import member_stores
 
-    path, kept = _store_path(store), set()
-    for one in shard_paths(path) if is_sharded(path) else [path]:  # a sharded store: each shard's metadata
+    kept = set()
+    for one in member_stores(_store_path(store), parts):  # a sharded store: each shard's metadata
         with Searcher(one) as searcher:
             mask = keep_mask(parse_where(where), searcher.metadata_column, searcher.metadata_keys())
             if mask is None:
@@ -1016,16 +1002,14 @@ def _table_keep(store, table, where):
     return np.array([str(p) in kept for p in table.paths], dtype=bool)
 
 
-def _empty_store_error(store):
+def _empty_store_error(store, parts: bool = False):
     """No entry to work on: no answer (status 6), with why (as the search road says it)."""
     from .errors import NoAnswer
     from .search import Searcher
+    from .store.reader import member_stores
 
-    from .store.shards import is_sharded, shard_paths
-
-    path = _store_path(store)
-    with Searcher(shard_paths(path)[0] if is_sharded(path) else path) as searcher:
-        return NoAnswer(f"store {path} has no indexed entries: {searcher.empty_reason()}")
+    with Searcher(member_stores(_store_path(store), parts)[0]) as searcher:
+        return NoAnswer(f"store {_store_path(store)} has no indexed entries: {searcher.empty_reason()}")
 
 
 @main.command(context_settings=CONTEXT)
@@ -1182,19 +1166,20 @@ def duplicates(store, metric, with_similar, with_near, where, scale, parts, as_c
     from .families.duplicates import DEFAULT_TIERS, find_duplicates, shared_sub_parts
     from .system import available_cores
 
-    if parts:
-        store = str(_parts_store_of(store))
-    table = _family_table(store, metric)
-    keep = _table_keep(store, table, where)
+    table = _family_table(store, metric, parts)
+    keep = _table_keep(store, table, where, parts)
     if len(table) == 0 or (keep is not None and not keep.any()):
-        raise _empty_store_error(store) if len(table) == 0 else _no_entry_kept(where)
+        raise _empty_store_error(store, parts) if len(table) == 0 else _no_entry_kept(where)
     tiers = DEFAULT_TIERS + (("similar", "near") if with_near else ("similar",) if with_similar else ())
     if parts:
         from .store import open_store
+        from .store.reader import member_stores
 
-        with open_store(store) as reader:
-            parent_of = dict(zip(reader.paths.tolist(), reader.column("entries/parent").tolist()))
-            count_of = dict(zip(reader.paths.tolist(), reader.column("entries/count").tolist()))
+        parent_of, count_of = {}, {}
+        for member in member_stores(_store_path(store), parts=True):  # each shard's sub-parts
+            with open_store(member) as reader:
+                parent_of.update(zip(reader.paths.tolist(), reader.column("entries/parent").tolist()))
+                count_of.update(zip(reader.paths.tolist(), reader.column("entries/count").tolist()))
         groups = shared_sub_parts(table, [parent_of[p] for p in table.paths], metric, scale, threads=available_cores(),
                                   tiers=tiers, keep=keep, counts=[count_of[p] for p in table.paths])
     else:

@@ -17,7 +17,7 @@ import subprocess
 import numpy as np
 import pytest
 from clitools import cli, cli_json, shapeidx_command
-from storetools import FAST_POINTS, build, small_kicad
+from storetools import FAST_POINTS, build, copy_tree, small_kicad
 
 from shapeidx.distance.metrics import METRICS
 from shapeidx.errors import StoreError
@@ -340,3 +340,86 @@ def test_classify_and_plot_take_a_sharded_store_as_one_store(trees, tmp_path):
         out = cli("plot", "--id", parts[3], "--id", parts[9], "--store", store, "-o", tmp_path / f"{store.stem}.png")
         assert out.exit_code == 0, out.output + out.stderr
     assert (tmp_path / "sharded.png").read_bytes() == (tmp_path / "one.png").read_bytes()
+
+
+@pytest.fixture(scope="module")
+def part_trees(data_dir, tmp_path_factory):
+    """KiCad parts of several sub-parts each (bodies, pins), as one store and as a sharded store, both with --parts."""
+    tmp = tmp_path_factory.mktemp("shard-parts")
+    tree = copy_tree(data_dir / "kicad6", tmp / "parts", ("Battery", "Button_Switch_SMD"))
+    # a file of five sub-parts again under another name: its sub-parts are shared by two files
+    shutil.copy(tree / "Battery/BatteryHolder_Keystone_1042_1x18650.wrl", tree / "Button_Switch_SMD/holder_copy.wrl")
+    one, sharded = tmp / "one.shapeidx", tmp / "sharded.shapeidx"
+    for store, extra in ((one, ()), (sharded, ("--shards", SHARDS))):
+        result = build(tree, store, "--workers", "1", "--parts", *extra)
+        assert result.exit_code == 0, result.output + result.stderr
+    return tree, one, sharded
+
+
+def test_where_used_on_a_sharded_store_answers_as_one_store(part_trees, tmp_path):
+    import re
+
+    from shapeidx.search import open_searcher
+    from shapeidx.search.where_used import question_of_entry, where_used
+
+    tree, one, sharded = part_trees
+    with open_searcher(one, parts=True) as single, open_searcher(sharded, parts=True) as whole:
+        entries = single.entry_paths()
+        assert sorted(whole.entry_paths()) == sorted(entries) and any(not e.endswith("#1") for e in entries)
+        files = sorted({e.rsplit("#", 1)[0] for e in entries})
+        asked = entries[::3] + files[::2]  # sub-entries, files of one part and files of several
+        for entry in asked:
+            for scale, within in (("sensitive", None), ("invariant", None), ("invariant", 0.003)):
+                a = where_used(single, question_of_entry(single, entry), 4, "all-angle", within, scale)
+                b = where_used(whole, question_of_entry(whole, entry), 4, "all-angle", within, scale)
+                assert (a.to_dict() | {"store": ""}, a.reason) == (b.to_dict() | {"store": ""}, b.reason), entry
+    # through the command line: a file asked, text and JSON, a sheet with the same pictures
+    part = tree / files[1]
+    for args in (("--top", 6, "--scale", "invariant"), ("--max-distance", 0.002, "--scale", "invariant", "--json")):
+        got, expected = (cli("where-used", part, "--store", store, *args) for store in (sharded, one))
+        assert got.exit_code == expected.exit_code == 0, got.output + got.stderr
+        assert got.stdout.replace(str(sharded), "") == expected.stdout.replace(f"{one}/parts", "")
+    pictures = []
+    for store in (sharded, one):
+        sheet = tmp_path / f"{store.stem}.html"
+        assert cli("where-used", part, "--store", store, "--top", 3, "--scale", "invariant", "--sheet", sheet).exit_code == 0
+        pictures.append(re.findall(r"data:image/png;base64,([A-Za-z0-9+/=]+)", sheet.read_text()))
+    assert len(pictures[0]) >= 4 and pictures[0] == pictures[1]
+    # query --parts ranks every shard's sub-parts: the same hits, with their files and counts
+    for args in ((part, "--top", 6), ("--id", entries[4], "--top", 5, "--scale", "sensitive", "--format", "csv")):
+        got, expected = (cli("query", *args, "--parts", "--store", store) for store in (sharded, one))
+        assert got.exit_code == expected.exit_code == 0, got.output + got.stderr
+        assert got.stdout.replace(str(sharded), "") == expected.stdout.replace(f"{one}/parts", "")
+        assert "x1" in got.stdout or ",1\n" in got.stdout
+    # the page ranks a sharded store's files only, and says where its sub-parts are ranked
+    pytest.importorskip("starlette")
+    from starlette.testclient import TestClient
+
+    from shapeidx.web.app import create_app, open_service
+
+    service = open_service(sharded)
+    try:
+        reply = TestClient(create_app(service), base_url="http://127.0.0.1:8765").get("/api/query", params={"id": entries[0], "parts": "1"})
+        assert reply.status_code == 409 and "shapeidx where-used" in reply.json()["error"], reply.text
+    finally:
+        service.close()
+    # a sharded store built without --parts: one line naming the build that makes them
+    plain = tmp_path / "plain.shapeidx"
+    assert build(tree, plain, "--workers", "1", "--shards", 2).exit_code == 0
+    out = cli("where-used", part, "--store", plain)
+    assert out.exit_code != 0 and f"has no sub-parts: build it with 'shapeidx build DIR --store {plain} --parts'" in out.stderr
+
+
+def test_duplicates_of_sub_parts_of_a_sharded_store_are_those_of_one_store(part_trees):
+    _, one, sharded = part_trees
+    answers = []
+    for where in ((), ("--where", "path~Button*")):
+        got, expected = (cli("duplicates", "--parts", "--similar", "--store", store, *where, "--json")
+                         for store in (sharded, one))
+        assert got.exit_code == expected.exit_code == 0, got.output + got.stderr
+        assert json.loads(got.stdout) == json.loads(expected.stdout)
+        answers.append(json.loads(got.stdout))
+    # the copy's five sub-parts, each shared with the file it copies (another shard, likely); none
+    # once --where keeps one of the two files only
+    assert len(answers[0]) >= 5 and answers[1] == []
+    assert sum(any(m.startswith("Button_Switch_SMD/holder_copy.wrl#") for m in g["members"]) for g in answers[0]) >= 5

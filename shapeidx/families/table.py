@@ -203,21 +203,19 @@ class FamilyTable:
         )
 
     @classmethod
-    def load_store(cls, store, histograms=HISTOGRAMS) -> "FamilyTable":
+    def load_store(cls, store, histograms=HISTOGRAMS, parts: bool = False) -> "FamilyTable":
         """The ok entries of the store at ``store``: an ordinary store (:meth:`load`), or every
         shard of a sharded one (``build --shards``) joined into one table sorted by path, as
-        one store holding them all would give (``rows``: each entry's row in its own shard)."""
+        one store holding them all would give (``rows``: each entry's row in its own shard);
+        ``parts``: the sub-entries (``build --parts``) instead."""
         from ..store import open_store
-        from ..store.shards import is_sharded, shard_paths
+        from ..store.reader import member_stores
 
-        if not is_sharded(store):
-            with open_store(store) as reader:
-                return cls.load(reader, histograms)
         tables = []
-        for path in shard_paths(store):
+        for path in member_stores(store, parts):
             with open_store(path) as reader:
                 tables.append(cls.load(reader, histograms))
-        return cls.joined(tables)
+        return tables[0] if len(tables) == 1 else cls.joined(tables)
 
     @classmethod
     def joined(cls, tables: list) -> "FamilyTable":

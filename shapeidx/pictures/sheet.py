@@ -317,7 +317,9 @@ def _thumbnails_of(searcher):
     from .thumbcache import StoreThumbnails, cache_dir_of_store
 
     sub_parts = bool(getattr(searcher, "parts", False))
-    return StoreThumbnails(searcher, folder=cache_dir_of_store(searcher.store.parent) if sub_parts else None)
+    # a store's sub-parts searcher has STORE/parts for its store; a sharded store's, STORE itself
+    whole = searcher.store if hasattr(searcher, "shards") else searcher.store.parent
+    return StoreThumbnails(searcher, folder=cache_dir_of_store(whole) if sub_parts else None)
 
 
 def _sub_part_pictures(thumbs, entry: str, parent: str) -> tuple[bytes | None, str, bytes | None]:
@@ -439,7 +441,6 @@ def where_used_sheet(searcher, answer, query, output: str | os.PathLike, thumbna
     thumbs, part, header_extra, scale = _sheet_start(searcher, output, query, query.signature, answer.metric)
     cards = []
     for k, use in enumerate(answer.uses):
-        position = searcher.view.position_of(searcher.view.find(use.part))
         if k < thumbnails:  # the sub-part itself, the file small beside it
             png, note, context = _sub_part_pictures(thumbs, use.part, use.relative_path)
         else:
@@ -447,7 +448,7 @@ def where_used_sheet(searcher, answer, query, output: str | os.PathLike, thumbna
         share = scale.share(use.distance)
         extra = {"share": closer_than(share)} if share is not None and use.distance > 0 else {}
         extra.update(parent=use.relative_path, count=use.count, title=use.title, part=use.part)
-        cards.append(SheetHit(SheetPart(use.part, Path(use.path), searcher.signature_at(position), png, note, context),
+        cards.append(SheetHit(SheetPart(use.part, Path(use.path), searcher.signature_of(use.part), png, note, context),
                               use.rank, use.distance, scale.words(use.distance), extra))
     meta = [
         f"Store <code>{_esc(answer.store)}</code>: {answer.sub_entries:,} sub-parts of {answer.files:,} files"

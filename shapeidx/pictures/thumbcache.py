@@ -162,23 +162,20 @@ class StoreThumbnails:
         LoadError (also for an entry the store does not have)."""
         from ..errors import LoadError
 
-        found = self.searcher.view.find(entry)
-        if found is None or "#" not in entry:
+        facts = self.searcher.sub_part_of(entry)
+        if facts is None:
             raise LoadError(entry, "is not a sub-part of the store")
-        position = self.searcher.view.position_of(found)
-        parent, count = self.searcher.parent_at(position)
-        number = int(entry.rsplit("#", 1)[1])
-        absolute = self.file_of(parent)
+        absolute = self.file_of(facts["parent"])
         digest = self._digest(entry, absolute)
-        if self.is_whole_file(entry, parent, count):
+        if facts["whole"]:
             return self.cache.png(absolute, digest)  # one part: the whole file
-        title = (self.searcher.metadata_at(position) or {}).get("title") if position is not None else None
-        return self.cache.part_png(absolute, number, digest, count, title)
+        return self.cache.part_png(absolute, int(entry.rsplit("#", 1)[1]), digest, facts["count"], facts["title"])
 
-    def is_whole_file(self, entry: str, parent: str, count: int) -> bool:
-        """Whether sub-entry ``entry`` of ``parent`` is the whole file (a file that is one part:
-        its ``FILE#1`` alone, once), whose picture is the file's."""
-        return entry == f"{parent}#1" and count == 1 and self.searcher.view.find(f"{parent}#2") is None
+    def is_whole_file(self, entry: str) -> bool:
+        """Whether sub-entry ``entry`` is the whole file (a file that is one part), whose
+        picture is the file's."""
+        facts = self.searcher.sub_part_of(entry)
+        return facts is not None and facts["whole"]
 
     def _digest(self, entry: str, absolute: Path) -> str | None:
         """The entry's stored SHA-256 when its file is unchanged since the build (else None: hash it)."""

@@ -167,18 +167,17 @@ class Searcher:
 
     def __init__(self, store: str | os.PathLike, parts: bool = False):
         from ..store import open_store
-        from ..store.files import parts_store
         from ..store.ranked import ranked_view
+        from ..store.reader import member_stores
+
+        from ..store.files import owner_of_parts
 
         self.store = Path(store)
-        #: Whether this searcher ranks the store's sub-entries (``build --parts``) instead of its files.
-        self.parts = parts
         if parts:
-            self.store = parts_store(store)
-            if not self.store.is_dir():
-                open_store(Path(store)).close()  # no store at all: that error first
-                raise StoreError(f"the store {store} has no sub-parts: build it with 'shapeidx build DIR --store {store}"
-                                 " --parts' (docs/assemblies.md)")
+            self.store = member_stores(store, parts=True)[0]
+        #: Whether this searcher ranks the store's sub-entries (``build --parts``) instead of its
+        #: files (also when opened on the sub-parts store itself, as each shard's is).
+        self.parts = parts or owner_of_parts(self.store) is not None
         self.reader = open_store(self.store)
         try:
             check_usable(self.reader)
@@ -503,6 +502,20 @@ class Searcher:
         i, row = self.view.locate(position)
         source = self.view.sources[i]
         return source.text_at(PARENT_COLUMN, row), int(source.value_at(COUNT_COLUMN, row))
+
+    def sub_part_of(self, entry: str) -> dict | None:
+        """What a picture of sub-entry ``entry`` (``FILE#n``) needs: its file (``parent``), how
+        many times the file holds it (``count``), its ``title``, and whether it is the whole
+        file (``whole``: a file that is one part, its ``FILE#1`` alone, once); None when the
+        store has no such sub-entry."""
+        found = self.view.find(entry) if "#" in entry else None
+        position = self.view.position_of(found) if found is not None else None
+        if position is None:
+            return None
+        parent, count = self.parent_at(position)
+        whole = entry == f"{parent}#1" and count == 1 and self.view.find(f"{parent}#2") is None
+        return {"parent": parent, "count": count, "title": self.metadata_at(position).get("title") or None,
+                "whole": whole}
 
     def parents(self) -> tuple[np.ndarray, np.ndarray]:
         """The file (relative path) and count of every ranked sub-entry (read once)."""

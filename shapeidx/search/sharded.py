@@ -30,21 +30,19 @@ import numpy as np
 
 from ..distance.metrics import default_metric
 from ..errors import StoreError
-from ..store.shards import shard_of_paths, shard_paths
+from ..store.shards import shard_of_paths
 from .hits import Answer, Hit, absolute
 from .searcher import Filters, Query, Searcher, entry_path_in, label_of, sign_part
 
 
 def open_searcher(store, scheduler: str | None = None, parts: bool = False):
     """A :class:`Searcher` of an ordinary store, a :class:`ShardedSearcher` of a sharded one
-    (``scheduler``: ranked on that Dask cluster's workers). ``scheduler`` with an ordinary store
-    is refused in one line; so are ``parts`` (the sub-entries) with a sharded one."""
+    (``scheduler``: ranked on that Dask cluster's workers); ``parts``: ranking the sub-entries
+    (``build --parts``). ``scheduler`` with an ordinary store is refused in one line."""
     from ..store.shards import is_sharded
 
     if is_sharded(store):
-        if parts:
-            raise StoreError(f"{store} is a sharded store: --parts ranks the sub-entries of an ordinary store")
-        return ShardedSearcher(store, scheduler)
+        return ShardedSearcher(store, scheduler, parts=parts)
     if scheduler:
         raise StoreError(f"{store} is not a sharded store: --scheduler queries a store built with --shards")
     return Searcher(store, parts=parts)
@@ -139,10 +137,39 @@ def shard_entry_paths(path: str) -> list:
     return _searcher(path).entry_paths()
 
 
+def shard_question(path: str, entry: str) -> tuple:
+    """Where-used's question for ``entry`` in the shard whose sub-parts are at ``path``: its
+    signature, the entry it is (a sub-entry wins its ties), whether that is a sub-entry, its
+    principal radii."""
+    from .where_used import query_extents, question_of_entry
+
+    parts = _searcher(path)
+    query = question_of_entry(parts, entry, _searcher(str(Path(path).parent)))
+    return query.signature, query.entry, query.own is not None, query_extents(parts, query)
+
+
+def where_used_shard(path: str, signature, entry: str | None, extents, top: int, metric: str,
+                     max_distance: float | None, scale: str, same_size: float | None):
+    """The shard's where-used answer (run where the shard is; ``path``: its sub-parts)."""
+    from .where_used import where_used
+
+    searcher = _searcher(path)
+    found = searcher.view.find(entry) if entry is not None else None
+    own = searcher.view.position_of(found) if found is not None else None
+    query = Query(entry or "", signature, own, entry if own is not None else None, extents=extents)
+    return where_used(searcher, query, top, metric, max_distance, scale, same_size)
+
+
+def shard_sub_part(path: str, entry: str) -> dict | None:
+    """:meth:`Searcher.sub_part_of` in the shard whose sub-parts are at ``path``."""
+    return _searcher(path).sub_part_of(entry)
+
+
 def search_shard(path: str, signature, entry: str | None, top: int, metric: str, filters: Filters,
                  among=None, among_reason: str = "") -> dict:
     """The shard's exact top ``top`` (run where the shard is): each hit as (distance, not the
-    query's own entry, relative path, metadata), in the store's order; the counts; why none."""
+    query's own entry, relative path, metadata, its file and count when it is a sub-entry), in
+    the store's order; the counts; why none."""
     import time
 
     started = time.perf_counter()
@@ -153,8 +180,8 @@ def search_shard(path: str, signature, entry: str | None, top: int, metric: str,
         own = searcher.view.position_of(found) if found is not None else None
     query = Query(entry or "", signature, own, entry if own is not None else None)
     answer = searcher.search(query, top, metric, filters, among=among, among_reason=among_reason)
-    return {"hits": [(hit.distance, hit.relative_path != query.entry, hit.relative_path, hit.metadata)
-                     for hit in answer.hits],
+    return {"hits": [(hit.distance, hit.relative_path != query.entry, hit.relative_path, hit.metadata, hit.parent,
+                      hit.count) for hit in answer.hits],
             "considered": answer.considered, "entries": answer.entries, "reason": answer.reason,
             "nearest": answer.nearest, "own": own is not None, "seconds": time.perf_counter() - started}
 
@@ -162,9 +189,13 @@ def search_shard(path: str, signature, entry: str | None, top: int, metric: str,
 class ShardedSearcher:
     """A sharded store opened to answer queries; the query interface of :class:`Searcher`."""
 
-    def __init__(self, store, scheduler: str | None = None):
+    def __init__(self, store, scheduler: str | None = None, parts: bool = False):
+        from ..store.reader import member_stores
+
         self.store = Path(store)
-        self.shards = [str(p.resolve()) for p in shard_paths(self.store)]
+        #: Whether this searcher ranks the sub-entries of each shard (``build --parts``).
+        self.parts = parts
+        self.shards = [str(p.resolve()) for p in member_stores(self.store, parts)]
         self.scheduler = scheduler
         self.client = None
         self._workers: list = []
@@ -210,6 +241,9 @@ class ShardedSearcher:
         self.close()
 
     def shard_of(self, entry: str) -> int:
+        """The shard that holds ``entry`` (a sub-entry ``FILE#n`` lives in its file's)."""
+        if self.parts and "#" in entry:
+            entry = entry.rsplit("#", 1)[0]
         return int(shard_of_paths([entry], len(self.shards))[0])
 
     def metadata_keys(self) -> tuple:
@@ -262,6 +296,43 @@ class ShardedSearcher:
         """The paths of every shard's ranked entries, sorted."""
         return sorted(p for paths in self._each(shard_entry_paths, [(path,) for path in self.shards]) for p in paths)
 
+    def question_of_entry(self, entry) -> Query:
+        """Where-used's question for an entry (:func:`~shapeidx.search.where_used.question_of_entry`),
+        made in the shard that holds its file, with its principal radii for every shard."""
+        name = self.resolve_entry(entry)
+        signature, asked, sub_entry, extents = self.on_shard(self.shard_of(name), shard_question, name)
+        # labelled as one store's question is: a sub-entry by its name, a whole file as given
+        return Query(asked if sub_entry else os.fspath(entry), signature, None, asked, extents=extents)
+
+    def where_used(self, query: Query, top: int, metric: str, max_distance: float | None, scale: str,
+                   same_size: float | None):
+        """Every shard's :func:`~shapeidx.search.where_used.where_used`, merged: a file and its
+        sub-parts live in one shard, so the top ``top`` files are among the shards' top ``top``
+        (ties broken by path, as one store's answer is ordered)."""
+        from .where_used import WhereUsed, no_use_reason, principal_radii
+
+        extents = query.extents
+        if extents is None and query.solid is not None:
+            extents = principal_radii(query.solid)
+        answers = self._each(where_used_shard, [(path, query.signature, query.entry, extents, top, metric,
+                                                 max_distance, scale, same_size) for path in self.shards])
+        answer = WhereUsed(query.label, query.entry, metric, str(self.store.resolve()), self.root,
+                           sum(a.sub_entries for a in answers), sum(a.files for a in answers), [], max_distance)
+        answer.uses = sorted((use for a in answers for use in a.uses), key=lambda u: (u.distance, u.relative_path))[:top]
+        for rank, use in enumerate(answer.uses, start=1):
+            use.rank = rank
+        if not answer.uses:
+            nearest = [a.nearest for a in answers if a.nearest is not None]
+            answer.nearest = min(nearest) if nearest else None
+            reasons = [a.reason for a in answers if a.reason]
+            answer.reason = (no_use_reason(max_distance, answer.nearest) if answer.nearest is not None
+                             else min(reasons, key=len) if reasons else no_use_reason(None, None))
+        return answer
+
+    def sub_part_of(self, entry: str) -> dict | None:
+        """:meth:`Searcher.sub_part_of`, asked of the shard that holds the sub-entry's file."""
+        return self.on_shard(self.shard_of(entry), shard_sub_part, entry) if self.parts and "#" in entry else None
+
     def on_shard(self, k: int, function, *arguments):
         """``function(shard k's path, *arguments)``, where shard ``k`` is."""
         return self._each(function, [(self.shards[k], *arguments)], [k])[0]
@@ -271,7 +342,8 @@ class ShardedSearcher:
         """As :meth:`Searcher.query_of_part` (its own entry looked up by the shard that holds it)."""
         signature, solid = sign_part(self.params, part, file_type, threads, seed)
         path = os.path.abspath(part) if isinstance(part, (str, os.PathLike)) else None
-        entry = self.entry_path_of(part) if path is not None else None
+        # a file of the tree is its shard's own entry; never a sub-entry (those are FILE#n)
+        entry = self.entry_path_of(part) if path is not None and not self.parts else None
         return Query(label_of(part, label), signature, None, entry, path, solid)
 
     def search(self, query: Query, top: int = 10, metric: str = default_metric("query"), filters: Filters | None = None,
@@ -294,8 +366,8 @@ class ShardedSearcher:
                         self.root, [], considered=sum(a["considered"] for a in answers),
                         entries=sum(a["entries"] for a in answers), filters=filters.described(),
                         signature=query.signature)
-        answer.hits = [Hit(rank, float(distance), absolute(self.root, relative), relative, metadata)
-                       for rank, (distance, _, relative, metadata) in enumerate(found[:top], start=1)]
+        answer.hits = [Hit(rank, float(distance), absolute(self.root, parent or relative), relative, metadata, parent, count)
+                       for rank, (distance, _, relative, metadata, parent, count) in enumerate(found[:top], start=1)]
         if not answer.hits:
             answer.reason = _reason(answers, filters)
         return answer

@@ -87,6 +87,8 @@ class WhereUsed:
     uses: list
     max_distance: float | None = None
     reason: str | None = None
+    #: With no use within ``max_distance``: the distance of the nearest sub-part (None: none ranked).
+    nearest: float | None = None
 
     def to_dict(self) -> dict:
         return {"query": self.query, "entry": self.entry, "metric": self.metric, "store": self.store,
@@ -98,8 +100,11 @@ def where_used(searcher, query, top: int = 10, metric: str = DEFAULT_METRIC, max
                scale: str = "sensitive", same_size: float | None = SAME_SIZE, threads: int = RANK_THREADS) -> WhereUsed:
     """The ``top`` files holding a sub-part nearest to ``query`` (see the module docstring).
 
-    ``searcher`` is a :class:`~shapeidx.search.searcher.Searcher` opened with ``parts=True``;
-    ``query`` one of its :class:`~shapeidx.search.searcher.Query`. ``scale``: ``"sensitive"``
+    ``searcher`` is a searcher opened with ``parts=True`` (a
+    :class:`~shapeidx.search.searcher.Searcher`, or a sharded store's
+    :class:`~shapeidx.search.sharded.ShardedSearcher`, which asks this of every shard and
+    merges the files: each file lives in one shard); ``query`` one of its
+    :class:`~shapeidx.search.searcher.Query`. ``scale``: ``"sensitive"``
     (the default) keeps only sub-parts of the query's size: a part used in an assembly has its
     size there, and D2 alone, which is scale-invariant, would take a small pin for any
     elongated box. That is ``query --scale sensitive``'s band (a factor 2), and with
@@ -113,6 +118,8 @@ def where_used(searcher, query, top: int = 10, metric: str = DEFAULT_METRIC, max
     metric_record(metric)
     if top < 1:
         raise ValueError(f"top must be at least 1, not {top}")
+    if hasattr(searcher, "shards"):
+        return searcher.where_used(query, top, metric, max_distance, scale, same_size)
     n = len(searcher.view)
     answer = WhereUsed(query.label, query.entry, metric, str(searcher.store.resolve()), searcher.root, n, 0, [],
                        max_distance)
@@ -174,9 +181,16 @@ def where_used(searcher, query, top: int = 10, metric: str = DEFAULT_METRIC, max
         use.rank = rank
     if not answer.uses:
         nearest_at = float(distances[0]) if len(distances) else float("nan")
-        answer.reason = (f"no sub-part within --max-distance {max_distance:g} (the nearest is at {nearest_at:.6g})"
-                         if max_distance is not None and np.isfinite(nearest_at) else "no sub-part could be ranked")
+        answer.nearest = nearest_at if np.isfinite(nearest_at) else None
+        answer.reason = no_use_reason(max_distance, answer.nearest)
     return answer
+
+
+def no_use_reason(max_distance: float | None, nearest: float | None) -> str:
+    """Why no file answers: none within ``max_distance`` (the nearest sub-part at ``nearest``)."""
+    if max_distance is not None and nearest is not None:
+        return f"no sub-part within --max-distance {max_distance:g} (the nearest is at {nearest:.6g})"
+    return "no sub-part could be ranked"
 
 
 def question_of_entry(parts, entry, files=None):
@@ -190,6 +204,8 @@ def question_of_entry(parts, entry, files=None):
     """
     from .searcher import Searcher
 
+    if hasattr(parts, "shards"):  # a sharded store's: asked of the shard that holds the file
+        return parts.question_of_entry(entry)
     name = parts.resolve_entry(entry)
     if parts.view.find(name) is not None:
         return parts.query_of_entry(name)
@@ -213,16 +229,23 @@ def principal_radii(solid) -> np.ndarray:
     return np.asarray(shape_facts(solid.vertices, solid.faces)["extents"], dtype=np.float64)
 
 
+def query_extents(searcher, query) -> np.ndarray | None:
+    """The query's principal radii: given, of its loaded part, or stored with its own entry
+    (None: unknown)."""
+    if query.extents is not None:
+        return np.asarray(query.extents, dtype=np.float64)
+    if query.solid is not None:
+        return principal_radii(query.solid)
+    if query.own is not None:
+        i, row = searcher.view.locate(query.own)
+        return np.asarray(searcher.view.sources[i].column("entries/extents")[row], dtype=np.float64)
+    return None
+
+
 def _same_size(searcher, query, tolerance: float) -> np.ndarray:
     """Which ranked sub-entries have principal radii within ``tolerance`` (relative) of the query's."""
-    if query.extents is not None:
-        mine = np.asarray(query.extents, dtype=np.float64)
-    elif query.solid is not None:
-        mine = principal_radii(query.solid)
-    elif query.own is not None:
-        i, row = searcher.view.locate(query.own)
-        mine = np.asarray(searcher.view.sources[i].column("entries/extents")[row], dtype=np.float64)
-    else:
+    mine = query_extents(searcher, query)
+    if mine is None:
         return np.ones(len(searcher.view), dtype=bool)
     extents = np.full((len(searcher.view), 3), np.nan)
     for i, at, rows in searcher.view.rows_of(np.arange(len(searcher.view))):

@@ -472,6 +472,26 @@ def resolve_store_path(path: str | os.PathLike | None) -> Path:
     return Path(path or os.environ.get(STORE_ENV) or DEFAULT_STORE)
 
 
+def member_stores(store: str | os.PathLike, parts: bool = False) -> list[Path]:
+    """The ordinary stores that hold ``store``'s entries: the store itself, or every shard of a
+    sharded store (``build --shards``), in shard order; ``parts``: their sub-parts stores
+    (``build --parts``), a StoreError naming the build that makes them when there are none."""
+    from .files import parts_store
+    from .shards import is_sharded, shard_paths
+
+    store = Path(store)
+    members = shard_paths(store) if is_sharded(store) else [store]
+    if not parts:
+        return members
+    found = [parts_store(member) for member in members]
+    if not all(p.is_dir() for p in found):
+        if len(members) == 1:
+            open_store(store).close()  # no store at all: that error first
+        raise StoreError(f"the store {store} has no sub-parts: build it with 'shapeidx build DIR --store {store}"
+                         " --parts' (docs/assemblies.md)")
+    return found
+
+
 def open_store(path: str | os.PathLike, attempts: int = 20, skip_damaged: bool = False) -> StoreReader:
     """Open a store for reading: the main file and the journal segments it does not hold yet.
 
@@ -550,9 +570,9 @@ def _open_main(path: Path) -> _SourceFile:
             raise StoreBeingCreated(f"the store {path} is being created: a first build has just begun and committed"
                                     " nothing yet; try again in a moment") from None
         if (path / "shards.json").is_file():
-            raise StoreError(f"{path} is a sharded store: build, query, serve, check, stats, duplicates,"
-                             " cluster and check-new take it whole;"
-                             f" other commands take one shard ({path}/shards/K)") from None
+            raise StoreError(f"{path} is a sharded store: build, query, where-used, classify, duplicates, cluster,"
+                             " check-new, plot, serve, check and stats take it whole;"
+                             f" a store reader opens one shard ({path}/shards/K)") from None
         raise StoreError(f"{path} is not a shapeidx store (it holds no {main.name})") from None
     except PermissionError:
         raise StoreError(f"{path}: cannot open the store: permission denied") from None

@@ -335,7 +335,7 @@ class StoreService:
                 metadata = self.parts.metadata_at(position)
             out.update(name=query_id, path=str(self.root / parent), metadata=metadata, parent=parent, count=count,
                        thumbnail=f"/api/thumbnail?id={_quote(query_id)}")
-            if not self.part_thumbs.is_whole_file(query_id, parent, count):
+            if not self.part_thumbs.is_whole_file(query_id):
                 out["parent_thumbnail"] = f"/api/thumbnail?id={_quote(parent)}"
         else:
             metadata = self._metadata_of(query_id)
@@ -399,7 +399,7 @@ class StoreService:
                "fractions": _fractions_json(fractions), "thumbnail": f"/api/thumbnail?id={_quote(entry)}"}
         if parent is not None:  # a sub-part
             out.update(parent=parent, count=count)
-            if not self.part_thumbs.is_whole_file(entry, parent, count):
+            if not self.part_thumbs.is_whole_file(entry):
                 out["parent_thumbnail"] = f"/api/thumbnail?id={_quote(parent)}"
         return out
 
@@ -473,7 +473,7 @@ class ShardedStoreService(StoreService):
     """:class:`StoreService` over a sharded store (:mod:`shapeidx.search.sharded`): queries go to
     every shard (each on a worker of ``scheduler``, else here) and their exact top k are merged;
     an entry's facts come from the one shard its path key names; the words are calibrated on the
-    first shard. A sharded store has no sub-parts."""
+    first shard. The page does not rank a sharded store's sub-parts (the command line does)."""
 
     def __init__(self, store: str | os.PathLike, scheduler: str | None = None):
         from ..search.sharded import ShardedSearcher
@@ -496,6 +496,18 @@ class ShardedStoreService(StoreService):
 
     def info(self) -> dict:
         return {**super().info(), "shards": len(self.searcher.shards)}
+
+    def parts_searcher(self):
+        """409: the page ranks a sharded store's files only (the command line ranks its sub-parts)."""
+        from ..errors import StoreError
+        from ..store.reader import member_stores
+
+        try:
+            member_stores(self.store, parts=True)
+        except StoreError:
+            return super().parts_searcher()  # built without --parts: say how to build them
+        raise RequestError(409, f"the page does not rank the sub-parts of the sharded store {self.store}:"
+                                f" 'shapeidx query --parts --store {self.store}' and 'shapeidx where-used' do")
 
     def _rows(self) -> int:
         return self.searcher.rows
