@@ -391,18 +391,40 @@ def test_where_used_on_a_sharded_store_answers_as_one_store(part_trees, tmp_path
         assert got.exit_code == expected.exit_code == 0, got.output + got.stderr
         assert got.stdout.replace(str(sharded), "") == expected.stdout.replace(f"{one}/parts", "")
         assert "x1" in got.stdout or ",1\n" in got.stdout
-    # the page ranks a sharded store's files only, and says where its sub-parts are ranked
+    # the page ranks a sharded store's sub-parts as one store's: queries, where used, uploads, pictures
     pytest.importorskip("starlette")
-    from starlette.testclient import TestClient
+    import warnings
 
-    from shapeidx.web.app import create_app, open_service
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        from starlette.testclient import TestClient
 
-    service = open_service(sharded)
-    try:
-        reply = TestClient(create_app(service), base_url="http://127.0.0.1:8765").get("/api/query", params={"id": entries[0], "parts": "1"})
-        assert reply.status_code == 409 and "shapeidx where-used" in reply.json()["error"], reply.text
-    finally:
-        service.close()
+    from shapeidx.web.app import ShardedStoreService, create_app, open_service
+
+    def page(store):
+        service = open_service(store)
+        client = TestClient(create_app(service), base_url="http://127.0.0.1:8765")
+        try:
+            out = []
+            for params in ({"id": entries[4], "parts": "1", "top": 5}, {"id": entries[4], "uses": "1", "top": 4},
+                           {"id": files[3], "uses": "1", "top": 4, "metric": "combined-angle"}):
+                got = client.get("/api/query", params=params).json()
+                out.append([(h["rank"], h["id"], h["distance"], h.get("parent"), h.get("count"), h["metadata"],
+                             h["fractions"], "parent_thumbnail" in h) for h in got["hits"]])
+                out.append({k: got["query"].get(k) for k in ("name", "parent", "count", "metadata", "fractions")})
+            with open(part, "rb") as f:
+                upload = client.post("/api/query", files={"file": (part.name, f.read())}, data={"uses": "1"}).json()
+            out.append([(h["id"], h["distance"], h["count"]) for h in upload["hits"]])
+            out.append(client.get("/api/thumbnail", params={"id": entries[4]}).content)
+            files_hits = client.get("/api/query", params={"id": entries[4], "top": 3}).json()["hits"]  # the files
+            out.append([(h["id"], h["distance"]) for h in files_hits])
+            return service, out, client.get("/api/store").json()["sub_parts"]
+        finally:
+            service.close()
+
+    (service, whole, sub_parts), (_, single, sub_parts_one) = page(sharded), page(one)
+    assert isinstance(service, ShardedStoreService) and whole == single and sub_parts == sub_parts_one == len(entries)
+    assert whole[-2][:4] == b"\x89PNG" and len(whole[-1]) == 3 and len(whole[0]) == 5
     # a sharded store built without --parts: one line naming the build that makes them
     plain = tmp_path / "plain.shapeidx"
     assert build(tree, plain, "--workers", "1", "--shards", 2).exit_code == 0

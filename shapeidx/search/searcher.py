@@ -504,17 +504,18 @@ class Searcher:
         return source.text_at(PARENT_COLUMN, row), int(source.value_at(COUNT_COLUMN, row))
 
     def sub_part_of(self, entry: str) -> dict | None:
-        """What a picture of sub-entry ``entry`` (``FILE#n``) needs: its file (``parent``), how
-        many times the file holds it (``count``), its ``title``, and whether it is the whole
-        file (``whole``: a file that is one part, its ``FILE#1`` alone, once); None when the
-        store has no such sub-entry."""
+        """What a page or picture of sub-entry ``entry`` (``FILE#n``) shows: its file
+        (``parent``), how many times the file holds it (``count``), its ``metadata`` and
+        ``title``, and whether it is the whole file (``whole``: a file that is one part, its
+        ``FILE#1`` alone, once); None when the store has no such ok sub-entry."""
         found = self.view.find(entry) if "#" in entry else None
         position = self.view.position_of(found) if found is not None else None
         if position is None:
             return None
         parent, count = self.parent_at(position)
         whole = entry == f"{parent}#1" and count == 1 and self.view.find(f"{parent}#2") is None
-        return {"parent": parent, "count": count, "title": self.metadata_at(position).get("title") or None,
+        metadata = self.metadata_at(position)
+        return {"parent": parent, "count": count, "metadata": metadata, "title": metadata.get("title") or None,
                 "whole": whole}
 
     def parents(self) -> tuple[np.ndarray, np.ndarray]:

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..distance import compare
 from ..distance.metrics import METRICS, default_metric
-from ..errors import LoadError, ShapeidxError, UsageError
+from ..errors import LoadError, ShapeidxError, StoreError, UsageError
 from ..pictures.similarity import SimilarityScale, closer_than
 from ..pictures.thumbcache import StoreThumbnails
 from ..signing.histogram import Signature
@@ -101,6 +101,17 @@ def upload_suffix(filename: str) -> str:
     if suffix in PART_SUFFIXES:
         return suffix + (".gz" if gz else "")
     return ".gz" if gz else ".part"
+
+
+def _has_parts(store) -> bool:
+    """Whether the store (every shard of a sharded one) has sub-parts (``build --parts``)."""
+    from ..store.reader import member_stores
+
+    try:
+        member_stores(store, parts=True)
+        return True
+    except StoreError:
+        return False
 
 
 def _parts_searcher(store: Path):
@@ -226,16 +237,13 @@ class StoreService:
                                     f" --store {self.store} --parts' (docs/assemblies.md)")
         return self.parts
 
-    def sub_entry(self, entry: str):
-        """``(position, parent, count)`` of a sub-entry ``FILE#n`` of an ok sub-part, else None."""
+    def sub_entry(self, entry: str) -> dict | None:
+        """What the page shows of a sub-entry ``FILE#n`` of an ok sub-part (``parent``,
+        ``count``, ``metadata``: :meth:`~shapeidx.search.Searcher.sub_part_of`), else None."""
         if self.parts is None or "#" not in entry:
             return None
         with self._lock:
-            found = self.parts.view.find(entry)
-            position = self.parts.view.position_of(found) if found is not None else None
-            if position is None:
-                return None
-            return (position, *self.parts.parent_at(position))
+            return self.parts.sub_part_of(entry)
 
     def entries(self, offset: int, limit: int, status: str, contains: str) -> dict:
         listing = self.listing()
@@ -330,13 +338,10 @@ class StoreService:
             out.update(name=upload.name, path=None, note=upload.note, metadata={},
                        thumbnail=f"/api/thumbnail?id={_quote(query_id)}" if upload.png else None)
         elif (sub := self.sub_entry(query_id)) is not None and not self._has_entry(query_id):
-            position, parent, count = sub
-            with self._lock:
-                metadata = self.parts.metadata_at(position)
-            out.update(name=query_id, path=str(self.root / parent), metadata=metadata, parent=parent, count=count,
-                       thumbnail=f"/api/thumbnail?id={_quote(query_id)}")
-            if not self.part_thumbs.is_whole_file(query_id):
-                out["parent_thumbnail"] = f"/api/thumbnail?id={_quote(parent)}"
+            out.update(name=query_id, path=str(self.root / sub["parent"]), metadata=sub["metadata"],
+                       parent=sub["parent"], count=sub["count"], thumbnail=f"/api/thumbnail?id={_quote(query_id)}")
+            if not sub["whole"]:
+                out["parent_thumbnail"] = f"/api/thumbnail?id={_quote(sub['parent'])}"
         else:
             metadata = self._metadata_of(query_id)
             out.update(name=query_id, path=str(self.root / query_id), metadata=metadata,
@@ -379,8 +384,7 @@ class StoreService:
         with self._lock:
             answer = where_used(searcher, query, top=top, metric=metric)
             fractions = self._fractions_of(searcher, [use.part for use in answer.uses])
-            metadata = [self.parts.metadata_at(self.parts.view.position_of(self.parts.view.find(use.part)))
-                        for use in answer.uses]
+            metadata = [self.parts.sub_part_of(use.part)["metadata"] for use in answer.uses]
         scale = self.scale(metric, True)
         hits = [self._hit_json(scale, {"rank": use.rank, "distance": use.distance, "relative_path": use.part,
                                        "path": use.path, "title": use.title, "metadata": meta},
@@ -449,7 +453,7 @@ class StoreService:
                 raise RequestError(404, "no picture of this upload")
             return png
         if (sub := self.sub_entry(query_id)) is not None and not self._has_entry(query_id):
-            self.regular_file_of(sub[1])  # a sub-part FILE#n: its file, a known entry inside the root
+            self.regular_file_of(sub["parent"])  # a sub-part FILE#n: its file, a known entry inside the root
             try:  # drawn itself, from its file split again
                 return self.part_thumbs.sub_part_png(query_id)
             except LoadError as exc:
@@ -473,7 +477,7 @@ class ShardedStoreService(StoreService):
     """:class:`StoreService` over a sharded store (:mod:`shapeidx.search.sharded`): queries go to
     every shard (each on a worker of ``scheduler``, else here) and their exact top k are merged;
     an entry's facts come from the one shard its path key names; the words are calibrated on the
-    first shard. The page does not rank a sharded store's sub-parts (the command line does)."""
+    first shard; its sub-parts (``build --shards N --parts``) are ranked as its files are."""
 
     def __init__(self, store: str | os.PathLike, scheduler: str | None = None):
         from ..search.sharded import ShardedSearcher
@@ -489,25 +493,15 @@ class ShardedStoreService(StoreService):
         self._uploads: OrderedDict = OrderedDict()
         self._listing = None
         self.max_upload = MAX_UPLOAD
-        self.parts = None
-        self.part_thumbs = None
+        self.parts = self.part_thumbs = None
+        if _has_parts(store):  # build --shards N --parts: every shard's sub-parts ranked alike
+            self.parts = ShardedSearcher(store, scheduler, parts=True)
+            self.part_thumbs = StoreThumbnails(self.parts, folder=self.thumbs.cache.folder)
         self.scale(QUERY_METRIC)
         self.searcher.warm()  # each big shard builds its block index where it is
 
     def info(self) -> dict:
         return {**super().info(), "shards": len(self.searcher.shards)}
-
-    def parts_searcher(self):
-        """409: the page ranks a sharded store's files only (the command line ranks its sub-parts)."""
-        from ..errors import StoreError
-        from ..store.reader import member_stores
-
-        try:
-            member_stores(self.store, parts=True)
-        except StoreError:
-            return super().parts_searcher()  # built without --parts: say how to build them
-        raise RequestError(409, f"the page does not rank the sub-parts of the sharded store {self.store}:"
-                                f" 'shapeidx query --parts --store {self.store}' and 'shapeidx where-used' do")
 
     def _rows(self) -> int:
         return self.searcher.rows
@@ -522,6 +516,8 @@ class ShardedStoreService(StoreService):
     def position_of(self, entry: str) -> int:
         """0 for an ok entry of its shard (404 for an unknown id, 409 for a failed one)."""
         facts = self._facts(entry)
+        if facts is None and self.sub_entry(entry) is not None:
+            raise RequestError(409, f"{entry!r} is a sub-part: ask with parts=1")
         if facts is None:
             raise RequestError(404, f"no entry {entry!r} in the store")
         if not facts["ok"]:
@@ -544,9 +540,10 @@ class ShardedStoreService(StoreService):
     def scale(self, metric: str, parts: bool = False) -> SimilarityScale:
         from ..pictures.similarity import shard_scale
 
+        searcher = self.parts if parts else self.searcher
         with self._lock:
             if (metric, parts) not in self._scales:
-                self._scales[metric, parts] = self.searcher.on_shard(0, shard_scale, metric, 0, len(self.searcher.shards))
+                self._scales[metric, parts] = searcher.on_shard(0, shard_scale, metric, 0, len(searcher.shards))
             return self._scales[metric, parts]
 
 
