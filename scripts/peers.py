@@ -1,10 +1,26 @@
 #!/usr/bin/env python3
-"""shapeidx beside a classic peer descriptor, on shapeidx's own questions; writes the peers table.
+"""shapeidx beside the classic peer descriptors, on shapeidx's own questions; writes the peers table.
 
-    python scripts/peers.py --work /tmp/peers-work [--questions kinds,step,xexp]
+    pip install -e '.[peers]'                      # light-field-distance: the LFD's C code
+    apt-get install xvfb freeglut3-dev libglu1-mesa-dev libosmesa6-dev
+    python scripts/peers.py --build-lfd            # builds it in ~/.cache/shapeidx-peers/lfd
+    python scripts/peers.py --work /tmp/peers-work [--questions kinds,step,xexp] [--no-lfd]
 
-The peer here is Kazhdan, Funkhouser and Rusinkiewicz's rotation-invariant spherical-harmonic
-descriptor (SHD, SGP 2003), **written again from the paper** in numpy/scipy (``shd_descriptor``):
+**LFD**, Chen, Tian, Shen and Ouhyoung's Light Field Descriptor (Eurographics 2003), the best
+hand-made descriptor of the Princeton Shape Benchmark, runs through **its own code**: the
+light-field-distance package (PyPI) ships Chen's C sources; ``3DAlignment`` renders each part's
+silhouettes from the 20 vertices of a dodecahedron (10 light fields of 10 cameras, on a virtual
+screen: Xvfb) and describes each by 35 Zernike moments, 10 Fourier coefficients, circularity and
+eccentricity, quantised to bytes. Its distance (``Distance``: the least, over both parts' light
+fields and the 60 rotations of the cameras, of the summed L1 of the camera pairs) is written
+again in numpy (``lfd_to_many``) to rank a whole collection, and checked against the program
+(tests/test_peers.py: equal on real parts). One difference, on purpose: the package's
+``Distance`` never reads its second part's eccentricity (a part is then not at 0 from itself);
+the ranking here uses both, as Chen's method does. LFD renders, it does not sample: its twin
+questions have no query seed.
+
+**SHD**, Kazhdan, Funkhouser and Rusinkiewicz's rotation-invariant spherical-harmonic
+descriptor (SGP 2003), is **written again from the paper** in numpy/scipy (``shd_descriptor``):
 ShapeSPH is on neither PyPI nor Debian, so its own code is not run. The steps:
 
 1. the part's clean solid (``shapeidx.signing.pipeline.solid_of_file``, the surface shapeidx samples);
@@ -18,22 +34,20 @@ ShapeSPH is on neither PyPI nor Debian, so its own code is not run. The steps:
    the descriptor is the norm of each band per sphere (32 x 17 float32), compared by L2.
 
 The surface points are drawn with a seed, so this SHD *samples*: the twin questions draw the
-queries' points with another seed than the gallery's (``QUERY_SEED``). The Light Field Descriptor
-(Chen et al. 2003) is not in the table: see docs/results.md's peers section for why.
+queries' points with another seed than the gallery's (``QUERY_SEED``).
 
 shapeidx's columns are computed here at run time from stores built with the package (the paper's
 Weighted, which is also ``shapeidx query``'s default metric, and, per question, the best of all
 metrics on that question), through the same scoring code as docs/results.md
 (``shapeidx.evaluation``, ``scripts/twin_study.twin_ranks``), so one command regenerates the table
-after any change to shapeidx's signatures.
-
-No extra dependency: numpy and scipy come with shapeidx. Nothing in ``shapeidx`` imports this.
+after any change to shapeidx's signatures. Nothing in ``shapeidx`` imports this.
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import os
 import re
 import sys
 import time
@@ -109,22 +123,158 @@ def l2_to_many(bank: np.ndarray, query: np.ndarray) -> np.ndarray:
     return np.sqrt(((bank - query.ravel()[None, :]) ** 2).sum(axis=1))
 
 
-def describe(paths, seed=GALLERY_SEED) -> tuple[np.ndarray, list, float]:
-    """Descriptors of ``paths`` (rows, flattened), the paths that loaded, CPU seconds per part."""
+def describe(paths, seed=GALLERY_SEED, lightfield=None) -> tuple[dict, list, dict]:
+    """Each peer's descriptors of ``paths`` (``{"shd": rows, "lfd": (N, 10, 10, 47)}``, LFD only
+    with a :class:`LightField`), the paths that loaded, and seconds per part (SHD: CPU time;
+    LFD: wall time of its program, rendering included)."""
     from shapeidx.signing.pipeline import solid_of_file
 
-    rows, kept, cpu = [], [], []
+    rows, lfd, kept, cpu, wall = [], [], [], [], []
     for path in paths:
         try:
             solid = solid_of_file(path)
-        except Exception as error:  # a part shapeidx cannot load is left out of both columns' figures
+            if lightfield is not None:
+                start = time.perf_counter()
+                described = lightfield.describe(solid.vertices, solid.faces)
+                wall.append(time.perf_counter() - start)
+        except Exception as error:  # a part shapeidx or a peer cannot load is left out of every column
             print(f"skip {path}: {error}", file=sys.stderr)
             continue
+        if lightfield is not None:
+            lfd.append(described)
         start = time.process_time()
         rows.append(shd_descriptor(solid.vertices, solid.faces, seed).ravel())
         cpu.append(time.process_time() - start)
         kept.append(Path(path))
-    return np.array(rows), kept, float(np.mean(cpu))
+    banks = {"shd": np.array(rows)}
+    if lightfield is not None:
+        banks["lfd"] = np.array(lfd)
+    return banks, kept, {"shd": float(np.mean(cpu)), "lfd": float(np.mean(wall)) if wall else None}
+
+
+def peer_distances(banks: dict, name: str, query) -> np.ndarray:
+    """Peer ``name``'s own distance from ``query`` (one of its descriptors) to every stored one."""
+    return l2_to_many(banks["shd"], query) if name == "shd" else lfd_to_many(banks["lfd"], query)
+
+
+# ---------------------------------------------------------------- the Light Field Descriptor (its own code)
+#: Where ``--build-lfd`` builds the light-field-distance package's C code (3DAlignment, Distance).
+LFD_HOME = Path.home() / ".cache" / "shapeidx-peers" / "lfd"
+#: Debian packages its build and headless rendering need.
+LFD_DEBIAN = ("xvfb", "freeglut3-dev", "libglu1-mesa-dev", "libosmesa6-dev")
+LFD_ANGLES = LFD_CAMERAS = 10  # light fields (rotations) per part, cameras per light field (ds.h)
+#: Per light-field image: 35 Zernike (ART) coefficients, 10 Fourier, circularity, eccentricity,
+#: each quantised to a byte; Distance.c weighs the Fourier and circularity terms twice.
+LFD_WEIGHTS = np.array([1] * 35 + [2] * 10 + [2, 1], dtype=np.int32)
+
+
+def build_lfd(home: Path = LFD_HOME) -> Path:
+    """Build the C code that ``pip install 'shapeidx[peers]'`` (light-field-distance) ships, in
+    ``home``; needs gcc and :data:`LFD_DEBIAN`. Returns the folder of the two programs."""
+    import importlib.util
+    import shutil
+    import subprocess
+
+    spec = importlib.util.find_spec("lfd")
+    if spec is None or spec.origin is None:
+        raise SystemExit("light-field-distance is not installed: pip install -e '.[peers]'")
+    source = Path(spec.origin).parent
+    shutil.rmtree(home, ignore_errors=True)
+    shutil.copytree(source, home)
+    for folder, program in (("3DAlignment", "3DAlignment"), ("LightField", "Distance")):
+        done = subprocess.run(["make", "-s", "-j2"], cwd=home / folder, capture_output=True, text=True)
+        if done.returncode != 0:  # its C code warns a lot: only a failure is shown
+            raise SystemExit(f"building {folder} failed (apt-get install {' '.join(LFD_DEBIAN)}):\n{done.stderr[-2000:]}")
+        shutil.copy(home / folder / program, home / "Executable" / program)
+    return home / "Executable"
+
+
+def lfd_programs(home: Path = LFD_HOME) -> Path | None:
+    """The folder of the built 3DAlignment and Distance (None: not built, or no Xvfb to render in)."""
+    import shutil
+
+    folder = home / "Executable"
+    if all((folder / p).is_file() for p in ("3DAlignment", "Distance")) and shutil.which("Xvfb"):
+        return folder
+    return None
+
+
+class LightField:
+    """Chen et al.'s Light Field Descriptor (2003) through the light-field-distance package's own
+    C code (``3DAlignment``: 10 light fields x 10 silhouettes rendered with OpenGL on a virtual
+    screen, each described by Zernike, Fourier, circularity and eccentricity bytes), one Xvfb
+    for the whole run, each part in a private copy of the program's folder (it reads its
+    camera files from, and writes its descriptor into, its working directory)."""
+
+    def __init__(self, programs: Path):
+        import subprocess
+        import tempfile
+
+        self.work = Path(tempfile.mkdtemp(prefix="lfd-"))
+        for item in programs.iterdir():  # the cameras (12_*.obj), tables and programs
+            os.symlink(item.resolve(), self.work / item.name)
+        self.display = f":{os.getpid() % 500 + 100}"
+        self.screen = subprocess.Popen(["Xvfb", self.display, "-screen", "0", "640x480x24", "-nolisten", "tcp"],
+                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        time.sleep(1.0)
+
+    def close(self):
+        import shutil
+
+        self.screen.terminate()
+        self.screen.wait()
+        shutil.rmtree(self.work, ignore_errors=True)
+
+    def describe(self, vertices, faces) -> np.ndarray:
+        """The descriptor of a triangle mesh: (10 light fields, 10 cameras, 47) bytes."""
+        import subprocess
+
+        import trimesh
+
+        obj = self.work / "part.obj"
+        trimesh.Trimesh(np.asarray(vertices, float), np.asarray(faces), process=False).export(obj)
+        done = subprocess.run(["./3DAlignment", str(obj.with_suffix(""))], cwd=self.work, capture_output=True,
+                              env={**os.environ, "DISPLAY": self.display}, timeout=600)
+        if done.returncode != 0 or done.stderr.strip():
+            raise RuntimeError(f"3DAlignment failed: {done.stderr.decode(errors='replace')[:200]}")
+        return read_lfd(self.work / "all")
+
+
+def read_lfd(stem: Path) -> np.ndarray:
+    """The four descriptor files 3DAlignment writes (``STEM_q8_v1.8.art`` ...), as one array."""
+    shape = (LFD_ANGLES, LFD_CAMERAS)
+    art = np.fromfile(f"{stem}_q8_v1.8.art", np.uint8).reshape(*shape, 35)
+    fd = np.fromfile(f"{stem}_q8_v1.8.fd", np.uint8).reshape(*shape, 10)
+    cir = np.fromfile(f"{stem}_q8_v1.8.cir", np.uint8).reshape(*shape, 1)
+    ecc = np.fromfile(f"{stem}_q8_v1.8.ecc", np.uint8).reshape(*shape, 1)
+    return np.concatenate([art, fd, cir, ecc], axis=2)
+
+
+_ALIGN = {}
+
+
+def lfd_to_many(bank: np.ndarray, query: np.ndarray) -> np.ndarray:
+    """The peer's own distance (Distance.c's MatchLF) from ``query`` to each of ``bank``
+    (N, 10, 10, 47): the least, over the query's and the stored part's light fields and the 60
+    rotations of the dodecahedron's cameras (``align10.txt``), of the summed weighted L1 of the
+    10 camera pairs. Written with numpy and scipy's cdist; checked against the Distance program."""
+    from scipy.spatial.distance import cdist
+
+    if "align" not in _ALIGN:
+        programs = lfd_programs() or (LFD_HOME / "Executable")
+        _ALIGN["align"] = np.fromfile(programs / "align10.txt", np.uint8).reshape(60, 20)[:, :LFD_CAMERAS]
+    align = _ALIGN["align"].astype(np.intp)
+    n = len(bank)
+    a = query.reshape(-1, query.shape[-1]).astype(np.float64) * LFD_WEIGHTS
+    out = np.empty(n)
+    for start in range(0, n, 256):
+        chunk = bank[start:start + 256]
+        b = chunk.reshape(-1, chunk.shape[-1]).astype(np.float64) * LFD_WEIGHTS
+        cost = cdist(b, a, "cityblock").reshape(len(chunk), LFD_ANGLES, LFD_CAMERAS, LFD_ANGLES, LFD_CAMERAS)
+        cost = cost.transpose(0, 1, 3, 2, 4)  # (part, its light field, the query's, its camera, the query's)
+        err = cost[:, :, :, align, np.arange(LFD_CAMERAS)].sum(axis=-1)  # (part, lf, lf, 60 rotations)
+        out[start:start + len(chunk)] = err.reshape(len(chunk), -1).min(axis=1)
+    return out
 
 
 # ---------------------------------------------------------------- the questions
@@ -145,13 +295,15 @@ def kinds(work: Path, out: dict):
     metrics = result["metrics"]
     best = max(metrics, key=lambda m: metrics[m]["ft"])
     paths, labels = labelled(DATA / "kicad6")
-    bank, kept, cpu = describe(paths)
+    banks, kept, cost = describe(paths, lightfield=out.get("lightfield"))
     keep = {str(p) for p in kept}
     labels = [l for p, l in zip(paths, labels) if str(p) in keep]
-    d = np.array([l2_to_many(bank, row) for row in bank])
-    shd = retrieval_scores(d, labels)
-    out["kinds"] = {"shd": shd, "weighted": metrics["weighted"], "best": (best, metrics[best]), "parts": len(kept)}
-    out["bank"], out["cpu"], out["bank_paths"] = bank, cpu, (bank, kept, cpu)
+    scores = {}
+    for name, bank in banks.items():
+        d = np.array([peer_distances(banks, name, row) for row in bank])
+        scores[name] = retrieval_scores(d, labels)
+    out["kinds"] = {"peers": scores, "weighted": metrics["weighted"], "best": (best, metrics[best]), "parts": len(kept)}
+    out["banks"], out["cost"], out["gallery"] = banks, cost, (banks, kept)
 
 
 def step_twins(work: Path, out: dict):
@@ -162,22 +314,23 @@ def step_twins(work: Path, out: dict):
     vrml = quiet_build(DATA / "kicad6", work / "kicad6-1024.h5", points=1024)
     step = quiet_build(DATA / "kicad6-step", work / "kicad6-step-1024.h5", points=1024)
     ranks = twin_ranks(step, vrml, lambda p: str(Path(p).with_suffix(".wrl")), metrics=METRICS)
-    gallery_paths, _ = labelled(DATA / "kicad6")
-    bank, gallery, _ = out.get("bank_paths") or describe(gallery_paths)
-    queries, qpaths, _ = describe(labelled(DATA / "kicad6-step", (".step", ".stp"))[0], QUERY_SEED)
+    banks, gallery = out["gallery"]
+    queries, qpaths, _ = describe(labelled(DATA / "kicad6-step", (".step", ".stp"))[0], QUERY_SEED,
+                                  out.get("lightfield"))
     where = {str(p.relative_to(DATA / "kicad6")): i for i, p in enumerate(gallery)}
-    shd = {}
-    for row, q in zip(queries, qpaths):
+    found = {name: {} for name in banks}
+    for k, q in enumerate(qpaths):
         twin = where.get(str(q.relative_to(DATA / "kicad6-step").with_suffix(".wrl")))
         if twin is not None:
-            d = l2_to_many(bank, row)
-            shd[str(q.relative_to(DATA / "kicad6-step"))] = int((d <= d[twin]).sum())
-    out["step"] = twin_table(ranks, shd)
+            for name in banks:
+                d = peer_distances(banks, name, queries[name][k])
+                found[name][str(q.relative_to(DATA / "kicad6-step"))] = int((d <= d[twin]).sum())
+    out["step"] = twin_table(ranks, found)
 
 
-def twin_table(ranks: dict, shd: dict) -> dict:
-    """Rank-1 and top-10 rates of SHD, Weighted and the best metric, over the queries all have."""
-    names = sorted(set(ranks) & set(shd))
+def twin_table(ranks: dict, found: dict) -> dict:
+    """Rank-1 and top-10 rates of each peer, Weighted and the best metric, over the queries all have."""
+    names = sorted(set(ranks).intersection(*[set(f) for f in found.values()]))
 
     def rate(values):
         v = np.array(values)
@@ -187,8 +340,9 @@ def twin_table(ranks: dict, shd: dict) -> dict:
 
     scored = {m: rate([ranks[n][m] for n in names]) for m in METRICS}
     best = max(scored, key=lambda m: (scored[m]["r1"], scored[m]["top10"]))
-    return {"shd": rate([shd[n] for n in names]), "weighted": scored["weighted"], "best": (best, scored[best]),
-            "parts": len(names), "shd_ranks": {n: shd[n] for n in names},
+    return {"peers": {peer: rate([f[n] for n in names]) for peer, f in found.items()}, "weighted": scored["weighted"],
+            "best": (best, scored[best]), "parts": len(names),
+            "peer_ranks": {peer: {n: f[n] for n in names} for peer, f in found.items()},
             "weighted_ranks": {n: ranks[n]["weighted"] for n in names}, "best_ranks": {n: ranks[n][best] for n in names}}
 
 
@@ -201,27 +355,29 @@ def xexp_twins(work: Path, out: dict):
     store = quiet_build(parts, work / "xexp" / "store1000.h5", points=1024, follow_outside_links=True)
     old = quiet_build(DATA / "xexp-dev" / "kicad2017", work / "xexp" / "kicad2017.h5", points=1024)
     ranks = twin_ranks(old, store, lambda p: f"twins/{p}", metrics=METRICS)
-    gallery_paths = sorted(p for p in parts.rglob("*.wrl"))
-    bank, gallery, _ = describe(gallery_paths)
-    queries, qpaths, _ = describe(sorted((DATA / "xexp-dev" / "kicad2017").glob("*.wrl")), QUERY_SEED)
+    banks, gallery, _ = describe(sorted(p for p in parts.rglob("*.wrl")), lightfield=out.get("lightfield"))
+    queries, qpaths, _ = describe(sorted((DATA / "xexp-dev" / "kicad2017").glob("*.wrl")), QUERY_SEED,
+                                  out.get("lightfield"))
     where = {str(p.relative_to(parts)): i for i, p in enumerate(gallery)}
-    shd = {}
-    for row, q in zip(queries, qpaths):
+    found = {name: {} for name in banks}
+    for k, q in enumerate(qpaths):
         twin = where.get(f"twins/{q.name}")
         if twin is not None:
-            d = l2_to_many(bank, row)
-            shd[q.name] = int((d <= d[twin]).sum())
-    out["xexp"] = twin_table(ranks, shd)
+            for name in banks:
+                d = peer_distances(banks, name, queries[name][k])
+                found[name][q.name] = int((d <= d[twin]).sum())
+    out["xexp"] = twin_table(ranks, found)
 
 
-def query_time(bank: np.ndarray) -> float:
-    """Seconds to rank one descriptor against LIBRARY_SIZE stored ones (kicad6's real descriptors
-    repeated to that many rows), best of 20."""
-    rows = np.resize(bank, (LIBRARY_SIZE, bank.shape[1]))
+def query_time(banks: dict, name: str, repeats: int = 20) -> float:
+    """Seconds for peer ``name`` to rank one descriptor against LIBRARY_SIZE stored ones
+    (kicad6's real descriptors repeated to that many), best of ``repeats``."""
+    bank = banks[name]
+    rows = {name: np.resize(bank, (LIBRARY_SIZE, *bank.shape[1:]))}
     best = np.inf
-    for k in range(20):
+    for k in range(repeats):
         start = time.perf_counter()
-        np.argsort(l2_to_many(rows, bank[k % len(bank)]), kind="stable")
+        np.argsort(peer_distances(rows, name, bank[k % len(bank)]), kind="stable")
         best = min(best, time.perf_counter() - start)
     return best
 
@@ -242,33 +398,49 @@ def shapeidx_costs(work: Path) -> dict:
 
 
 # ---------------------------------------------------------------- the table
+PEER_LABELS = {"lfd": "LFD (Chen 2003, its own code)", "shd": "SHD (Kazhdan 2003, reimplemented)"}
+
+
 def table(out: dict, command: str, costs: dict) -> list:
+    peers = [p for p in ("lfd", "shd") if p in out["banks"]]
     lines = [BEGIN, "",
-             "| question | measure | SHD (Kazhdan 2003, reimplemented) | shapeidx Weighted (paper; the default) |"
-             " shapeidx best metric on it |",
-             "|---|---|---|---|---|"]
+             "| question | measure | " + " | ".join(PEER_LABELS[p] for p in peers)
+             + " | shapeidx Weighted (paper; the default) | shapeidx best metric on it |",
+             "|---|---|" + "---|" * len(peers) + "---|---|"]
     if "kinds" in out:
         k = out["kinds"]
         name, best = k["best"]
         for s in ("nn", "ft", "st", "dcg"):
-            lines.append(f"| kicad6 kinds ({k['parts']} parts, 52 folders) | {s.upper()} | {k['shd'][s]:.3f} |"
-                         f" {k['weighted'][s]:.3f} | {best[s]:.3f} ({name}) |")
+            lines.append(f"| kicad6 kinds ({k['parts']} parts, 52 folders) | {s.upper()} | "
+                         + " | ".join(f"{k['peers'][p][s]:.3f}" for p in peers)
+                         + f" | {k['weighted'][s]:.3f} | {best[s]:.3f} ({name}) |")
     for key, label in (("step", "kicad6-step vs kicad6 twins"), ("xexp", "xexp-dev twins (of 1,000)")):
         if key in out:
             t = out[key]
             name, best = t["best"]
             for s, sl in (("r1", "twin at rank 1"), ("top10", "twin in top 10")):
-                lines.append(f"| {label} ({t['parts']} queries) | {sl} | {t['shd'][s]:.3f} | {t['weighted'][s]:.3f} |"
-                             f" {best[s]:.3f} ({name}) |")
+                lines.append(f"| {label} ({t['parts']} queries) | {sl} | "
+                             + " | ".join(f"{t['peers'][p][s]:.3f}" for p in peers)
+                             + f" | {t['weighted'][s]:.3f} | {best[s]:.3f} ({name}) |")
+    cost, query = out["cost"], out["query"]
+    cells = {
+        "lfd": (f"{cost['lfd']:.2f} s (its 3DAlignment program: 100 silhouettes rendered and described, wall"
+                " time)" if cost.get("lfd") else "",
+                f"{LFD_ANGLES * LFD_CAMERAS * 47:,} bytes (10 x 10 x 47 bytes)",
+                f"{query['lfd'] * 1e3:.0f} ms (numpy: 100 x 100 camera costs x 60 rotations per part)"
+                if "lfd" in query else ""),
+        "shd": (f"{cost['shd']:.3f} s CPU (voxels + 32 SH transforms, after loading)",
+                f"{out['banks']['shd'].shape[1] * 4:,} bytes ({SPHERES} x {BANDS + 1} float32)",
+                f"{query['shd'] * 1e3:.2f} ms (L2 + sort)"),
+    }
     lines += ["",
-              "| cost per part | SHD | shapeidx (1,024 points) |",
-              "|---|---|---|",
-              f"| descriptor CPU time | {out['cpu']:.3f} s (voxels + 32 SH transforms, after loading) |"
-              f" {costs['cpu']:.3f} s (signature, after loading; mean of {costs['parts']} kicad6 parts) |",
-              f"| descriptor size | {out['bank'].shape[1] * 4:,} bytes ({SPHERES} x {BANDS + 1} float32) |"
-              " see docs/results.md's store sizes |",
-              f"| query against {LIBRARY_SIZE:,} parts | {out['query'] * 1e3:.2f} ms (L2 + sort; kicad6's descriptors"
-              f" repeated to {LIBRARY_SIZE:,} rows) | see README's query timings |",
+              "| cost per part | " + " | ".join(PEER_LABELS[p].split(" (")[0] for p in peers) + " | shapeidx (1,024 points) |",
+              "|---|" + "---|" * len(peers) + "---|",
+              "| descriptor time | " + " | ".join(cells[p][0] for p in peers)
+              + f" | {costs['cpu']:.3f} s CPU (signature, after loading; mean of {costs['parts']} kicad6 parts) |",
+              "| descriptor size | " + " | ".join(cells[p][1] for p in peers) + " | see docs/results.md's store sizes |",
+              f"| query against {LIBRARY_SIZE:,} parts (kicad6's descriptors repeated) | "
+              + " | ".join(cells[p][2] for p in peers) + " | see README's query timings |",
               "",
               f"Command: `{command}`, {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC; {machine()}.",
               "", END]
@@ -287,20 +459,38 @@ def write(lines: list, markdown: Path):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--work", type=Path, required=True)
+    parser.add_argument("--work", type=Path)
     parser.add_argument("--questions", default="kinds,step,xexp")
     parser.add_argument("--markdown", type=Path, default=REPO / "docs" / "results.md")
     parser.add_argument("--json", type=Path, help="also write every rank here")
+    parser.add_argument("--build-lfd", action="store_true",
+                        help=f"build the light-field-distance package's C code in {LFD_HOME} and stop")
+    parser.add_argument("--no-lfd", action="store_true", help="leave the Light Field Descriptor out")
     args = parser.parse_args(argv)
+    if args.build_lfd:
+        print(f"built {build_lfd()}")
+        return 0
+    if args.work is None:
+        parser.error("--work is required")
     args.work.mkdir(parents=True, exist_ok=True)
     chosen = args.questions.split(",")
     out = {}
-    kinds(args.work, out)  # always: its descriptors are the cost figures' and the step gallery's
-    if "step" in chosen:
-        step_twins(args.work, out)
-    if "xexp" in chosen:
-        xexp_twins(args.work, out)
-    out["query"] = query_time(out["bank"])
+    programs = None if args.no_lfd else lfd_programs()
+    if programs is None and not args.no_lfd:
+        print("no Light Field Descriptor: pip install -e '.[peers]'; apt-get install " + " ".join(LFD_DEBIAN)
+              + "; python scripts/peers.py --build-lfd (or give --no-lfd)", file=sys.stderr)
+        return 2
+    out["lightfield"] = LightField(programs) if programs is not None else None
+    try:
+        kinds(args.work, out)  # always: its descriptors are the cost figures' and the step gallery's
+        if "step" in chosen:
+            step_twins(args.work, out)
+        if "xexp" in chosen:
+            xexp_twins(args.work, out)
+    finally:
+        if out["lightfield"] is not None:
+            out["lightfield"].close()
+    out["query"] = {name: query_time(out["banks"], name, 20 if name == "shd" else 3) for name in out["banks"]}
     command = "python scripts/peers.py " + " ".join(argv if argv is not None else sys.argv[1:])
     lines = table(out, command, shapeidx_costs(args.work))
     print("\n".join(lines))
