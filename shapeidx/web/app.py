@@ -117,11 +117,11 @@ def _has_parts(store) -> bool:
 def _parts_searcher(store: Path):
     """The searcher of ``store``'s sub-parts; None while the first build with --parts has
     committed nothing (the page then has no sub-parts, as without them)."""
-    from ..search import Searcher
+    from ..search import open_searcher
     from ..store.reader import StoreBeingCreated
 
     try:
-        return Searcher(store, parts=True)
+        return open_searcher(store, parts=True)
     except StoreBeingCreated:
         return None
 
@@ -136,9 +136,9 @@ class StoreService:
     """
 
     def __init__(self, store: str | os.PathLike):
-        from ..search import Searcher
+        from ..search import open_searcher
 
-        self.searcher = Searcher(store)
+        self.searcher = open_searcher(store)
         self.store = self.searcher.store.absolute()
         self.reader = self.searcher.reader
         self.thumbs = StoreThumbnails(self.searcher)
@@ -480,9 +480,9 @@ class ShardedStoreService(StoreService):
     first shard; its sub-parts (``build --shards N --parts``) are ranked as its files are."""
 
     def __init__(self, store: str | os.PathLike, scheduler: str | None = None):
-        from ..search.sharded import ShardedSearcher
+        from ..search import open_searcher
 
-        self.searcher = ShardedSearcher(store, scheduler)
+        self.searcher = open_searcher(store, scheduler)
         self.store = self.searcher.store.absolute()
         self.reader = None
         self.thumbs = StoreThumbnails(self.searcher)
@@ -495,7 +495,7 @@ class ShardedStoreService(StoreService):
         self.max_upload = MAX_UPLOAD
         self.parts = self.part_thumbs = None
         if _has_parts(store):  # build --shards N --parts: every shard's sub-parts ranked alike
-            self.parts = ShardedSearcher(store, scheduler, parts=True)
+            self.parts = open_searcher(store, scheduler, parts=True)
             self.part_thumbs = StoreThumbnails(self.parts, folder=self.thumbs.cache.folder)
         self.scale(QUERY_METRIC)
         self.searcher.warm()  # each big shard builds its block index where it is
