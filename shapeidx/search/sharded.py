@@ -19,6 +19,11 @@ by address), which keeps the shard open between queries, so a long-lived cluster
 from mapped, resident arrays; the shard's store must be visible to that worker at the same
 path. The query's own entry (``--id``, or a file of the tree) is looked up in the one shard
 its path key names.
+
+With ``parts=True`` (a store built with ``--shards N --parts``) each shard's sub-parts store
+is ranked the same way, and where-used (:meth:`ShardedSearcher.where_used`) asks every shard
+for its top files and merges them: a file and its sub-parts share the file's path key, so
+they live in one shard, and each file's nearest sub-part and count are its shard's.
 """
 
 from __future__ import annotations
