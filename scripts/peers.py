@@ -453,7 +453,7 @@ def write(lines: list, markdown: Path):
     if BEGIN in text:
         text = re.sub(re.escape(BEGIN) + ".*?" + re.escape(END), lambda _: block, text, flags=re.S)
     else:
-        text = text.rstrip("\n") + "\n\n## Beside a classic peer: spherical harmonics\n\n" + block + "\n"
+        text = text.rstrip("\n") + "\n\n## Beside the classic peers: light fields and spherical harmonics\n\n" + block + "\n"
     markdown.write_text(text)
 
 

@@ -589,9 +589,28 @@ def main(argv=None) -> int:
     more_points(lines, args.work)
     other_shape_functions(lines, data)
     angle_section(lines, args.work, data)
-    args.output.write_text("\n".join(lines) + "\n")
-    print(f"wrote {args.output}")
+    text = "\n".join(lines) + "\n"
+    kept = other_scripts_sections(args.output)
+    args.output.write_text(text + ("\n" + kept if kept else ""))
+    print(f"wrote {args.output}" + (" (the peers section kept, scripts/peers.py's)" if kept else ""))
     return 0
+
+
+#: The section of docs/results.md that another script writes (scripts/peers.py), kept as it is.
+PEERS_HEADING = "## Beside the classic peers"
+
+
+def other_scripts_sections(output: Path) -> str:
+    """The peers section of the existing ``output`` (to the next top heading), or ""."""
+    try:
+        text = output.read_text()
+    except OSError:
+        return ""
+    start = text.find(PEERS_HEADING)
+    if start < 0:
+        return ""
+    end = text.find("\n## ", start + len(PEERS_HEADING))
+    return text[start:] if end < 0 else text[start:end + 1]
 
 
 if __name__ == "__main__":
