@@ -29,6 +29,7 @@ they live in one shard, and each file's nearest sub-part and count are its shard
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -159,10 +160,15 @@ def where_used_shard(path: str, signature, entry: str | None, extents, top: int,
     from .where_used import where_used
 
     searcher = _searcher(path)
+    query = replace(_shard_query(searcher, signature, entry), extents=extents)
+    return where_used(searcher, query, top, metric, max_distance, scale, same_size)
+
+
+def _shard_query(searcher: Searcher, signature, entry: str | None) -> Query:
+    """The query as the shard asks it: ``entry``'s own position when the shard holds it."""
     found = searcher.view.find(entry) if entry is not None else None
     own = searcher.view.position_of(found) if found is not None else None
-    query = Query(entry or "", signature, own, entry if own is not None else None, extents=extents)
-    return where_used(searcher, query, top, metric, max_distance, scale, same_size)
+    return Query(entry or "", signature, own, entry if own is not None else None)
 
 
 def shard_sub_part(path: str, entry: str) -> dict | None:
@@ -179,11 +185,8 @@ def search_shard(path: str, signature, entry: str | None, top: int, metric: str,
 
     started = time.perf_counter()
     searcher = _searcher(path)
-    own = None
-    if entry is not None:
-        found = searcher.view.find(entry)
-        own = searcher.view.position_of(found) if found is not None else None
-    query = Query(entry or "", signature, own, entry if own is not None else None)
+    query = _shard_query(searcher, signature, entry)
+    own = query.own
     answer = searcher.search(query, top, metric, filters, among=among, among_reason=among_reason)
     return {"hits": [(hit.distance, hit.relative_path != query.entry, hit.relative_path, hit.metadata, hit.parent,
                       hit.count) for hit in answer.hits],

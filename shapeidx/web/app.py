@@ -154,10 +154,8 @@ class StoreService:
 
         if len(self.searcher) >= WARM_MIN:  # a big store: every query prunes in blocks from the first
             self.searcher.warm()
-        from ..store.files import parts_store
-
         #: The store's sub-parts (``build --parts``; ``parts=1`` ranks them), or None.
-        self.parts = _parts_searcher(self.store) if parts_store(self.store).is_dir() else None
+        self.parts = _parts_searcher(self.store) if _has_parts(self.store) else None
         #: Their pictures (each drawn itself), cached with the files' in ``STORE/thumbs``.
         self.part_thumbs = StoreThumbnails(self.parts, folder=self.thumbs.cache.folder) if self.parts else None
 
