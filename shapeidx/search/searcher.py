@@ -167,10 +167,9 @@ class Searcher:
 
     def __init__(self, store: str | os.PathLike, parts: bool = False):
         from ..store import open_store
+        from ..store.files import owner_of_parts
         from ..store.ranked import ranked_view
         from ..store.reader import member_stores
-
-        from ..store.files import owner_of_parts
 
         self.store = Path(store)
         if parts:

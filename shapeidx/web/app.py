@@ -382,17 +382,18 @@ class StoreService:
         with self._lock:
             answer = where_used(searcher, query, top=top, metric=metric)
             fractions = self._fractions_of(searcher, [use.part for use in answer.uses])
-            metadata = [self.parts.sub_part_of(use.part)["metadata"] for use in answer.uses]
+            facts = [self.parts.sub_part_of(use.part) for use in answer.uses]
         scale = self.scale(metric, True)
         hits = [self._hit_json(scale, {"rank": use.rank, "distance": use.distance, "relative_path": use.part,
-                                       "path": use.path, "title": use.title, "metadata": meta},
-                               use.part, use.distance, use.relative_path, use.count, f)
-                for use, meta, f in zip(answer.uses, metadata, fractions)]
+                                       "path": use.path, "title": use.title, "metadata": fact["metadata"]},
+                               use.part, use.distance, use.relative_path, use.count, f, whole=fact["whole"])
+                for use, fact, f in zip(answer.uses, facts, fractions)]
         return {"query": self.describe(query_id, query), "metric": metric, "top": top, "entries": answer.files,
                 "considered": answer.files, "filters": [], "reason": answer.reason, "parts": True, "uses": True,
                 "calibration": scale.describe(), "hits": hits}
 
-    def _hit_json(self, scale, fields: dict, entry: str, distance: float, parent, count, fractions) -> dict:
+    def _hit_json(self, scale, fields: dict, entry: str, distance: float, parent, count, fractions,
+                  whole: bool | None = None) -> dict:
         """A hit for the page: ``fields`` with its id, words, share, fractions and pictures
         (a sub-part drawn itself, and the file holding it beside unless it is the whole file)."""
         share = scale.share(distance)
@@ -401,7 +402,9 @@ class StoreService:
                "fractions": _fractions_json(fractions), "thumbnail": f"/api/thumbnail?id={_quote(entry)}"}
         if parent is not None:  # a sub-part
             out.update(parent=parent, count=count)
-            if not self.part_thumbs.is_whole_file(entry):
+            if whole is None:  # where-used has asked already; a query's hit is asked here
+                whole = self.part_thumbs.is_whole_file(entry)
+            if not whole:
                 out["parent_thumbnail"] = f"/api/thumbnail?id={_quote(parent)}"
         return out
 
