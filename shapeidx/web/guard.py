@@ -15,7 +15,8 @@
   request's head (request line and headers): a client that opens a connection and sends its
   headers a byte at a time (slowloris) is answered 408 and cut off after
   :data:`HEADER_TIMEOUT` seconds, as is a kept-alive connection whose next request does not
-  come whole in that time.
+  come whole in that time. Its connections close lingering (:class:`LingeringClose`), so a
+  client refused before it finished sending still reads why.
 """
 
 from __future__ import annotations
@@ -35,6 +36,8 @@ BODY_TIMEOUT = 120.0
 #: Largest request head (the headers' names and values), bytes: 431 beyond (h11 limits only a
 #: head that arrives in pieces).
 MAX_HEADER_BYTES = 16 * 1024
+#: Seconds a closing connection keeps reading (and dropping) what the client still sends.
+LINGER_SECONDS = 2.0
 
 LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
 WILDCARDS = ("0.0.0.0", "::", "")
@@ -218,6 +221,44 @@ class BodyTimeout:
                 await _refuse(send, 408, str(exc))
 
 
+class LingeringClose:
+    """A transport whose ``close`` lingers: the answer goes out, then the connection half-closes
+    and drops what the client still sends for up to :data:`LINGER_SECONDS` before it closes.
+
+    A socket closed with unread bytes in its receive buffer sends a reset, and a reset makes
+    the client's kernel throw away the answer it has not read yet: a client refused in the
+    middle of sending (headers too large, a malformed request) would see "connection reset"
+    instead of the 400 or 431 that says why. Apache and nginx close lingering for this reason.
+    """
+
+    def __init__(self, transport, loop, linger: float = LINGER_SECONDS):
+        self._transport = transport
+        self._loop = loop
+        self._linger = linger
+        self.lingering = False
+
+    def __getattr__(self, name):
+        return getattr(self._transport, name)
+
+    def is_closing(self) -> bool:
+        return self.lingering or self._transport.is_closing()
+
+    def close(self) -> None:
+        transport = self._transport
+        if self.lingering or transport.is_closing():
+            return
+        self.lingering = True
+        if not transport.can_write_eof():
+            return transport.close()
+        transport.write_eof()  # after what is buffered: the client reads the whole answer, then the end
+        transport.resume_reading()
+        self._loop.call_later(self._linger, transport.close)
+
+    def client_done(self) -> None:
+        """The client has stopped sending too: close now."""
+        self._transport.close()
+
+
 def header_timeout_protocol(timeout: float = HEADER_TIMEOUT):
     """uvicorn's h11 HTTP/1.1 protocol class with a time limit on each request's head.
 
@@ -234,6 +275,7 @@ def header_timeout_protocol(timeout: float = HEADER_TIMEOUT):
 
         def connection_made(self, transport):
             super().connection_made(transport)
+            self.transport = LingeringClose(transport, self.loop)
             self._head_timer = None
             self._timed_cycle = None
             self._arm_head_timer()
@@ -260,6 +302,15 @@ def header_timeout_protocol(timeout: float = HEADER_TIMEOUT):
                                      b"connection: close\r\ncontent-length: %d\r\n\r\n%s" % (len(body), body))
             finally:
                 self.transport.close()
+
+        def data_received(self, data):
+            if self.transport.lingering:
+                return  # the rest of a refused request: dropped unread
+            super().data_received(data)
+
+        def eof_received(self):
+            if self.transport.lingering:
+                self.transport.client_done()
 
         def handle_events(self):
             super().handle_events()
