@@ -1254,6 +1254,10 @@ def check_new(paths, store, git_rev, exclude_self, look_alikes, metric, sheet, o
         raise click.UsageError("give PATH... or --git REV")
     reports, failed = [], False
     with Checker(_store_path(store), metric=metric) as checker:
+        if sheet:
+            from .pictures.sheet import check_sheet_folder
+
+            check_sheet_folder(sheet)  # before any part is checked
         for path in files:
             try:
                 if not os.path.isfile(path):
@@ -1269,6 +1273,10 @@ def check_new(paths, store, git_rev, exclude_self, look_alikes, metric, sheet, o
                 click.echo(line, err=True)
                 reports.append({"file": path, "status": "error", "reason": plain_reason(exc),
                                 "duplicates": [], "look_alikes": []})
+        if sheet:
+            from .pictures.sheet import check_new_sheet
+
+            click.echo(f"wrote {check_new_sheet(checker.searcher, reports, sheet, checker.metric)}", err=True)
     fmt = chosen_format(output_format, as_json)
     if fmt == "json":
         emit_json(reports)
@@ -1296,32 +1304,13 @@ def check_new(paths, store, git_rev, exclude_self, look_alikes, metric, sheet, o
                 click.echo(f"  duplicate  {h['tier']:10s} {h['distance']:<10.4g} {size_of(h)}  {printable(h['path'])}"
                            f"  ({h['words']})")
             for h in r["look_alikes"]:
-                click.echo(f"  look-alike {h['tier']:10s} {h['distance']:<10.4g} {size_of(h)}  {printable(h['path'])}"
+                tier = "" if h["tier"] == "look-alike" else h["tier"]  # a plain look-alike: no tier to say
+                click.echo(f"  look-alike {tier:10s} {h['distance']:<10.4g} {size_of(h)}  {printable(h['path'])}"
                            f"  ({h['words']})")
-    if sheet:
-        _check_new_sheet(sheet, reports)
     if failed:
         sys.exit(exits.ERROR)
     if any(r["duplicates"] for r in reports):
         sys.exit(exits.DUPLICATES)
-
-
-def _check_new_sheet(out, reports):
-    """A plain HTML sheet of the reports (thumbnails left to query --sheet)."""
-    import html
-
-    rows = []
-    for r in reports:
-        rows.append(f"<h2>{html.escape(str(r['file']))}: {html.escape(r['status'])}</h2><table>")
-        for kind in ("duplicates", "look_alikes"):
-            for h in r[kind]:
-                rows.append(f"<tr><td>{kind}</td><td>{html.escape(h['tier'])}</td><td>{h['distance']:.4g}</td>"
-                            f"<td>{html.escape(str(h['size_ratio']))}</td><td>{'mirrored' if h['mirrored'] else ''}</td>"
-                            f"<td>{html.escape(h['path'])}</td></tr>")
-        rows.append("</table>")
-    with open(out, "w", encoding="utf-8") as f:
-        f.write("<!doctype html><meta charset=utf-8><title>shapeidx check-new</title>" + "\n".join(rows))
-    click.echo(f"wrote {out}", err=True)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -145,3 +145,42 @@ def test_the_gate_answers_from_the_store_while_its_nightly_build_runs(data_dir, 
     assert after.returncode == 7, after.stderr
     found = [d["relative_path"] for d in json.loads(after.stdout)[0]["duplicates"]]
     assert f"new/{arrived[-1].parent.name}/{arrived[-1].name}" in found
+
+
+def test_sheet_draws_each_new_file_its_duplicates_and_look_alikes(library, tmp_path):
+    """The reviewer's sheet: one section per file, the files with duplicates first; each
+    duplicate marked with its tier, each card a real picture of the stored part (an identical
+    copy's picture is its duplicate's), a file that failed named with its reason."""
+    import base64
+    import html
+    import io
+    import re
+
+    root, store = library
+    copy = tmp_path / "copy.wrl"
+    shutil.copy(root / PARTS[0], copy)
+    other = tmp_path / "other.wrl"
+    shutil.copy(root / PARTS[1], other)
+    (tmp_path / "bad.wrl").write_text("junk\n")
+    sheet = tmp_path / "review.html"
+    done = run("check-new", str(tmp_path / "bad.wrl"), str(other), str(root / PARTS[2]), str(copy), "--store", str(store),
+               "--exclude-self", "--sheet", str(sheet))
+    assert done.returncode == 1, done.stderr  # an error wins over a duplicate
+    text = sheet.read_text()
+    sections = re.findall(r'<section class="new" data-status="(\w+)" data-file="([^"]+)"', text)
+    assert [s for s, _ in sections] == ["duplicate", "duplicate", "error", "new"]  # a reviewer's order
+    assert {html.unescape(f) for _, f in sections} == {str(tmp_path / "bad.wrl"), str(other), str(root / PARTS[2]), str(copy)}
+    first = next(part for part in text.split('<section class="new"')[1:] if f'data-file="{copy}"' in part)
+    cards = re.findall(r'<article class="hit( dup)?" data-kind="([\w-]+)" data-tier="([\w-]+)" data-path="([^"]+)"', first)
+    assert cards[0] == (" dup", "duplicate", "identical", PARTS[0])
+    assert all(kind == "look-alike" for _, kind, _, _ in cards[1:]) and len(cards) >= 2
+    pictures = re.findall(r'src="data:image/png;base64,([^"]+)"', first)
+    from PIL import Image
+
+    images = [Image.open(io.BytesIO(base64.b64decode(p))) for p in pictures]
+    assert all(im.size[0] >= 128 for im in images)
+    assert pictures[0] == pictures[1]  # the new copy and its identical duplicate: one picture
+    assert pictures[0] != pictures[2]  # a look-alike is another part
+    assert "not checked" not in text and "bad.wrl" in text and "error:" in text
+    blank = run("check-new", str(copy), "--store", str(store), "--sheet", str(tmp_path / "no" / "such.html"))
+    assert blank.returncode == 1 and "no folder" in blank.stderr and blank.stderr.count("\n") == 1

@@ -284,12 +284,26 @@ def sheet_html(title: str, query: SheetPart, hits: list[SheetHit], meta: list[st
 def write_sheet(output: str | os.PathLike, title: str, query: SheetPart, hits: list[SheetHit], meta: list[str],
                 calibration: str = "") -> Path:
     """Write the sheet to ``output`` (atomically: a temporary file renamed into place)."""
+    return _write_html(output, sheet_html(title, query, hits, meta, calibration))
+
+
+def check_sheet_folder(output: str | os.PathLike) -> None:
+    """Raise StoreError when ``output``'s folder does not exist (asked before any work)."""
+    from ..errors import StoreError
+
+    folder = Path(output).absolute().parent
+    if not folder.is_dir():
+        raise StoreError(f"{output}: no folder {folder} to write the sheet in")
+
+
+def _write_html(output: str | os.PathLike, text: str) -> Path:
+    """``text`` written to ``output`` atomically (a temporary file renamed into place)."""
     from ..errors import ShapeidxError
 
     output = Path(output)
     temporary = output.with_name(f".{output.name}.tmp-{os.getpid()}")
     try:
-        temporary.write_text(sheet_html(title, query, hits, meta, calibration), encoding="utf-8")
+        temporary.write_text(text, encoding="utf-8")
         os.replace(temporary, output)
     except OSError as exc:
         temporary.unlink(missing_ok=True) if temporary.parent.is_dir() else None
@@ -414,18 +428,22 @@ def _sheet_start(searcher, output, query, signature, metric: str):
     """What both sheets of a searcher begin with: ``output``'s folder checked (StoreError when
     it does not exist), the store's thumbnails, the query's part and header, the metric's
     similarity scale."""
-    from ..errors import StoreError
-    from .similarity import SimilarityScale
-
-    if not Path(output).absolute().parent.is_dir():
-        raise StoreError(f"{output}: no folder {Path(output).absolute().parent} to write the sheet in")
+    check_sheet_folder(output)
     thumbs = _thumbnails_of(searcher)
     part, header_extra = _query_part(searcher, thumbs, query, signature)
-    if hasattr(searcher, "shards"):  # a sharded store: calibrated on its first shard, where it is
+    return thumbs, part, header_extra, _similarity_scale(searcher, metric, thumbs)
+
+
+def _similarity_scale(searcher, metric: str, thumbs):
+    """The metric's similarity scale of the searcher's store (a sharded store's: calibrated on
+    its first shard, where it is)."""
+    from .similarity import SimilarityScale
+
+    if hasattr(searcher, "shards"):
         from .similarity import shard_scale
 
-        return thumbs, part, header_extra, searcher.on_shard(0, shard_scale, metric, 0, len(searcher.shards))
-    return thumbs, part, header_extra, SimilarityScale.cached(searcher, metric, thumbs.cache.folder)
+        return searcher.on_shard(0, shard_scale, metric, 0, len(searcher.shards))
+    return SimilarityScale.cached(searcher, metric, thumbs.cache.folder)
 
 
 def where_used_sheet(searcher, answer, query, output: str | os.PathLike, thumbnails: int = DEFAULT_THUMBNAILS) -> Path:
@@ -479,3 +497,94 @@ def compare_sheet(output, a, b, sig_a: Signature, sig_b: Signature, distances: d
             f"Made {datetime.datetime.now():%Y-%m-%d %H:%M}. No store: no similarity words (they are calibrated on a store;"
             " see <code>shapeidx query --sheet</code>)."]
     return write_sheet(output, f"{Path(a).name} against {Path(b).name}", query, [hit], meta)
+
+
+CHECK_STYLE = """
+section.new{background:#fff;border-bottom:1px solid #ddd;margin:0 0 8px}
+section.new>header{border:0}
+.status{font-weight:700;font-size:15px}
+.status.duplicate{color:#b00020}.status.new{color:#1a5e3a}.status.unchanged,.status.error{color:#555}
+.hit.dup{border-color:#b00020;box-shadow:inset 4px 0 0 #b00020}
+.kind{font-size:12px;text-transform:uppercase;letter-spacing:.04em;color:#666}
+.hit.dup .kind{color:#b00020;font-weight:700}
+.facts{font-size:12.5px;color:#333}
+"""
+
+
+def _check_card(thumbs, scale, hit: dict, kind: str, k: int, thumbnails: int, drawn: list) -> str:
+    from .similarity import closer_than
+
+    if drawn[0] < thumbnails:
+        png, note = _picture_of(lambda: thumbs.png(hit["relative_path"]), hit["relative_path"])
+        drawn[0] += 1
+    else:
+        png, note = None, f"no picture beyond the first {thumbnails} (--thumbnails)"
+    part = SheetPart(hit["relative_path"], Path(hit["path"]), None, png, note)
+    size = "size ?" if hit["size_ratio"] is None else f"size x{hit['size_ratio']:.4g}"
+    if hit.get("unit"):
+        size += f" (unit factor {hit['unit']:.4g})"
+    facts = [size] + (["mirrored"] if hit["mirrored"] else [])
+    dup = kind == "duplicate"
+    share = scale.share(hit["distance"])
+    words = hit["words"] if hit["tier"] != "look-alike" else scale.words(hit["distance"])  # a plain neighbour: how near
+    far = " far" if words in ("weakly similar", "not similar") else ""
+    return (f'<article class="hit{" dup" if dup else ""}" data-kind="{kind}" data-tier="{_esc(hit["tier"])}"'
+            f' data-path="{_esc(hit["relative_path"])}">'
+            f'<div class="top"><span class="kind">{kind}{"" if hit["tier"] == kind else ": " + _esc(hit["tier"])}</span>'
+            f'<span class="distance">distance {hit["distance"]:.4g}</span></div>'
+            f'<div class="words{far}">{_esc(words)}'
+            + (f' <span class="share">{_esc(closer_than(share))}</span>' if share is not None and hit["distance"] > 0 else "")
+            + "</div>"
+            + _picture(part, 160, lazy=k >= 12) + _link(part)
+            + f'<div class="facts">{_esc(", ".join(facts))}</div></article>')
+
+
+def check_new_sheet(searcher, reports: list, output: str | os.PathLike, metric: str,
+                    thumbnails: int = DEFAULT_THUMBNAILS) -> Path:
+    """Write the sheet of ``check-new`` for the reviewer of a merge request: per new file, its
+    picture and status, then the store's parts that are the same part (duplicates, marked, with
+    tier, size ratio, unit factor and mirror flag) and its nearest look-alikes, each drawn.
+
+    ``reports``: :meth:`shapeidx.families.checkin.Checker.check`'s dicts (an ``error`` one
+    carries ``reason``). Raises StoreError when ``output``'s folder does not exist.
+    """
+    from .thumbcache import ThumbnailCache
+
+    check_sheet_folder(output)
+    thumbs = _thumbnails_of(searcher)
+    files = ThumbnailCache(thumbs.cache.folder)
+    scale = _similarity_scale(searcher, metric, thumbs)
+    drawn = [0]
+    sections = []
+    counts = {"duplicate": 0, "new": 0, "unchanged": 0, "error": 0}
+    order = ("duplicate", "error", "new", "unchanged")  # what a reviewer must look at first
+    for r in sorted(reports, key=lambda r: order.index(r["status"]) if r["status"] in order else len(order)):
+        status = r["status"]
+        counts[status] = counts.get(status, 0) + 1
+        checked = status in ("duplicate", "new")
+        png, note = _picture_of(lambda: files.png(r["file"]), str(r["file"])) if checked else (None, "")
+        part = SheetPart(str(r["file"]), Path(r["file"]).absolute(), None, png, note)
+        said = {"duplicate": f"ALREADY IN THE LIBRARY: {len(r['duplicates'])} duplicate(s)",
+                "new": "new: no duplicate in the store", "unchanged": "unchanged (the store holds it under this path)",
+                "error": f"error: {r.get('reason', '')}"}.get(status, status)
+        cards = [_check_card(thumbs, scale, h, "duplicate", k, thumbnails, drawn) for k, h in enumerate(r["duplicates"])]
+        cards += [_check_card(thumbs, scale, h, "look-alike", len(cards) + k, thumbnails, drawn)
+                  for k, h in enumerate(r["look_alikes"])]
+        sections.append(
+            f'<section class="new" data-status="{_esc(status)}" data-file="{_esc(r["file"])}"><header>'
+            + (_picture(part, 200, lazy=len(sections) >= 4) if checked else "")
+            + f'<div><h1>{_esc(Path(str(r["file"])).name)}</h1><div class="query">{_link(part)}</div>'
+            f'<div class="status {_esc(status)}">{_esc(said)}</div></div></header>'
+            + (f'<main class="hits">{"".join(cards)}</main>' if cards else "") + "</section>")
+    title = f"check-new: {counts['duplicate']} of {len(reports)} file(s) already in the library"
+    summary = ", ".join(f"{n} {s}" for s, n in counts.items() if n)
+    head = (f'<header><div><h1>{_esc(title)}</h1><div class="meta"><div>Store <code>{_esc(searcher.store)}</code>:'
+            f' {len(searcher):,} parts (root <code>{_esc(searcher.root)}</code>). Metric {_esc(metric_label(metric))};'
+            f' {_esc(summary)}. Made {datetime.datetime.now():%Y-%m-%d %H:%M}.</div>'
+            "<div>Duplicates (tiers identical, same, converted: docs/duplicates.md) are marked in red; look-alikes"
+            " are parts worth reusing, not duplicates.</div></div></div></header>")
+    text = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+            f"<meta name=\"viewport\" content=\"width=device-width,initial-scale=1\"><title>{_esc(title)}</title>"
+            "<meta http-equiv=\"Content-Security-Policy\" content=\"default-src 'none'; img-src data:; style-src 'unsafe-inline'\">"
+            f"<style>{STYLE}{CHECK_STYLE}</style></head><body>{head}{''.join(sections)}</body></html>\n")
+    return _write_html(output, text)
