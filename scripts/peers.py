@@ -51,6 +51,7 @@ import os
 import re
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -123,38 +124,149 @@ def l2_to_many(bank: np.ndarray, query: np.ndarray) -> np.ndarray:
     return np.sqrt(((bank - query.ravel()[None, :]) ** 2).sum(axis=1))
 
 
-def describe(paths, seed=GALLERY_SEED, lightfield=None) -> tuple[dict, list, dict]:
-    """Each peer's descriptors of ``paths`` (``{"shd": rows, "lfd": (N, 10, 10, 47)}``, LFD only
-    with a :class:`LightField`), the paths that loaded, and seconds per part (SHD: CPU time;
-    LFD: wall time of its program, rendering included)."""
-    from shapeidx.signing.pipeline import solid_of_file
+@dataclass
+class Described:
+    """Each peer's descriptors of ``paths``, row for row (a row a peer could not describe is
+    zeros, and its index is in ``missing[peer]``), shapeidx's signatures of the same solids
+    when asked (``signatures[seed]``), and each peer's mean seconds per part."""
 
-    rows, lfd, kept, cpu, wall = [], [], [], [], []
-    for path in paths:
-        try:
-            solid = solid_of_file(path)
-            if lightfield is not None:
-                start = time.perf_counter()
-                described = lightfield.describe(solid.vertices, solid.faces)
-                wall.append(time.perf_counter() - start)
-        except Exception as error:  # a part shapeidx or a peer cannot load is left out of every column
-            print(f"skip {path}: {error}", file=sys.stderr)
+    paths: list
+    banks: dict  # "lfd": (N, 10, 10, 47) uint8; ("shd", seed): (N, SPHERES * (BANDS + 1)) float32
+    missing: dict  # peer name -> set of row indices
+    signatures: dict  # seed -> list of Signature (None where the part did not load)
+    seconds: dict  # "lfd": wall, "shd": CPU, per part (None: nothing timed)
+
+    def bank(self, peer: str, seed: int = GALLERY_SEED) -> np.ndarray:
+        return self.banks["lfd"] if peer == "lfd" else self.banks[("shd", seed)]
+
+
+class DescriptorCache:
+    """Descriptors already made, one small ``.npz`` per (peer, file version, seed, parameters)
+    in ``WORK/descriptors``, written whole or not at all: a second run, or a run cut off,
+    describes only what is not there yet (LFD costs ~2.7 s a part)."""
+
+    def __init__(self, folder: Path | None):
+        self.folder = folder
+        if folder is not None:
+            folder.mkdir(parents=True, exist_ok=True)
+
+    @staticmethod
+    def _parameters(peer: str) -> str:
+        if peer == "lfd":
+            from importlib.metadata import PackageNotFoundError, version
+
+            try:
+                return f"light-field-distance {version('light-field-distance')}"
+            except PackageNotFoundError:
+                return "light-field-distance"
+        if peer == "shd":
+            from shapeidx.signing.parameters import SIGNATURE_VERSION
+
+            # SHD's points come from shapeidx's sampler: a new sampler is a new descriptor
+            return f"grid {GRID} spheres {SPHERES} bands {BANDS} points {SHD_POINTS} sampler {SIGNATURE_VERSION}"
+        from shapeidx.signing.parameters import BIN_DIVISOR, SIGNATURE_VERSION
+
+        return f"shapeidx signature {SIGNATURE_VERSION} divisor {BIN_DIVISOR}"
+
+    def _file(self, peer: str, path: Path, seed) -> Path | None:
+        if self.folder is None:
+            return None
+        import hashlib
+
+        info = path.stat()
+        key = f"{peer}|{path.resolve()}|{info.st_size}|{info.st_mtime_ns}|{seed}|{self._parameters(peer)}"
+        return self.folder / f"{peer}-{hashlib.sha1(key.encode()).hexdigest()}.npz"
+
+    def get(self, peer: str, path: Path, seed=None):
+        """(value, seconds) from the cache, or None."""
+        file = self._file(peer, path, seed)
+        if file is None or not file.is_file():
+            return None
+        import pickle
+
+        with np.load(file, allow_pickle=False) as data:
+            value = data["value"]
+            if peer == "signature":
+                value = pickle.loads(value.tobytes())
+            return value, float(data["seconds"])
+
+    def put(self, peer: str, path: Path, seed, value, seconds: float):
+        file = self._file(peer, path, seed)
+        if file is None:
+            return
+        import pickle
+
+        if peer == "signature":
+            value = np.frombuffer(pickle.dumps(value), np.uint8)
+        partial = file.with_suffix(f".{os.getpid()}.part")
+        with open(partial, "wb") as handle:
+            np.savez(handle, value=value, seconds=seconds)
+        os.replace(partial, file)
+
+
+def describe(paths, seeds=(GALLERY_SEED,), lightfield=None, cache: DescriptorCache | None = None,
+             sign: bool = False) -> Described:
+    """Each peer's descriptors of ``paths``: LFD (only with a :class:`LightField`; it renders, so
+    it has no seed), SHD with each of ``seeds``, and with ``sign`` shapeidx's own signature of
+    the same solid with each seed (1,024 points; the search road's query signature). Each file
+    is loaded once, and only when something it needs is not in ``cache``."""
+    from shapeidx.signing.pipeline import signature_of_solid, solid_of_file
+
+    cache = cache or DescriptorCache(None)
+    paths = [Path(p) for p in paths]
+    wanted = ([("lfd", None)] if lightfield is not None else []) + [("shd", s) for s in seeds]
+    wanted += [("signature", s) for s in seeds] if sign else []
+    found = {w: [None] * len(paths) for w in wanted}
+    seconds = {"lfd": [], "shd": []}
+    for i, path in enumerate(paths):
+        solid = None
+        for peer, seed in wanted:
+            hit = cache.get(peer, path, seed)
+            if hit is None:
+                try:
+                    if solid is None:
+                        solid = solid_of_file(path)
+                    if peer == "lfd":
+                        start = time.perf_counter()
+                        value = lightfield.describe(solid.vertices, solid.faces)
+                        hit = value, time.perf_counter() - start
+                    elif peer == "shd":
+                        start = time.process_time()
+                        value = shd_descriptor(solid.vertices, solid.faces, seed).ravel()
+                        hit = value, time.process_time() - start
+                    else:
+                        hit = signature_of_solid(solid, points=1024, seed=seed), 0.0
+                except Exception as error:  # left out of this peer's column, and counted as a miss
+                    print(f"skip {path} ({peer}): {str(error)[:200]}", file=sys.stderr)
+                    continue
+                cache.put(peer, path, seed, *hit)
+            found[(peer, seed)][i] = hit[0]
+            if peer in seconds:
+                seconds[peer].append(hit[1])
+    banks, missing, signatures = {}, {}, {}
+    for (peer, seed), values in found.items():
+        if peer == "signature":
+            signatures[seed] = values
             continue
-        if lightfield is not None:
-            lfd.append(described)
-        start = time.process_time()
-        rows.append(shd_descriptor(solid.vertices, solid.faces, seed).ravel())
-        cpu.append(time.process_time() - start)
-        kept.append(Path(path))
-    banks = {"shd": np.array(rows)}
-    if lightfield is not None:
-        banks["lfd"] = np.array(lfd)
-    return banks, kept, {"shd": float(np.mean(cpu)), "lfd": float(np.mean(wall)) if wall else None}
+        shape = (LFD_ANGLES, LFD_CAMERAS, 47) if peer == "lfd" else (SPHERES * (BANDS + 1),)
+        dtype = np.uint8 if peer == "lfd" else np.float32
+        banks[peer if peer == "lfd" else (peer, seed)] = np.array(
+            [v if v is not None else np.zeros(shape, dtype) for v in values], dtype=dtype).reshape(len(paths), *shape)
+        missing.setdefault(peer, set()).update(i for i, v in enumerate(values) if v is None)
+    return Described(paths, banks, missing, signatures,
+                     {peer: float(np.mean(t)) if t else None for peer, t in seconds.items()})
 
 
-def peer_distances(banks: dict, name: str, query) -> np.ndarray:
-    """Peer ``name``'s own distance from ``query`` (one of its descriptors) to every stored one."""
-    return l2_to_many(banks["shd"], query) if name == "shd" else lfd_to_many(banks["lfd"], query)
+def peer_distances(bank: np.ndarray, name: str, query, missing=()) -> np.ndarray:
+    """Peer ``name``'s own distance from ``query`` (one of its descriptors) to every row of
+    ``bank``; rows the peer could not describe are infinitely far (never found)."""
+    d = l2_to_many(bank, query) if name == "shd" else lfd_to_many(bank, query)
+    d = d.astype(np.float64)
+    d[list(missing)] = np.inf
+    return d
+
+
+PEERS = ("lfd", "shd")
 
 
 # ---------------------------------------------------------------- the Light Field Descriptor (its own code)
@@ -278,102 +390,179 @@ def lfd_to_many(bank: np.ndarray, query: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- the questions
+#: The labelled collections of docs/results.md (classes: each part's first folder, as
+#: ``shapeidx evaluate`` reads them), each question asked of every part against the others.
+COLLECTIONS = {
+    "kicad6": DATA / "kicad6",
+    "kicad-mcad": DATA / "vrml-wild" / "kicad-mcad",
+    "kicad-2017/freecad-coin": DATA / "vrml-wild" / "kicad-2017" / "freecad-coin",
+    "kicad-2017/wings3d": DATA / "vrml-wild" / "kicad-2017" / "wings3d",
+    "kicad-wrz": DATA / "vrml-wild" / "kicad-wrz",
+}
+#: The twin questions' queries draw their points (SHD's and shapeidx's) with each of these
+#: seeds, none of them the gallery's: figures are the mean, with the lowest and highest.
+QUERY_SEEDS = (7, 8, 9)
+#: Collections in shared/ with no question to ask of them, and why (said under the table).
+NO_QUESTION = {
+    "ndr": "16 parts in 4 folders named after their donors, not kinds, and no twins",
+    "mesh-wild": "folders named after their sources (assimp, OpenSCAD, trimesh, a printer), not kinds, and no twins",
+}
+
+
 def labelled(directory: Path, suffixes=(".wrl",)):
     paths = sorted(p for p in directory.rglob("*") if p.suffix.lower() in suffixes)
     return paths, [str(p.parent.relative_to(directory)) for p in paths]
 
 
-def kinds(work: Path, out: dict):
-    """kicad6's 52 folders: NN, FT, ST, DCG of every part against the 519 others."""
-    from shapeidx.evaluation.evaluate import evaluate
+def peers_of(described: Described) -> list:
+    return [p for p in PEERS if p == "shd" or p in described.banks]
+
+
+def peer_matrix(described: Described, peer: str, labels) -> np.ndarray:
+    """Peer distances among a collection's parts. A part the peer could not describe is never
+    found, and as a query it is scored as the worst answer (every other class first)."""
+    bank, missing = described.bank(peer), described.missing[peer]
+    labels = np.asarray(labels, dtype=object)
+    rows = []
+    for q in range(len(bank)):
+        if q in missing:
+            row = np.where(labels == labels[q], np.inf, 1.0)
+            row[q] = 0.0
+        else:
+            row = peer_distances(bank, peer, bank[q], missing)
+        rows.append(row)
+    return np.array(rows)
+
+
+def kinds(work: Path, out: dict, name: str, folder: Path):
+    """One labelled collection: NN, FT, ST, DCG of every part against the others, for each
+    peer and for shapeidx's metrics (``shapeidx evaluate``, on the same parts)."""
+    from shapeidx.evaluation.evaluate import class_of, evaluate
     from shapeidx.evaluation.retrieval import retrieval_scores
+    from shapeidx.search import Searcher
     from shapeidx.store import open_store
 
-    store = quiet_build(DATA / "kicad6", work / "kicad6-1024.h5", points=1024)
+    store = quiet_build(folder, work / f"{name.replace('/', '-')}-1024.h5", points=1024)
     with open_store(store) as reader:
         result = evaluate(reader)
     metrics = result["metrics"]
     best = max(metrics, key=lambda m: metrics[m]["ft"])
-    paths, labels = labelled(DATA / "kicad6")
-    banks, kept, cost = describe(paths, lightfield=out.get("lightfield"))
-    keep = {str(p) for p in kept}
-    labels = [l for p, l in zip(paths, labels) if str(p) in keep]
-    scores = {}
-    for name, bank in banks.items():
-        d = np.array([peer_distances(banks, name, row) for row in bank])
-        scores[name] = retrieval_scores(d, labels)
-    out["kinds"] = {"peers": scores, "weighted": metrics["weighted"], "best": (best, metrics[best]), "parts": len(kept)}
-    out["banks"], out["cost"], out["gallery"] = banks, cost, (banks, kept)
+    with Searcher(store) as searcher:
+        stored = sorted(str(p) for p in searcher.metadata_column("path"))
+    chosen = [p for p in stored if class_of(p) is not None]  # evaluate's parts, in its order
+    labels = [class_of(p) for p in chosen]
+    assert len(chosen) == result["models"], (name, len(chosen), result["models"])
+    described = describe([folder / p for p in chosen], lightfield=out["lightfield"], cache=out["cache"])
+    scores = {peer: retrieval_scores(peer_matrix(described, peer, labels), labels) for peer in peers_of(described)}
+    out.setdefault("kinds", {})[name] = {
+        "peers": scores, "weighted": metrics["weighted"], "best": (best, metrics[best]), "parts": len(chosen),
+        "classes": len(set(labels)), "missing": {peer: len(described.missing[peer]) for peer in peers_of(described)},
+        "in_sample": bool(metrics[best].get("in_sample"))}
+    out.setdefault("seconds", []).append(described.seconds)
+    out.setdefault("gallery", {})[name] = (described, store)
+
+
+def twin_question(queries: Described, gallery: Described, store: Path, twin_of) -> dict:
+    """Per query: the rank of its twin (ties counted against it) by each peer, LFD once, SHD
+    and shapeidx (every metric) with each query seed; a query or twin not described is last."""
+    from shapeidx.distance import METRICS
+    from shapeidx.search import Searcher
+    from shapeidx.search.distances import distances
+
+    where = {os.path.abspath(p): i for i, p in enumerate(gallery.paths)}
+    peer_ranks = {(peer, seed): {} for peer in peers_of(gallery)
+                  for seed in ((None,) if peer == "lfd" else QUERY_SEEDS)}
+    own_ranks = {seed: {} for seed in QUERY_SEEDS}
+    with Searcher(store) as searcher:
+        stored = {os.path.abspath(Path(searcher.root) / str(p)): i for i, p in enumerate(searcher.metadata_column("path"))}
+        for k, query in enumerate(queries.paths):
+            twin_path = os.path.abspath(twin_of(query))
+            twin, stored_twin = where.get(twin_path), stored.get(twin_path)
+            if twin is None or stored_twin is None:
+                continue
+            name = query.name
+            for peer, seed in peer_ranks:
+                if k in queries.missing[peer]:
+                    peer_ranks[(peer, seed)][name] = len(gallery.paths)
+                    continue
+                d = peer_distances(gallery.bank(peer), peer, queries.bank(peer, seed or GALLERY_SEED)[k],
+                                   gallery.missing[peer])
+                peer_ranks[(peer, seed)][name] = int((d <= d[twin]).sum())
+            for seed in QUERY_SEEDS:
+                signature = queries.signatures[seed][k]
+                ranks = {}
+                for metric in METRICS:
+                    if signature is None:
+                        ranks[metric] = len(stored)
+                        continue
+                    d = distances(searcher.view, signature, metric)
+                    ranks[metric] = int((d <= d[stored_twin]).sum())
+                own_ranks[seed][name] = ranks
+    return {"peer_ranks": peer_ranks, "own_ranks": own_ranks}
+
+
+def twin_table(found: dict, kept=None) -> dict:
+    """Rank-1 and top-10 rates (mean over the query seeds, lowest and highest) of each peer, of
+    Weighted and of the best metric, over the queries every column has (and in ``kept``)."""
+    from shapeidx.distance import METRICS
+
+    columns = list(found["peer_ranks"].values()) + list(found["own_ranks"].values())
+    names = sorted(set.intersection(*[set(c) for c in columns]))
+    if kept is not None:
+        names = [n for n in names if n in kept]
+
+    def rate(per_seed):
+        r1 = [float(np.mean([ranks[n] == 1 for n in names])) for ranks in per_seed]
+        top = [float(np.mean([ranks[n] <= 10 for n in names])) for ranks in per_seed]
+        return {"r1": float(np.mean(r1)), "r1_range": (min(r1), max(r1)), "top10": float(np.mean(top)),
+                "top10_range": (min(top), max(top)), "seeds": len(per_seed)}
+
+    peers = {}
+    for (peer, _), ranks in found["peer_ranks"].items():
+        peers.setdefault(peer, []).append(ranks)
+    own = {m: rate([{n: r[n][m] for n in names} for r in found["own_ranks"].values()]) for m in METRICS}
+    best = max(own, key=lambda m: (own[m]["r1"], own[m]["top10"]))
+    return {"peers": {peer: rate(per_seed) for peer, per_seed in peers.items()}, "weighted": own["weighted"],
+            "best": (best, own[best]), "parts": len(names),
+            "ranks": {"peers": {f"{p}{'' if s is None else f'@{s}'}": {n: r[n] for n in names}
+                                for (p, s), r in found["peer_ranks"].items()},
+                      "shapeidx": {s: {n: r[n] for n in names} for s, r in found["own_ranks"].items()}}}
 
 
 def step_twins(work: Path, out: dict):
     """Every kicad6-step part against the 520 kicad6 VRML parts: is its VRML export first?"""
-    from shapeidx.distance import METRICS
-    from twin_study import twin_ranks
-
-    vrml = quiet_build(DATA / "kicad6", work / "kicad6-1024.h5", points=1024)
-    step = quiet_build(DATA / "kicad6-step", work / "kicad6-step-1024.h5", points=1024)
-    ranks = twin_ranks(step, vrml, lambda p: str(Path(p).with_suffix(".wrl")), metrics=METRICS)
-    banks, gallery = out["gallery"]
-    queries, qpaths, _ = describe(labelled(DATA / "kicad6-step", (".step", ".stp"))[0], QUERY_SEED,
-                                  out.get("lightfield"))
-    where = {str(p.relative_to(DATA / "kicad6")): i for i, p in enumerate(gallery)}
-    found = {name: {} for name in banks}
-    for k, q in enumerate(qpaths):
-        twin = where.get(str(q.relative_to(DATA / "kicad6-step").with_suffix(".wrl")))
-        if twin is not None:
-            for name in banks:
-                d = peer_distances(banks, name, queries[name][k])
-                found[name][str(q.relative_to(DATA / "kicad6-step"))] = int((d <= d[twin]).sum())
-    out["step"] = twin_table(ranks, found)
-
-
-def twin_table(ranks: dict, found: dict) -> dict:
-    """Rank-1 and top-10 rates of each peer, Weighted and the best metric, over the queries all have."""
-    names = sorted(set(ranks).intersection(*[set(f) for f in found.values()]))
-
-    def rate(values):
-        v = np.array(values)
-        return {"r1": float((v == 1).mean()), "top10": float((v <= 10).mean())}
-
-    from shapeidx.distance import METRICS
-
-    scored = {m: rate([ranks[n][m] for n in names]) for m in METRICS}
-    best = max(scored, key=lambda m: (scored[m]["r1"], scored[m]["top10"]))
-    return {"peers": {peer: rate([f[n] for n in names]) for peer, f in found.items()}, "weighted": scored["weighted"],
-            "best": (best, scored[best]), "parts": len(names),
-            "peer_ranks": {peer: {n: f[n] for n in names} for peer, f in found.items()},
-            "weighted_ranks": {n: ranks[n]["weighted"] for n in names}, "best_ranks": {n: ranks[n][best] for n in names}}
+    gallery, store = out["gallery"]["kicad6"]
+    files = labelled(DATA / "kicad6-step", (".step", ".stp"))[0]
+    queries = describe(files, QUERY_SEEDS, out["lightfield"], out["cache"], sign=True)
+    found = twin_question(queries, gallery, store,
+                          lambda q: DATA / "kicad6" / q.relative_to(DATA / "kicad6-step").with_suffix(".wrl"))
+    out["step"] = twin_table(found)
 
 
 def xexp_twins(work: Path, out: dict):
-    """The 80 kicad2017 exports against twin_study's 1,000 KiCad 6 parts: is the KiCad 6 twin first?"""
-    from shapeidx.distance import METRICS
-    from twin_study import LIBRARY, twin_parts, twin_ranks
+    """The kicad2017 exports against twin_study's 1,000 KiCad 6 parts: is the KiCad 6 twin first?
+    (the pairs twin_study keeps: EXCLUDED's remodelled ones are left out)."""
+    from twin_study import EXCLUDED, LIBRARY, twin_parts
 
-    parts = twin_parts(work / "xexp", Path("/work/deb/lib/usr/share/kicad/3dmodels") if not LIBRARY.exists() else LIBRARY)
+    library = LIBRARY if LIBRARY.exists() else Path("/work/deb/lib/usr/share/kicad/3dmodels")
+    if not library.exists():
+        raise SystemExit(f"xexp: no Debian KiCad library at {LIBRARY} (apt-get download kicad-packages3d;"
+                         " dpkg-deb -x it to /work/deb/lib)")
+    parts = twin_parts(work / "xexp", library)
     store = quiet_build(parts, work / "xexp" / "store1000.h5", points=1024, follow_outside_links=True)
-    old = quiet_build(DATA / "xexp-dev" / "kicad2017", work / "xexp" / "kicad2017.h5", points=1024)
-    ranks = twin_ranks(old, store, lambda p: f"twins/{p}", metrics=METRICS)
-    banks, gallery, _ = describe(sorted(p for p in parts.rglob("*.wrl")), lightfield=out.get("lightfield"))
-    queries, qpaths, _ = describe(sorted((DATA / "xexp-dev" / "kicad2017").glob("*.wrl")), QUERY_SEED,
-                                  out.get("lightfield"))
-    where = {str(p.relative_to(parts)): i for i, p in enumerate(gallery)}
-    found = {name: {} for name in banks}
-    for k, q in enumerate(qpaths):
-        twin = where.get(f"twins/{q.name}")
-        if twin is not None:
-            for name in banks:
-                d = peer_distances(banks, name, queries[name][k])
-                found[name][q.name] = int((d <= d[twin]).sum())
-    out["xexp"] = twin_table(ranks, found)
+    gallery = describe(sorted(p for p in parts.rglob("*.wrl")), lightfield=out["lightfield"], cache=out["cache"])
+    files = sorted((DATA / "xexp-dev" / "kicad2017").glob("*.wrl"))
+    queries = describe(files, QUERY_SEEDS, out["lightfield"], out["cache"], sign=True)
+    found = twin_question(queries, gallery, store, lambda q: parts / "twins" / q.name)
+    out["xexp"] = twin_table(found, kept={f.name for f in files if f.name not in EXCLUDED})
+    out.setdefault("seconds", []).append(gallery.seconds)
+    out.setdefault("gallery", {})["xexp"] = (gallery, store)
 
 
-def query_time(banks: dict, name: str, repeats: int = 20) -> float:
+def query_time(bank: np.ndarray, name: str, repeats: int = 20) -> float:
     """Seconds for peer ``name`` to rank one descriptor against LIBRARY_SIZE stored ones
-    (kicad6's real descriptors repeated to that many), best of ``repeats``."""
-    bank = banks[name]
-    rows = {name: np.resize(bank, (LIBRARY_SIZE, *bank.shape[1:]))}
+    (real descriptors repeated to that many), best of ``repeats``."""
+    rows = np.resize(bank, (LIBRARY_SIZE, *bank.shape[1:]))
     best = np.inf
     for k in range(repeats):
         start = time.perf_counter()
@@ -383,8 +572,7 @@ def query_time(banks: dict, name: str, repeats: int = 20) -> float:
 
 
 def shapeidx_costs(work: Path) -> dict:
-    """shapeidx's cost per part for the same columns: signature CPU time and size on a few kicad6
-    parts, and a Weighted query against a store of LIBRARY_SIZE entries if one is at hand."""
+    """shapeidx's cost per part for the same columns: signature CPU time on a few kicad6 parts."""
     from shapeidx.signing.pipeline import signature_of_solid, solid_of_file
 
     paths = labelled(DATA / "kicad6")[0][::52]
@@ -401,45 +589,58 @@ def shapeidx_costs(work: Path) -> dict:
 PEER_LABELS = {"lfd": "LFD (Chen 2003, its own code)", "shd": "SHD (Kazhdan 2003, reimplemented)"}
 
 
+def _rate_cell(rate: dict, key: str) -> str:
+    low, high = rate[f"{key}_range"]
+    return f"{rate[key]:.3f}" + (f" ({low:.3f}-{high:.3f})" if rate["seeds"] > 1 else "")
+
+
 def table(out: dict, command: str, costs: dict) -> list:
-    peers = [p for p in ("lfd", "shd") if p in out["banks"]]
+    peers = [p for p in PEERS if any(p in k["peers"] for k in out.get("kinds", {}).values())
+             or any(p in out[q]["peers"] for q in ("step", "xexp") if q in out)]
     lines = [BEGIN, "",
              "| question | measure | " + " | ".join(PEER_LABELS[p] for p in peers)
              + " | shapeidx Weighted (paper; the default) | shapeidx best metric on it |",
              "|---|---|" + "---|" * len(peers) + "---|---|"]
-    if "kinds" in out:
-        k = out["kinds"]
-        name, best = k["best"]
+    for name, k in out.get("kinds", {}).items():
+        metric, best = k["best"]
+        missed = ", ".join(f"{PEER_LABELS[p].split(' ')[0]} could not describe {n}" for p, n in k["missing"].items() if n)
+        label = f"{name} kinds ({k['parts']} parts, {k['classes']} folders{'; ' + missed if missed else ''})"
         for s in ("nn", "ft", "st", "dcg"):
-            lines.append(f"| kicad6 kinds ({k['parts']} parts, 52 folders) | {s.upper()} | "
-                         + " | ".join(f"{k['peers'][p][s]:.3f}" for p in peers)
-                         + f" | {k['weighted'][s]:.3f} | {best[s]:.3f} ({name}) |")
+            lines.append(f"| {label} | {s.upper()} | " + " | ".join(f"{k['peers'][p][s]:.3f}" for p in peers)
+                         + f" | {k['weighted'][s]:.3f} | {best[s]:.3f} ({metric}{', learned here' if k['in_sample'] else ''}) |")
     for key, label in (("step", "kicad6-step vs kicad6 twins"), ("xexp", "xexp-dev twins (of 1,000)")):
         if key in out:
             t = out[key]
-            name, best = t["best"]
+            metric, best = t["best"]
             for s, sl in (("r1", "twin at rank 1"), ("top10", "twin in top 10")):
                 lines.append(f"| {label} ({t['parts']} queries) | {sl} | "
-                             + " | ".join(f"{t['peers'][p][s]:.3f}" for p in peers)
-                             + f" | {t['weighted'][s]:.3f} | {best[s]:.3f} ({name}) |")
-    cost, query = out["cost"], out["query"]
+                             + " | ".join(_rate_cell(t["peers"][p], s) for p in peers)
+                             + f" | {_rate_cell(t['weighted'], s)} | {_rate_cell(best, s)} ({metric}) |")
+    seconds = {p: [c[p] for c in out.get("seconds", []) if c.get(p) is not None] for p in peers}
+    cost = {p: float(np.mean(v)) if v else None for p, v in seconds.items()}
+    query = out["query"]
     cells = {
         "lfd": (f"{cost['lfd']:.2f} s (its 3DAlignment program: 100 silhouettes rendered and described, wall"
                 " time)" if cost.get("lfd") else "",
                 f"{LFD_ANGLES * LFD_CAMERAS * 47:,} bytes (10 x 10 x 47 bytes)",
                 f"{query['lfd'] * 1e3:.0f} ms (numpy: 100 x 100 camera costs x 60 rotations per part)"
                 if "lfd" in query else ""),
-        "shd": (f"{cost['shd']:.3f} s CPU (voxels + 32 SH transforms, after loading)",
-                f"{out['banks']['shd'].shape[1] * 4:,} bytes ({SPHERES} x {BANDS + 1} float32)",
-                f"{query['shd'] * 1e3:.2f} ms (L2 + sort)"),
+        "shd": (f"{cost['shd']:.3f} s CPU (voxels + 32 SH transforms, after loading)" if cost.get("shd") else "",
+                f"{SPHERES * (BANDS + 1) * 4:,} bytes ({SPHERES} x {BANDS + 1} float32)",
+                f"{query['shd'] * 1e3:.2f} ms (L2 + sort)" if "shd" in query else ""),
     }
     lines += ["",
+              "Twin questions: the queries' points (SHD's and shapeidx's) drawn with the seeds "
+              + ", ".join(map(str, QUERY_SEEDS)) + ", none of them the gallery's: the mean, and in brackets the lowest"
+              " and highest; LFD renders and does not sample (one figure). Ties count against the twin. "
+              + " ".join(f"{name}: no question ({why})." for name, why in NO_QUESTION.items()),
+              "",
               "| cost per part | " + " | ".join(PEER_LABELS[p].split(" (")[0] for p in peers) + " | shapeidx (1,024 points) |",
               "|---|" + "---|" * len(peers) + "---|",
               "| descriptor time | " + " | ".join(cells[p][0] for p in peers)
               + f" | {costs['cpu']:.3f} s CPU (signature, after loading; mean of {costs['parts']} kicad6 parts) |",
               "| descriptor size | " + " | ".join(cells[p][1] for p in peers) + " | see docs/results.md's store sizes |",
-              f"| query against {LIBRARY_SIZE:,} parts (kicad6's descriptors repeated) | "
+              f"| query against {LIBRARY_SIZE:,} parts (real descriptors repeated) | "
               + " | ".join(cells[p][2] for p in peers) + " | see README's query timings |",
               "",
               f"Command: `{command}`, {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC; {machine()}.",
@@ -448,7 +649,7 @@ def table(out: dict, command: str, costs: dict) -> list:
 
 
 def write(lines: list, markdown: Path):
-    text = markdown.read_text()
+    text = markdown.read_text() if markdown.exists() else ""
     block = "\n".join(lines)
     if BEGIN in text:
         text = re.sub(re.escape(BEGIN) + ".*?" + re.escape(END), lambda _: block, text, flags=re.S)
@@ -459,10 +660,14 @@ def write(lines: list, markdown: Path):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--work", type=Path)
-    parser.add_argument("--questions", default="kinds,step,xexp")
+    parser.add_argument("--work", type=Path, help="stores and the descriptor cache (WORK/descriptors)")
+    parser.add_argument("--questions", default="kinds,step,xexp",
+                        help="kinds (every labelled collection), step, xexp (needs Debian's library)")
+    parser.add_argument("--collections", default=",".join(COLLECTIONS), help="the kinds question's collections")
     parser.add_argument("--markdown", type=Path, default=REPO / "docs" / "results.md")
     parser.add_argument("--json", type=Path, help="also write every rank here")
+    parser.add_argument("--describe-only", action="store_true",
+                        help="fill the descriptor cache for the questions chosen and stop (no table)")
     parser.add_argument("--build-lfd", action="store_true",
                         help=f"build the light-field-distance package's C code in {LFD_HOME} and stop")
     parser.add_argument("--no-lfd", action="store_true", help="leave the Light Field Descriptor out")
@@ -474,7 +679,13 @@ def main(argv=None) -> int:
         parser.error("--work is required")
     args.work.mkdir(parents=True, exist_ok=True)
     chosen = args.questions.split(",")
-    out = {}
+    collections = [c for c in args.collections.split(",") if c]
+    unknown = [q for q in chosen if q not in ("kinds", "step", "xexp")] + [c for c in collections if c not in COLLECTIONS]
+    if unknown:
+        parser.error(f"unknown question or collection: {', '.join(unknown)}")
+    if "step" in chosen and "kicad6" not in collections:
+        collections.insert(0, "kicad6")  # the step question's gallery
+    out = {"cache": DescriptorCache(args.work / "descriptors")}
     programs = None if args.no_lfd else lfd_programs()
     if programs is None and not args.no_lfd:
         print("no Light Field Descriptor: pip install -e '.[peers]'; apt-get install " + " ".join(LFD_DEBIAN)
@@ -482,7 +693,9 @@ def main(argv=None) -> int:
         return 2
     out["lightfield"] = LightField(programs) if programs is not None else None
     try:
-        kinds(args.work, out)  # always: its descriptors are the cost figures' and the step gallery's
+        if "kinds" in chosen or "step" in chosen:
+            for name in collections if "kinds" in chosen else ["kicad6"]:
+                kinds(args.work, out, name, COLLECTIONS[name])
         if "step" in chosen:
             step_twins(args.work, out)
         if "xexp" in chosen:
@@ -490,7 +703,13 @@ def main(argv=None) -> int:
     finally:
         if out["lightfield"] is not None:
             out["lightfield"].close()
-    out["query"] = {name: query_time(out["banks"], name, 20 if name == "shd" else 3) for name in out["banks"]}
+    if args.describe_only:
+        return 0
+    if "kinds" not in chosen:
+        out.pop("kinds", None)  # asked only as the step question's gallery
+    banks = next(iter(out["gallery"].values()))[0] if out.get("gallery") else None
+    out["query"] = {} if banks is None else {
+        name: query_time(banks.bank(name), name, 20 if name == "shd" else 3) for name in peers_of(banks)}
     command = "python scripts/peers.py " + " ".join(argv if argv is not None else sys.argv[1:])
     lines = table(out, command, shapeidx_costs(args.work))
     print("\n".join(lines))
