@@ -184,3 +184,38 @@ def test_sheet_draws_each_new_file_its_duplicates_and_look_alikes(library, tmp_p
     assert "not checked" not in text and "bad.wrl" in text and "error:" in text
     blank = run("check-new", str(copy), "--store", str(store), "--sheet", str(tmp_path / "no" / "such.html"))
     assert blank.returncode == 1 and "no folder" in blank.stderr and blank.stderr.count("\n") == 1
+
+
+@pytest.fixture(scope="module")
+def two_exporters(data_dir, tmp_path_factory):
+    """xexp-dev: 80 parts as KiCad 6 writes them (tenths of an inch) and as KiCad's 2017 tools
+    wrote them (millimetres, other facets), one store of both."""
+    store = tmp_path_factory.mktemp("xexp") / "both.shapeidx"
+    done = run("build", str(data_dir / "xexp-dev"), "--store", str(store), "--workers", "1", "-q")
+    assert done.returncode == 0, done.stderr
+    return data_dir / "xexp-dev", store
+
+
+def test_another_programs_export_in_other_units_is_converted_and_paired_with_its_own_twin_only(two_exporters):
+    """One library keeps one unit: a pair within the similar rules at a unit factor is one part
+    written by two programs (tier converted), and each such file is paired with its own twin
+    (same file name), never with a sibling of the other folder; a remodelled part is no duplicate."""
+    root, store = two_exporters
+    groups = json.loads(run("duplicates", "--store", str(store), "--format", "json").stdout)
+    converted = [p for g in groups for p in g["pairs"] if p["tier"] == "converted"]
+    assert len(converted) >= 10  # the C_Rect film capacitors (docs/checkin.md: 24 of the 69 same models)
+    for p in converted:
+        a, b = p["a"].split("/"), p["b"].split("/")
+        assert {a[0], b[0]} == {"kicad6", "kicad2017"} and a[1] == b[1], p
+        assert p["unit"] == pytest.approx(1 / 2.54 if a[0] == "kicad2017" else 2.54)  # b over a: mm to 0.1 inch
+    # the gate says the same of the new files, one at a time, against the KiCad 6 half
+    names = sorted({p["a"].split("/")[1] for p in converted})[:3] + ["DIP-32_W15.24mm.wrl"]
+    done = run("check-new", *[str(root / "kicad2017" / n) for n in names], "--store", str(store), "--exclude-self",
+               "--format", "json")
+    reports = {r["file"].rsplit("/", 1)[1]: r for r in json.loads(done.stdout)}
+    assert done.returncode == 7, done.stderr
+    for name in names[:3]:
+        found = [(d["tier"], d["relative_path"]) for d in reports[name]["duplicates"]]
+        assert found == [("converted", f"kicad6/{name}")], found
+        assert "another program" in reports[name]["duplicates"][0]["words"]
+    assert reports["DIP-32_W15.24mm.wrl"]["status"] == "new"  # remodelled since 2017: 29% more surface

@@ -2,13 +2,15 @@
 
 Each new or changed part file is signed with the store's parameters, its nearest entries
 are found on the one query road (:class:`shapeidx.search.searcher.Searcher`, metric
-``default_metric("check-new")`` unless another is given), joined by the entries whose file
+``default_metric("check-new")`` unless another is given), joined by the entries whose exact
+surface moments are nearest (as ``duplicates`` finds its candidates twice) and those whose file
 content is the same, and each candidate pair is put in its tier by
 :func:`shapeidx.families.duplicates.pair_tiers` over a small table of the new part and its
 candidates: the same tiers, thresholds, size ratio, unit factor and mirror flag as
 ``shapeidx duplicates``, never a second copy of them. Pairs of tier ``identical``, ``same``
-or ``converted`` are *duplicates*; the other candidates are *look-alikes* (``similar``,
-``near`` or a plain neighbour), nearest first.
+or ``converted`` are *duplicates* (``converted`` only with the candidate closest to the new part
+of its format and unit, as ``duplicates`` pairs each entry with its closest conversion); the
+other candidates are *look-alikes* (``similar``, ``near`` or a plain neighbour), nearest first.
 
 A file that the store holds under the same path with the same content is not news (it is
 reported as ``unchanged`` and checked no further). ``exclude_self`` leaves the file's own
@@ -24,7 +26,8 @@ import numpy as np
 from ..errors import ShapeidxError
 from ..io.base import file_hash
 from ..distance.metrics import default_metric
-from .duplicates import DEFAULT_TIERS, TIERS, pair_tiers
+from ..store.candidates import OVERFETCH
+from .duplicates import DEFAULT_TIERS, TIERS, fingerprint_vectors, pair_tiers
 
 #: Nearest entries looked at per new part.
 CANDIDATES = 20
@@ -98,6 +101,23 @@ class Checker:
         for row, digest in enumerate(self.table.hashes):
             self.by_hash.setdefault(_text(digest), []).append(row)
 
+    def _moment_neighbours(self, entry, count: int) -> list[int]:
+        """The rows whose exact surface moments are nearest the new part's (``duplicates``'
+        second candidate list, :func:`~shapeidx.families.duplicates.fingerprint_vectors`): a
+        twin whose sampled distance is noisy, or a conversion, is found by its moments. As
+        ``duplicates`` looks, :data:`~shapeidx.store.candidates.OVERFETCH` times the candidates."""
+        if not hasattr(self, "_vectors"):
+            self._vectors = fingerprint_vectors(self.table)
+        if self._vectors is None or count <= 0:
+            return []
+        mine = fingerprint_vectors(_guest_table(entry, self.table, []))
+        if mine is None:
+            return []
+        d = np.linalg.norm(self._vectors - mine[0], axis=1)
+        count = min(count, len(d))
+        near = np.argpartition(d, count - 1)[:count]
+        return near[np.argsort(d[near], kind="stable")].tolist()
+
     def __enter__(self):
         return self
 
@@ -125,16 +145,17 @@ class Checker:
         rows = [self.table.index_of(h.relative_path) for h in answer.hits]
         rows = [r for r in rows if r is not None]
         rows += [r for r in self.by_hash.get(digest, []) if r not in rows]
-        rows = [r for r in rows if own is None or self.table.paths[r] != own]
         solid = query.solid
         st = os.stat(path)
         entry = Entry.indexed("\0new/" + os.path.basename(path), digest, st.st_size, st.st_mtime_ns, query.signature, solid.describe(),
                               shape_facts(solid.vertices, solid.faces))
+        rows += [r for r in self._moment_neighbours(entry, OVERFETCH * candidates) if r not in rows]
+        rows = [r for r in rows if own is None or self.table.paths[r] != own]
         dups, looks = [], []
         if rows:
             table = _guest_table(entry, self.table, rows)
             b = np.arange(1, len(rows) + 1)
-            facts = pair_tiers(table, np.zeros(len(rows), np.int64), b, self.metric, self.scale)
+            facts = pair_tiers(table, np.zeros(len(rows), np.int64), b, self.metric, self.scale, closest=True)
             root = self.searcher.root
             for k, r in enumerate(rows):
                 tier = str(facts["tier"][k])
@@ -156,7 +177,7 @@ class Checker:
 TIER_WORDS = {
     "identical": "the same file",
     "same": "the same part (same surface)",
-    "converted": "the same part in another format",
+    "converted": "the same part from another program (another format or other units)",
     "similar": "one body, details may differ (a series sibling)",
     "near": "a near duplicate",
     "": "a look-alike worth a look",

@@ -12,11 +12,13 @@ Every pair found is put in one tier:
   --noise``). The sizes are needed because a shape distance is blind to size (an 0402 and an
   0805 resistor); the moments because the sampling noise of D2 at 1024 points is larger than
   the distance between many pairs of different parts of one family;
-* ``converted``: one part in two file formats (a VRML and the STEP file it was made from,
-  faceted again by another program, whose moments move by up to :data:`FINGERPRINT_SAME`):
-  the pair meets the ``similar`` rules, its files are of two formats, and each is the other's
-  closest partner of that format (so a STEP file of one package is paired with one VRML, not
-  with every package of the same body);
+* ``converted``: one part written by two programs: in two file formats (a VRML and the STEP
+  file it was made from, faceted again by another program, whose moments move by up to
+  :data:`FINGERPRINT_SAME`) or in two units (a unit factor: KiCad 5's exports in millimetres
+  beside KiCad 6's files in tenths of an inch): the pair meets the ``similar`` rules and each
+  is the other's closest partner of that kind, format and unit (so a STEP file of one package
+  is paired with one VRML, not with every package of the same body). One library keeps one
+  format and one unit, so a pair across them is a conversion, not a series sibling;
 * ``similar``: one body, details may differ: distance within the ``same`` noise threshold,
   moments within :data:`FINGERPRINT_SAME` (or within :data:`FINGERPRINT_EXACT` up to
   :data:`EXACT_DISTANCE_FACTOR` times that threshold), sizes as for ``same``. On the whole
@@ -336,8 +338,7 @@ def _pair_facts(table, a, b, d, limits: dict, scale: str) -> dict:
         similar = (sized & (d <= limits["same"]) & (unknown | (gap <= FINGERPRINT_SAME))) | exact
         near = sized & (d <= limits["near"]) & (unknown | (gap <= FINGERPRINT_NEAR))
     same = surface | (similar & unknown)  # no moments: the distance and sizes alone, as before them
-    formats = file_formats(table)
-    across = formats[a] != formats[b]
+    across = _conversion_kind(table, a, b, factor) != 0
     tier = np.where(identical, 0, np.where(same, 1, np.where(similar, np.where(across, 2, 3), np.where(near, 4, 5))))
     # how deep inside its tier's thresholds the pair lies: 0 at the centre, 1 at the edge
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -359,43 +360,63 @@ def _pair_facts(table, a, b, d, limits: dict, scale: str) -> dict:
             "loose": np.where(tier == 0, 0.0, np.clip(loose, 0.0, np.inf))}
 
 
+#: Every size factor a pair can be apart by (1, each unit factor and its inverse), sorted: a
+#: pair's place in it codes the unit part of its conversion kind.
+_ALL_FACTORS = np.sort(np.array((1.0,) + tuple(f for u in UNIT_FACTORS for f in (u, 1.0 / u))))
+
+
+def _conversion_kind(table, a, b, factor, reverse: bool = False) -> np.ndarray:
+    """What ``b`` is to ``a`` as a conversion: 0 for none (one format, one unit), else a code
+    of (``b``'s format, the size factor from ``a`` to ``b``, NaN read as 1); ``reverse``: what
+    ``a`` is to ``b``."""
+    codes = table._cached("format_codes", lambda: np.unique(file_formats(table), return_inverse=True)[1].ravel())
+    factor = np.asarray(factor, dtype=np.float64)
+    factor = np.where(np.isfinite(factor), factor, 1.0)
+    if reverse:
+        factor = 1.0 / factor
+    unit = np.abs(np.log(_ALL_FACTORS)[None, :] - np.log(factor)[:, None]).argmin(axis=1)
+    partner = codes[a] if reverse else codes[b]
+    kind = 1 + partner * len(_ALL_FACTORS) + unit
+    return np.where((codes[a] != codes[b]) | (factor != 1.0), kind, 0)
+
+
 def _closest_across_formats(table, a, b, facts) -> np.ndarray:
     """Which pairs stay ``converted``: those whose two entries are each the other's closest
-    partner of the other's format (by the ``similar`` margin, among the pairs of tier ``same``
-    to ``converted``); the others are ``similar``. A STEP file of a 4 x 4 mm QFN meets the
-    ``similar`` rules with the VRML of every QFN of that body: only its own is closest."""
-    formats = file_formats(table)
+    partner of that conversion kind (:func:`_conversion_kind`: the partner's format and unit;
+    by the ``similar`` margin, among the pairs of tier ``same`` to ``converted``); the others
+    are ``similar``. A STEP file of a 4 x 4 mm QFN meets the ``similar`` rules with the VRML of
+    every QFN of that body: only its own is closest."""
     tier, loose = facts["tier"], facts["loose"]
     keep = np.zeros(len(a), dtype=bool)
-    pool = np.flatnonzero((tier >= 1) & (tier <= 2) & (formats[a] != formats[b]))
+    factor = np.where(np.isnan(facts["unit"]), 1.0, facts["unit"])
+    forward = _conversion_kind(table, a, b, factor)
+    pool = np.flatnonzero((tier >= 1) & (tier <= 2) & (forward != 0))
     if not len(pool):
         return keep
-    names, codes = np.unique(formats, return_inverse=True)
-    codes = codes.ravel()
-    f = len(names)
-    # both directions: (entry, partner's format) -> the smallest margin
-    src = np.concatenate([a[pool], b[pool]])
-    other = np.concatenate([codes[b[pool]], codes[a[pool]]])
+    backward = _conversion_kind(table, a[pool], b[pool], factor[pool], reverse=True)
+    kinds = int(max(forward.max(), backward.max())) + 1
+    # both directions: (entry, what its partner is to it) -> the smallest margin
+    ahead, behind = a[pool] * kinds + forward[pool], b[pool] * kinds + backward
+    key = np.concatenate([ahead, behind])
     score = np.concatenate([loose[pool], loose[pool]])
-    key = src * f + other
     uniq, inverse = np.unique(key, return_inverse=True)
     best = np.full(len(uniq), np.inf)
     np.minimum.at(best, inverse.ravel(), score)
     lookup = dict(zip(uniq.tolist(), best.tolist()))
-    candidates = pool[tier[pool] == 2]
-    for i in candidates.tolist():
-        x, y = int(a[i]), int(b[i])
-        keep[i] = loose[i] <= lookup[x * f + codes[y]] and loose[i] <= lookup[y * f + codes[x]]
+    for k, i in enumerate(pool.tolist()):
+        if tier[i] == 2:
+            keep[i] = loose[i] <= lookup[int(ahead[k])] and loose[i] <= lookup[int(behind[k])]
     return keep
 
 
 def pair_tiers(table, a: np.ndarray, b: np.ndarray, metric: str = DEFAULT_METRIC, scale: str = "invariant",
-               limits: dict | None = None) -> dict:
+               limits: dict | None = None, closest: bool = False) -> dict:
     """The tier :func:`find_duplicates` gives the pairs ``a``-``b`` (rows of ``table``), asked directly.
 
-    ``converted`` is said of every pair of two formats within the ``similar`` rules: whether
-    each is the other's closest partner of that format depends on the other entries, and
-    :func:`find_duplicates` lists the pairs that are not as ``similar``.
+    ``converted`` is said of every pair of two formats or units within the ``similar`` rules:
+    whether each is the other's closest partner of that kind depends on the other entries, and
+    :func:`find_duplicates` lists the pairs that are not as ``similar``. ``closest``: judge
+    that among the pairs given (check-new: a new part and its candidates).
 
     Returns
     -------
@@ -409,6 +430,8 @@ def pair_tiers(table, a: np.ndarray, b: np.ndarray, metric: str = DEFAULT_METRIC
     a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
     d = table.pair_distances(a, b, metric) if len(a) else np.zeros(0)
     facts = _pair_facts(table, a, b, d, limits, scale)
+    if closest and len(a):
+        facts["tier"] = np.where((facts["tier"] == 2) & ~_closest_across_formats(table, a, b, facts), 3, facts["tier"])
     names = np.array(TIERS + ("",))
     return {**facts, "tier": names[facts["tier"]]}
 
