@@ -1151,8 +1151,8 @@ def _no_entry_kept(where):
 @format_options
 def duplicates(store, metric, with_similar, with_near, where, scale, parts, as_csv, output_format, as_json):
     """Groups of entries that are one part: identical files (tier identical), the same surface at
-    one size or in other units, which each member's row names (same), or one part in two file
-    formats (converted); most confident groups first.
+    one size or in other units, which each member's row names (same), or one part written by two
+    programs, in two file formats or two units (converted); most confident groups first.
 
     Every member is within the tier's thresholds of its group's first member, the
     representative. Only reports: nothing is deleted or moved.

@@ -219,3 +219,22 @@ def test_another_programs_export_in_other_units_is_converted_and_paired_with_its
         assert found == [("converted", f"kicad6/{name}")], found
         assert "another program" in reports[name]["duplicates"][0]["words"]
     assert reports["DIP-32_W15.24mm.wrl"]["status"] == "new"  # remodelled since 2017: 29% more surface
+
+
+def test_a_library_tree_of_links_knows_its_own_files(data_dir, tmp_path):
+    """A store built over a tree of links (--follow-outside-links) holds each file under its
+    link's path: checking that link is not news, and checked as new it is not its own duplicate."""
+    tree = tmp_path / "links" / "Battery"
+    tree.mkdir(parents=True)
+    for name in PARTS:
+        (tree / name.split("/")[1]).symlink_to(data_dir / "kicad6" / name)
+    store = tmp_path / "links.shapeidx"
+    done = run("build", str(tree.parent), "--store", str(store), "--workers", "1", "-q", "--follow-outside-links")
+    assert done.returncode == 0, done.stderr
+    link = tree / PARTS[0].split("/")[1]
+    own = run("check-new", str(link), "--store", str(store), "--format", "json")
+    assert own.returncode == 0 and json.loads(own.stdout)[0]["status"] == "unchanged", own.stdout
+    alone = run("check-new", str(link), "--store", str(store), "--exclude-self", "--format", "json")
+    report = json.loads(alone.stdout)[0]
+    assert alone.returncode == 0 and report["status"] == "new", report["duplicates"]
+    assert report["entry"] == PARTS[0]

@@ -106,13 +106,26 @@ class Query:
 
 def entry_path_in(root, file) -> str | None:
     """The path of ``file`` relative to a store's ``root`` ('/'-separated), or None when it
-    lies outside it (or there is no root)."""
+    lies outside it (or there is no root).
+
+    Tried as written (made absolute), with its folders' links followed but not its own, and
+    wholly resolved, in that order: a build indexes a link to a file under the link's own
+    path (a library tree of links, ``--follow-outside-links``), where resolving the link would
+    leave the root.
+    """
     if not root:
         return None
     try:
-        return Path(file).resolve().relative_to(root).as_posix()
-    except (ValueError, OSError):
+        named = Path(os.path.abspath(file))
+        ways = (named, named.parent.resolve() / named.name, named.resolve())
+    except (OSError, RuntimeError):
         return None
+    for way in ways:
+        try:
+            return way.relative_to(root).as_posix()
+        except ValueError:
+            continue
+    return None
 
 
 #: What every searcher of a store offers (:class:`Searcher`, and
