@@ -4,7 +4,17 @@
     pip install -e '.[peers]'                      # light-field-distance: the LFD's C code
     apt-get install xvfb freeglut3-dev libglu1-mesa-dev libosmesa6-dev
     python scripts/peers.py --build-lfd            # builds it in ~/.cache/shapeidx-peers/lfd
-    python scripts/peers.py --work /tmp/peers-work [--questions kinds,step,xexp] [--no-lfd]
+    python scripts/peers.py --work /tmp/peers-work [--questions kinds,step,xexp,ndr] [--no-lfd]
+
+The questions: **kinds**, every labelled collection of docs/results.md (:data:`COLLECTIONS`:
+kicad6's 52 folders, kicad-mcad, kicad-2017's freecad-coin and wings3d, kicad-wrz), each part
+against the others (NN, FT, ST, DCG); **step**, the 336 kicad6-step parts against the 520 kicad6
+VRML parts (is its own VRML first?); **xexp**, xexp-dev's KiCad 2017 exports against
+scripts/twin_study.py's 1,000 KiCad 6 parts (needs Debian's library); **ndr**, the 4 National
+Design Repository parts exported by two programs (I-DEAS and Sat2Vrml), each file against the
+15 other ndr parts. mesh-wild's folders are sources, not kinds: no question (said under the
+table). Every descriptor is kept in ``WORK/descriptors`` (:class:`DescriptorCache`), so a second
+run, or a run cut off, describes only what it has not (``--describe-only`` fills it and stops).
 
 **LFD**, Chen, Tian, Shen and Ouhyoung's Light Field Descriptor (Eurographics 2003), the best
 hand-made descriptor of the Princeton Shape Benchmark, runs through **its own code**: the
@@ -34,7 +44,8 @@ ShapeSPH is on neither PyPI nor Debian, so its own code is not run. The steps:
    the descriptor is the norm of each band per sphere (32 x 17 float32), compared by L2.
 
 The surface points are drawn with a seed, so this SHD *samples*: the twin questions draw the
-queries' points with another seed than the gallery's (``QUERY_SEED``).
+queries' points with each of :data:`QUERY_SEEDS`, none of them the gallery's, and so do
+shapeidx's own columns (the query signed again, as ``evaluate --query-seed`` does).
 
 shapeidx's columns are computed here at run time from stores built with the package (the paper's
 Weighted, which is also ``shapeidx query``'s default metric, and, per question, the best of all
@@ -63,7 +74,6 @@ SPHERES = 32
 BANDS = 16
 SHD_POINTS = 20000
 GALLERY_SEED = 2003
-QUERY_SEED = 7
 LIBRARY_SIZE = 6227  # parts in Debian's KiCad 6 library: the query-time figure
 BEGIN = "<!-- peers table: written by scripts/peers.py; do not edit by hand -->"
 END = "<!-- end of the peers table -->"
@@ -404,7 +414,6 @@ COLLECTIONS = {
 QUERY_SEEDS = (7, 8, 9)
 #: Collections in shared/ with no question to ask of them, and why (said under the table).
 NO_QUESTION = {
-    "ndr": "16 parts in 4 folders named after their donors, not kinds, and no twins",
     "mesh-wild": "folders named after their sources (assimp, OpenSCAD, trimesh, a printer), not kinds, and no twins",
 }
 
@@ -462,9 +471,10 @@ def kinds(work: Path, out: dict, name: str, folder: Path):
     out.setdefault("gallery", {})[name] = (described, store)
 
 
-def twin_question(queries: Described, gallery: Described, store: Path, twin_of) -> dict:
+def twin_question(queries: Described, gallery: Described, store: Path, twin_of, exclude_self: bool = False) -> dict:
     """Per query: the rank of its twin (ties counted against it) by each peer, LFD once, SHD
-    and shapeidx (every metric) with each query seed; a query or twin not described is last."""
+    and shapeidx (every metric) with each query seed; a query or twin not described is last.
+    ``exclude_self``: the query's own file is in the gallery, and left out of its ranking."""
     from shapeidx.distance import METRICS
     from shapeidx.search import Searcher
     from shapeidx.search.distances import distances
@@ -478,6 +488,8 @@ def twin_question(queries: Described, gallery: Described, store: Path, twin_of) 
         for k, query in enumerate(queries.paths):
             twin_path = os.path.abspath(twin_of(query))
             twin, stored_twin = where.get(twin_path), stored.get(twin_path)
+            own, stored_own = (where.get(os.path.abspath(query)), stored.get(os.path.abspath(query))) if exclude_self \
+                else (None, None)
             if twin is None or stored_twin is None:
                 continue
             name = query.name
@@ -486,7 +498,7 @@ def twin_question(queries: Described, gallery: Described, store: Path, twin_of) 
                     peer_ranks[(peer, seed)][name] = len(gallery.paths)
                     continue
                 d = peer_distances(gallery.bank(peer), peer, queries.bank(peer, seed or GALLERY_SEED)[k],
-                                   gallery.missing[peer])
+                                   gallery.missing[peer] | ({own} if own is not None else set()))
                 peer_ranks[(peer, seed)][name] = int((d <= d[twin]).sum())
             for seed in QUERY_SEEDS:
                 signature = queries.signatures[seed][k]
@@ -496,6 +508,8 @@ def twin_question(queries: Described, gallery: Described, store: Path, twin_of) 
                         ranks[metric] = len(stored)
                         continue
                     d = distances(searcher.view, signature, metric)
+                    if stored_own is not None:
+                        d[stored_own] = np.inf
                     ranks[metric] = int((d <= d[stored_twin]).sum())
                 own_ranks[seed][name] = ranks
     return {"peer_ranks": peer_ranks, "own_ranks": own_ranks}
@@ -537,6 +551,31 @@ def step_twins(work: Path, out: dict):
     found = twin_question(queries, gallery, store,
                           lambda q: DATA / "kicad6" / q.relative_to(DATA / "kicad6-step").with_suffix(".wrl"))
     out["step"] = twin_table(found)
+
+
+#: ndr's parts exported twice, by SDRC I-DEAS (``X.wrl``) and by GICL's Sat2Vrml from the ACIS
+#: file (``X.hh.sat.wrl``): the same part from two exporters (ndr/SOURCES.tsv).
+NDR_SECOND_EXPORT = ".hh.sat.wrl"
+
+
+def ndr_twins(work: Path, out: dict):
+    """ndr's 4 parts exported by two programs: each of the 8 files against the 15 other ndr
+    parts (itself left out): is its other export first?"""
+    folder = DATA / "ndr"
+    store = quiet_build(folder, work / "ndr-1024.h5", points=1024)
+    files = sorted(folder.rglob("*.wrl"))
+    names = {str(f) for f in files}
+
+    def twin_of(f: Path) -> Path:
+        if f.name.endswith(NDR_SECOND_EXPORT):
+            return f.with_name(f.name[: -len(NDR_SECOND_EXPORT)] + ".wrl")
+        return f.with_name(f.name[: -len(".wrl")] + NDR_SECOND_EXPORT)
+
+    paired = [f for f in files if str(twin_of(f)) in names]
+    gallery = describe(files, lightfield=out["lightfield"], cache=out["cache"])
+    queries = describe(paired, QUERY_SEEDS, out["lightfield"], out["cache"], sign=True)
+    out["ndr"] = twin_table(twin_question(queries, gallery, store, twin_of, exclude_self=True))
+    out["ndr"]["gallery"] = len(files)
 
 
 def xexp_twins(work: Path, out: dict):
@@ -591,12 +630,12 @@ PEER_LABELS = {"lfd": "LFD (Chen 2003, its own code)", "shd": "SHD (Kazhdan 2003
 
 def _rate_cell(rate: dict, key: str) -> str:
     low, high = rate[f"{key}_range"]
-    return f"{rate[key]:.3f}" + (f" ({low:.3f}-{high:.3f})" if rate["seeds"] > 1 else "")
+    return f"{rate[key]:.3f}" + (f" ({low:.3f}-{high:.3f})" if rate["seeds"] > 1 and high > low else "")
 
 
 def table(out: dict, command: str, costs: dict) -> list:
     peers = [p for p in PEERS if any(p in k["peers"] for k in out.get("kinds", {}).values())
-             or any(p in out[q]["peers"] for q in ("step", "xexp") if q in out)]
+             or any(p in out[q]["peers"] for q in ("step", "xexp", "ndr") if q in out)]
     lines = [BEGIN, "",
              "| question | measure | " + " | ".join(PEER_LABELS[p] for p in peers)
              + " | shapeidx Weighted (paper; the default) | shapeidx best metric on it |",
@@ -608,7 +647,8 @@ def table(out: dict, command: str, costs: dict) -> list:
         for s in ("nn", "ft", "st", "dcg"):
             lines.append(f"| {label} | {s.upper()} | " + " | ".join(f"{k['peers'][p][s]:.3f}" for p in peers)
                          + f" | {k['weighted'][s]:.3f} | {best[s]:.3f} ({metric}{', learned here' if k['in_sample'] else ''}) |")
-    for key, label in (("step", "kicad6-step vs kicad6 twins"), ("xexp", "xexp-dev twins (of 1,000)")):
+    for key, label in (("step", "kicad6-step vs kicad6 twins"), ("xexp", "xexp-dev twins (of 1,000)"),
+                       ("ndr", "ndr: the other exporter's file (of 15)")):
         if key in out:
             t = out[key]
             metric, best = t["best"]
@@ -632,7 +672,7 @@ def table(out: dict, command: str, costs: dict) -> list:
     lines += ["",
               "Twin questions: the queries' points (SHD's and shapeidx's) drawn with the seeds "
               + ", ".join(map(str, QUERY_SEEDS)) + ", none of them the gallery's: the mean, and in brackets the lowest"
-              " and highest; LFD renders and does not sample (one figure). Ties count against the twin. "
+              " and highest where they differ; LFD renders and does not sample (one figure). Ties count against the twin. "
               + " ".join(f"{name}: no question ({why})." for name, why in NO_QUESTION.items()),
               "",
               "| cost per part | " + " | ".join(PEER_LABELS[p].split(" (")[0] for p in peers) + " | shapeidx (1,024 points) |",
@@ -661,8 +701,8 @@ def write(lines: list, markdown: Path):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--work", type=Path, help="stores and the descriptor cache (WORK/descriptors)")
-    parser.add_argument("--questions", default="kinds,step,xexp",
-                        help="kinds (every labelled collection), step, xexp (needs Debian's library)")
+    parser.add_argument("--questions", default="kinds,step,xexp,ndr",
+                        help="kinds (every labelled collection), step, xexp (needs Debian's library), ndr")
     parser.add_argument("--collections", default=",".join(COLLECTIONS), help="the kinds question's collections")
     parser.add_argument("--markdown", type=Path, default=REPO / "docs" / "results.md")
     parser.add_argument("--json", type=Path, help="also write every rank here")
@@ -680,7 +720,7 @@ def main(argv=None) -> int:
     args.work.mkdir(parents=True, exist_ok=True)
     chosen = args.questions.split(",")
     collections = [c for c in args.collections.split(",") if c]
-    unknown = [q for q in chosen if q not in ("kinds", "step", "xexp")] + [c for c in collections if c not in COLLECTIONS]
+    unknown = [q for q in chosen if q not in ("kinds", "step", "xexp", "ndr")] + [c for c in collections if c not in COLLECTIONS]
     if unknown:
         parser.error(f"unknown question or collection: {', '.join(unknown)}")
     if "step" in chosen and "kicad6" not in collections:
@@ -700,6 +740,8 @@ def main(argv=None) -> int:
             step_twins(args.work, out)
         if "xexp" in chosen:
             xexp_twins(args.work, out)
+        if "ndr" in chosen:
+            ndr_twins(args.work, out)
     finally:
         if out["lightfield"] is not None:
             out["lightfield"].close()
@@ -717,7 +759,7 @@ def main(argv=None) -> int:
     if args.json:
         import json
 
-        args.json.write_text(json.dumps({k: out[k] for k in ("step", "xexp") if k in out}, default=str, indent=1))
+        args.json.write_text(json.dumps({k: out[k] for k in ("step", "xexp", "ndr") if k in out}, default=str, indent=1))
     return 0
 
 

@@ -98,3 +98,62 @@ def test_light_field_of_a_rotated_copy_is_nearer_than_another_part(parts, lightf
     b = lightfield.describe(moved, solid.faces)
     others = np.array([lightfield.describe(s.vertices, s.faces) for label, s in parts if label != parts[0][0]])
     assert peers.lfd_to_many(b[None], a)[0] < peers.lfd_to_many(others, a).min()
+
+
+def test_the_cache_answers_a_second_run_without_describing_again(tmp_path, monkeypatch):
+    files = sorted((KICAD6 / "Battery").glob("*.wrl"))[:3]
+    cache = peers.DescriptorCache(tmp_path / "descriptors")
+    first = peers.describe(files, seeds=(3, 4), cache=cache, sign=True)
+    assert first.banks[("shd", 3)].shape == (3, peers.SPHERES * (peers.BANDS + 1)) and not first.missing["shd"]
+    assert not np.array_equal(first.banks[("shd", 3)], first.banks[("shd", 4)])  # another seed, other points
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("described again")
+
+    monkeypatch.setattr(peers, "shd_descriptor", refuse)
+    monkeypatch.setattr("shapeidx.signing.pipeline.signature_of_solid", refuse)
+    again = peers.describe(files, seeds=(3, 4), cache=cache, sign=True)
+    for key, bank in first.banks.items():
+        assert np.array_equal(bank, again.banks[key])
+    for a, b in zip(first.signatures[4], again.signatures[4]):
+        assert np.array_equal(a.fractions, b.fractions)
+    assert again.seconds["shd"] == pytest.approx(first.seconds["shd"])  # the times are kept with them
+    bad = tmp_path / "bad.wrl"
+    bad.write_text("junk\n")
+    missed = peers.describe([files[0], bad], seeds=(3,), cache=cache)  # the first from the cache
+    assert missed.missing["shd"] == {1} and not missed.banks[("shd", 3)][1].any()
+    assert np.array_equal(missed.banks[("shd", 3)][0], first.banks[("shd", 3)][0])
+
+
+def test_a_part_the_peer_cannot_describe_is_never_found_and_finds_nothing():
+    from shapeidx.evaluation.retrieval import retrieval_scores
+
+    labels = ["a", "a", "b", "b"]
+    bank = np.array([[0.0], [0.1], [5.0], [5.1]], dtype=np.float32)
+    described = peers.Described([None] * 4, {("shd", peers.GALLERY_SEED): bank}, {"shd": {1}}, {}, {})
+    d = peers.peer_matrix(described, "shd", labels)
+    assert np.isinf(d[0, 1]) and d[1, 0] == np.inf and d[1, 2] == 1.0
+    per = retrieval_scores(d, labels, per_query=True)["per_query"]
+    nn = dict(zip(per["index"].tolist(), per["nn"].tolist()))
+    assert nn == {0: 0.0, 1: 0.0, 2: 1.0, 3: 1.0}
+
+
+def test_the_kinds_question_scores_the_peer_as_evaluate_scores_shapeidx(tmp_path):
+    """On a small real collection: the parts evaluate scores, and the peer's NN equal to the
+    share of parts whose L2-nearest other part is of their folder, computed here by hand."""
+    folder = peers.COLLECTIONS["kicad-2017/freecad-coin"]
+    if not folder.is_dir():
+        pytest.skip(f"no {folder}")
+    out = {"lightfield": None, "cache": peers.DescriptorCache(tmp_path / "descriptors")}
+    peers.kinds(tmp_path, out, "kicad-2017/freecad-coin", folder)
+    k = out["kinds"]["kicad-2017/freecad-coin"]
+    assert k["parts"] == 40 and k["classes"] == 7 and k["missing"] == {"shd": 0}
+    described, _ = out["gallery"]["kicad-2017/freecad-coin"]
+    bank = described.bank("shd")
+    labels = [str(p.relative_to(folder)).split("/")[0] for p in described.paths]
+    d = np.sqrt(((bank[:, None, :] - bank[None, :, :]) ** 2).sum(axis=2))
+    np.fill_diagonal(d, np.inf)
+    by_hand = np.mean([labels[int(np.argmin(row))] == labels[q] for q, row in enumerate(d)
+                       if labels.count(labels[q]) > 1])
+    assert k["peers"]["shd"]["nn"] == pytest.approx(by_hand)
+    assert 0 < k["weighted"]["nn"] <= 1 and k["best"][1]["ft"] >= k["weighted"]["ft"]
