@@ -14,7 +14,7 @@ Every pair found is put in one tier:
   the distance between many pairs of different parts of one family;
 * ``converted``: one part written by two programs: in two file formats (a VRML and the STEP
   file it was made from, faceted again by another program, whose moments move by up to
-  :data:`FINGERPRINT_SAME`) or in two units (a unit factor: KiCad 5's exports in millimetres
+  :data:`FINGERPRINT_SAME`) or in two units (a unit factor: KiCad's 2017 exports in millimetres
   beside KiCad 6's files in tenths of an inch): the pair meets the ``similar`` rules and each
   is the other's closest partner of that kind, format and unit (so a STEP file of one package
   is paired with one VRML, not with every package of the same body). One library keeps one
@@ -374,7 +374,9 @@ def _conversion_kind(table, a, b, factor, reverse: bool = False) -> np.ndarray:
     factor = np.where(np.isfinite(factor), factor, 1.0)
     if reverse:
         factor = 1.0 / factor
-    unit = np.abs(np.log(_ALL_FACTORS)[None, :] - np.log(factor)[:, None]).argmin(axis=1)
+    logs, x = np.log(_ALL_FACTORS), np.log(factor)
+    upper = np.clip(np.searchsorted(logs, x), 1, len(logs) - 1)
+    unit = np.where(np.abs(x - logs[upper - 1]) <= np.abs(x - logs[upper]), upper - 1, upper)  # the nearest factor
     partner = codes[a] if reverse else codes[b]
     kind = 1 + partner * len(_ALL_FACTORS) + unit
     return np.where((codes[a] != codes[b]) | (factor != 1.0), kind, 0)

@@ -518,7 +518,7 @@ def _check_card(thumbs, scale, hit: dict, kind: str, k: int, thumbnails: int, dr
         png, note = _picture_of(lambda: thumbs.png(hit["relative_path"]), hit["relative_path"])
         drawn[0] += 1
     else:
-        png, note = None, f"no picture beyond the first {thumbnails} (--thumbnails)"
+        png, note = None, f"no picture beyond the first {thumbnails}"
     part = SheetPart(hit["relative_path"], Path(hit["path"]), None, png, note)
     size = "size ?" if hit["size_ratio"] is None else f"size x{hit['size_ratio']:.4g}"
     if hit.get("unit"):
