@@ -273,6 +273,7 @@ def test_check_takes_a_sharded_store_whole_and_names_the_damaged_shard(trees, tm
     assert asked.exit_code == 5 and "Traceback" not in asked.output + asked.stderr, asked.output + asked.stderr
     assert f"'shapeidx check --store {store}' lists every problem" in asked.stderr
     assert f"--store {store} --repair'" in asked.stderr
+    assert f"the store {store} (its shard 1) is damaged" in asked.stderr  # the store given, then where
     # the command it names repairs it (the copy's root is the tree the store was built from)
     assert build(tree, store, "--workers", "1", "--repair").exit_code == 0
     healed = cli_json("check", "--store", store)

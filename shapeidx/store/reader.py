@@ -65,9 +65,13 @@ class StoreBeingCreated(StoreError, NoAnswer):
 
 def damaged(store: Path, what: str, root: str | None = None) -> StoreDamagedError:
     """The one-line error of a damaged store: what is wrong, and how to recover."""
+    from .shards import owner_of_shard
+
     repair, check = recovery_commands(store, root)
+    owner = owner_of_shard(store)  # a shard is named as part of the store the user gave
+    named = f"{owner} (its shard {Path(store).name})" if owner is not None else str(store)
     return StoreDamagedError(
-        f"the store {store} is damaged ({what}): '{repair}' rebuilds the"
+        f"the store {named} is damaged ({what}): '{repair}' rebuilds the"
         f" damaged entries (or delete the store and build again); '{check}' lists every problem"
     )
 
