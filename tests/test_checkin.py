@@ -238,3 +238,61 @@ def test_a_library_tree_of_links_knows_its_own_files(data_dir, tmp_path):
     report = json.loads(alone.stdout)[0]
     assert alone.returncode == 0 and report["status"] == "new", report["duplicates"]
     assert report["entry"] == PARTS[0]
+
+
+def _ci_commands() -> dict:
+    """The check-new commands of docs/checkin.md's CI recipes, as written there."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "checkin.md").read_text()
+    ci = text.split("## CI", 1)[1].split("\n## ", 1)[0]
+    return {"gitlab": re.search(r"- (shapeidx check-new [^\n]*CI_MERGE_REQUEST[^\n]*)", ci).group(1),
+            "github": re.search(r"- run: (shapeidx check-new [^\n]*github\.base_ref[^\n]*)", ci).group(1)}
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_the_ci_recipes_commands_run_as_written_on_a_merge_request(library, tmp_path, data_dir):
+    """docs/checkin.md's GitLab and GitHub commands, their variables set as those CIs set them,
+    run in a clone whose branch adds a duplicate and a new part: status 7, the sheet and the JSON
+    the recipes keep as artifacts, naming the duplicate; on a branch adding only a new part, 0."""
+    import os
+
+    root, store = library
+    env = {**os.environ, "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
+           "GIT_COMMITTER_EMAIL": "t@t", "CI_MERGE_REQUEST_TARGET_BRANCH_NAME": "main"}
+    git = lambda *a, cwd: subprocess.run(["git", *a], cwd=cwd, capture_output=True, text=True, env=env, check=True)
+    origin, work = tmp_path / "origin.git", tmp_path / "work"
+    git("init", "-q", "--bare", "-b", "main", str(origin), cwd=tmp_path)
+    git("clone", "-q", str(origin), str(work), cwd=tmp_path)
+    (work / "README").write_text("a library\n")
+    git("add", "README", cwd=work)
+    git("commit", "-qm", "start", cwd=work)
+    git("push", "-q", "origin", "HEAD:main", cwd=work)
+    git("checkout", "-qb", "new-parts", cwd=work)
+    (work / "parts").mkdir()
+    shutil.copy(root / PARTS[1], work / "parts" / "dup.wrl")
+    shutil.copy(data_dir / "kicad6" / "Mounting_Wuerth" / "Mounting_Wuerth_WA-SMST-3.3mm_H1mm_9774010960.wrl",
+                work / "parts" / "new.wrl")
+    git("add", "parts", cwd=work)
+    git("commit", "-qm", "two parts", cwd=work)
+    git("fetch", "-q", "origin", cwd=work)
+    commands = _ci_commands()
+
+    def as_ci(command):  # the CI's shell: its variables expanded, the library store where the recipe has it
+        command = command.replace("${{ github.base_ref }}", "main").replace("/srv/library.shapeidx", str(store))
+        command = command.replace("--store library.shapeidx", f"--store {store}")
+        command = command.replace("shapeidx check-new", f"{sys.executable} -m shapeidx.cli check-new", 1)
+        return subprocess.run(command, shell=True, cwd=work, capture_output=True, text=True, env=env)
+
+    gitlab = as_ci(commands["gitlab"])
+    assert gitlab.returncode == 7, gitlab.stderr
+    sheet = (work / "check-new.html").read_text()
+    assert 'data-status="duplicate"' in sheet and PARTS[1] in sheet and 'data-status="new"' in sheet
+    github = as_ci(commands["github"])
+    assert github.returncode == 7, github.stderr
+    reports = {os.path.basename(r["file"]): r for r in json.loads((work / "check-new.json").read_text())}
+    assert reports["dup.wrl"]["duplicates"][0]["relative_path"] == PARTS[1] and reports["new.wrl"]["status"] == "new"
+    git("rm", "-q", "parts/dup.wrl", cwd=work)
+    git("commit", "-qm", "keep the library's own", cwd=work)
+    assert as_ci(commands["gitlab"]).returncode == 0  # only the new part is left in the range
