@@ -13,6 +13,15 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 #: The shared real data (read-only): ../shared/data beside the checkout, or $SHAPEIDX_DATA.
 DATA = Path(os.environ.get("SHAPEIDX_DATA", REPO.parent / "shared" / "data"))
+#: The labelled collections of docs/results.md (classes: each part's first folder, as
+#: ``shapeidx evaluate`` reads them): scripts/results.py's tables and scripts/peers.py's kinds.
+COLLECTIONS = {
+    "kicad6": DATA / "kicad6",
+    "kicad-mcad": DATA / "vrml-wild" / "kicad-mcad",
+    "kicad-2017/freecad-coin": DATA / "vrml-wild" / "kicad-2017" / "freecad-coin",
+    "kicad-2017/wings3d": DATA / "vrml-wild" / "kicad-2017" / "wings3d",
+    "kicad-wrz": DATA / "vrml-wild" / "kicad-wrz",
+}
 
 
 def machine() -> str:

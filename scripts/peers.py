@@ -67,7 +67,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import DATA, REPO, machine, quiet_build
+from _common import COLLECTIONS, DATA, REPO, machine, quiet_build
 
 GRID = 64
 SPHERES = 32
@@ -400,15 +400,6 @@ def lfd_to_many(bank: np.ndarray, query: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- the questions
-#: The labelled collections of docs/results.md (classes: each part's first folder, as
-#: ``shapeidx evaluate`` reads them), each question asked of every part against the others.
-COLLECTIONS = {
-    "kicad6": DATA / "kicad6",
-    "kicad-mcad": DATA / "vrml-wild" / "kicad-mcad",
-    "kicad-2017/freecad-coin": DATA / "vrml-wild" / "kicad-2017" / "freecad-coin",
-    "kicad-2017/wings3d": DATA / "vrml-wild" / "kicad-2017" / "wings3d",
-    "kicad-wrz": DATA / "vrml-wild" / "kicad-wrz",
-}
 #: The twin questions' queries draw their points (SHD's and shapeidx's) with each of these
 #: seeds, none of them the gallery's: figures are the mean, with the lowest and highest.
 QUERY_SEEDS = (7, 8, 9)

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from shapeidx import __version__
-from _common import DATA, REPO, quiet_build
+from _common import COLLECTIONS, REPO, quiet_build
 from shapeidx.distance import FEATURES, METRICS, MIN_AGREEMENT
 from shapeidx.evaluation.evaluate import cross_validate_unified, distance_matrices, evaluate, labelled_features
 from shapeidx.evaluation.learn import cross_validate
@@ -33,13 +33,6 @@ from shapeidx.signing.sampling import sample_surface
 from shapeidx.signing.parameters import HISTOGRAMS
 from shapeidx.store import open_store
 
-COLLECTIONS = {
-    "kicad6": DATA / "kicad6",
-    "kicad-mcad": DATA / "vrml-wild" / "kicad-mcad",
-    "kicad-2017/freecad-coin": DATA / "vrml-wild" / "kicad-2017" / "freecad-coin",
-    "kicad-2017/wings3d": DATA / "vrml-wild" / "kicad-2017" / "wings3d",
-    "kicad-wrz": DATA / "vrml-wild" / "kicad-wrz",
-}
 PAPER_D = "L1 / bins (the paper's D)"  # the row other histogram comparisons are measured against
 LABELS = {"all": "ALL (plain D2)", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted": "Weighted", "combined": "combined",
           "combined-angle": "combined-angle", "all-angle": "all-angle (twins)", "unified": "unified"}
