@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from _common import DATA, REPO, machine
+import same_part_study
 import twin_study
 from shapeidx.distance.bank import HistogramBank, distances_to_many
 from shapeidx.distance.metrics import METRICS, label
@@ -192,6 +193,9 @@ def main(argv=None) -> int:
               f" (x{cost['stratified'] / cost['independent']:.2f}).", "",
               f"Command: `python scripts/sampling_study.py --work {args.work} --library {args.library}`;"
               f" {datetime.date.today().isoformat()}; {machine()}.", ""]
+    kept = args.markdown.read_text() if args.markdown.exists() else ""
+    if same_part_study.START in kept:  # the same-part section is same_part_study's: kept as it is
+        lines += ["", kept[kept.index(same_part_study.START): kept.index(same_part_study.END) + len(same_part_study.END)], ""]
     args.markdown.write_text("\n".join(lines))
     print("\n".join(lines))
     return 0

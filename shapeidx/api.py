@@ -123,7 +123,7 @@ def open_store(path):
 
 def query(store, part=None, top: int = 10, metric: str = default_metric("query"), entry: str | None = None,
           file_type: str | None = None, where=(), exclude_self: bool = False, max_distance: float | None = None,
-          scale: str = "invariant", parts: bool = False) -> list:
+          scale: str = "invariant", parts: bool = False, same_part: bool = False) -> list:
     """The entries of ``store`` nearest to ``part`` (or to its entry ``entry``), nearest first.
 
     The same road as ``shapeidx query``, the web page and sheets (:mod:`shapeidx.search`):
@@ -156,6 +156,9 @@ def query(store, part=None, top: int = 10, metric: str = default_metric("query")
         Rank the store's sub-parts (built with ``build --parts``, docs/assemblies.md) instead
         of its files (``store`` given as a path); each hit then also has ``parent`` (its file)
         and ``count`` (how many times the file holds it).
+    same_part : bool
+        Order the hits for "is this the same part?": the distance with the gap of the exact
+        measures added (:mod:`shapeidx.search.same_part`); each hit then has ``shape_gap``.
 
     Returns
     -------
@@ -175,7 +178,7 @@ def query(store, part=None, top: int = 10, metric: str = default_metric("query")
 
     if (part is None) == (entry is None):
         raise ValueError("give a part or an entry, not both or neither")
-    filters = Filters(exclude_self, max_distance, scale, parse_where(where))
+    filters = Filters(exclude_self, max_distance, scale, parse_where(where), same_part)
     if parts and isinstance(store, Searcher) and not store.parts:
         raise ValueError("parts=True ranks the sub-parts: give the store's path, or a Searcher(store, parts=True)")
     searcher = store if isinstance(store, (Searcher, ShardedSearcher)) else open_searcher(store, parts=parts)

@@ -439,6 +439,10 @@ where_option = click.option(
 @click.option("--max-distance", type=FiniteFloat(0), metavar="D", help="Leave out hits farther than D.")
 @click.option("--scale", type=click.Choice(("invariant", "sensitive")), default="invariant", show_default=True,
               help="sensitive: leave out parts whose size differs by more than a factor 2 (docs/families.md).")
+@click.option("--same-part", is_flag=True,
+              help="Ask 'is this the same part?': order the hits by the distance and the gap of the exact"
+                   " measures (size in any unit, proportions, area), which no sampling noise blurs"
+                   " (docs/sampling.md); each hit shows its shape_gap.")
 @click.option("--relative", is_flag=True, help="Print paths relative to the indexed folder (table, csv, tsv).")
 @click.option("--parts", is_flag=True,
               help="Rank the store's sub-parts (FILE#n, built with build --parts) instead of its files; each hit"
@@ -451,7 +455,7 @@ where_option = click.option(
 @click.option("--scheduler", metavar="ADDRESS",
               help="A sharded store (build --shards): rank each shard on a worker of this dask.distributed"
                    " cluster and merge their exact top k [default: here, shard by shard].")
-def query(files, store, top, metric, entries, file_type, where, exclude_self, max_distance, scale, relative,
+def query(files, store, top, metric, entries, file_type, where, exclude_self, max_distance, scale, same_part, relative,
           parts, output_format, as_json, sheet, thumbnails, scheduler):
     """The store's parts nearest to each FILE (or every part of DIR, or '-': a part on
     standard input; or --id PATH), nearest first: one result block per query.
@@ -463,6 +467,7 @@ def query(files, store, top, metric, entries, file_type, where, exclude_self, ma
       shapeidx query bracket.stl --store parts.shapeidx --top 5
       shapeidx query bracket.stl --store parts.shapeidx --where material=steel --where 'revision>=3'
       shapeidx query new-parts/ --store parts.shapeidx --exclude-self --format csv
+      shapeidx query export-2017.wrl --store parts.shapeidx --same-part --metric all-angle
       cat part.stl | shapeidx query - --type stl --json
       shapeidx query --id Battery/holder.wrl --metric combined-angle --sheet holder.html
     """
@@ -483,7 +488,7 @@ def query(files, store, top, metric, entries, file_type, where, exclude_self, ma
         from .errors import ShapeidxError
 
         raise ShapeidxError(f"{sheet}: no folder {os.path.dirname(os.path.abspath(sheet))} to write the sheet in")
-    filters = Filters(exclude_self, max_distance, scale, parse_where(where))
+    filters = Filters(exclude_self, max_distance, scale, parse_where(where), same_part)
     store_path = _store_path(store)
     failures = empty = 0
     blocks = []
@@ -519,7 +524,8 @@ def query(files, store, top, metric, entries, file_type, where, exclude_self, ma
             block = answer.to_dict()
             if answer.reason is not None:
                 block["reason"] = answer.reason
-            _print_block(block, fmt, several, first=number == 0, relative=relative, keys=keys, parts=parts)
+            _print_block(block, fmt, several, first=number == 0, relative=relative, keys=keys, parts=parts,
+                         same_part=same_part)
             if fmt == "json":
                 blocks.append(block)
     if fmt == "json":
@@ -536,10 +542,11 @@ QUERY_COLUMNS = ["query", "rank", "distance", "path", "relative_path"]
 PART_COLUMNS = ["parent", "count"]
 
 
-def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bool, keys=(), parts: bool = False) -> None:
+def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bool, keys=(), parts: bool = False,
+                 same_part: bool = False) -> None:
     if fmt == "json":
         return
-    columns = QUERY_COLUMNS + (PART_COLUMNS if parts else [])
+    columns = QUERY_COLUMNS + (PART_COLUMNS if parts else []) + (["shape_gap"] if same_part else [])
     named = {key: (key if key not in columns + ["metric"] else f"metadata.{key}") for key in keys}
     rows = [{"query": block["query"], **{k: v for k, v in hit.items() if k != "metadata"},
              **{named[key]: hit["metadata"].get(key, "") for key in keys}} for hit in block["hits"]]
@@ -557,6 +564,8 @@ def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bo
         shown = "  ".join(f"{key}={printable(value)}" for key, value in hit["metadata"].items())
         if parts:  # the sub-part first: the path is its file
             shown = f"part={printable(hit['relative_path'])} x{hit['count']}" + (f"  {shown}" if shown else "")
+        if same_part:
+            shown = f"shape_gap={hit['shape_gap']:.3g}" + (f"  {shown}" if shown else "")
         click.echo(f"{row['rank']:>4}  {row['distance']:<11.6g} {printable(row['path'])}" + (f"  {shown}" if shown else ""))
 
 

@@ -19,6 +19,10 @@ SCALES = ("invariant", "sensitive")
 #: 2: measured on kicad6 (docs/results.md): the best first tier of the bands tried (1.25 to 4);
 #: re-sampling noise on the size is below 1%.
 SIZE_BAND = 2.0
+#: Size ratios that mean "the same part in other units": 0.1 inch (KiCad's VRML) to mm, cm to
+#: mm, inch to mm, foot to inch, m to cm, foot to mm, m to mm; and their inverses (duplicates'
+#: ``converted`` tier and the same-part order of a query, :mod:`shapeidx.search.same_part`).
+UNIT_FACTORS = (2.54, 10.0, 25.4, 12.0, 100.0, 304.8, 1000.0)
 
 
 def check_scale(scale: str) -> str:

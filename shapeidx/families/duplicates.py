@@ -63,7 +63,7 @@ from ..distance.metrics import default_metric
 from ..errors import ShapeidxError
 from ..store.candidates import OVERFETCH as OVERFETCH_MOMENTS
 from .chirality import mirror_relation
-from ..distance.scale import check_scale
+from ..distance.scale import UNIT_FACTORS, check_scale
 
 TIERS = ("identical", "same", "converted", "similar", "near")
 DEFAULT_METRIC = default_metric("duplicates")
@@ -76,9 +76,6 @@ DEFAULT_TIERS = ("identical", "same", "converted")
 #: body), the STEP files faceted again by OpenCASCADE within 0.19%, docs/duplicates.md; at 1%
 #: two BGAs of one 11 mm body and 100 or 169 balls, 0.8% apart, were one part).
 SIZE_TOLERANCE = 0.005
-#: Size ratios that mean "the same part in other units": 0.1 inch (KiCad's VRML) to mm, cm to
-#: mm, inch to mm, foot to inch, m to cm, foot to mm, m to mm; and their inverses.
-UNIT_FACTORS = (2.54, 10.0, 25.4, 12.0, 100.0, 304.8, 1000.0)
 #: Candidate neighbours per entry.
 DEFAULT_NEIGHBOURS = 20
 #: Largest :func:`fingerprint_gap` for ``same``: one surface. Of 1,200 copies of library parts

@@ -6,6 +6,8 @@
     distances.py  the distances from a query to the store's entries: the one place they are
                   computed (lower bounds, exact distances, the candidate step)
     hits.py       Hit and Answer: the same fields on every surface
+    same_part.py  --same-part: the hits ordered with the gap of the exact measures (size in any
+                  unit, proportions, area) added to the metric's distance
     blocks.py     the block bounds a long-lived process (serve, a held Searcher) prunes with
     sharded.py    a sharded store: every shard's exact top k (here or on Dask workers), merged
     where_used.py the files holding a sub-part like a given one, nearest first

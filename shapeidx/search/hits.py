@@ -35,6 +35,10 @@ class Hit:
         that file, absolute, and ``relative_path`` the sub-entry (``FILE#n``). None for a whole file.
     count : int or None
         How many times ``parent`` holds the sub-part (None for a whole file).
+    shape_gap : float or None
+        With the same-part order (``--same-part``): the gap of its exact measures to the
+        query's (:func:`shapeidx.search.same_part.shape_gap`; 0: the same size, in some unit,
+        and proportions), which ordered it with its distance. None otherwise.
     """
 
     rank: int
@@ -44,12 +48,15 @@ class Hit:
     metadata: dict = field(default_factory=dict)
     parent: str | None = None
     count: int | None = None
+    shape_gap: float | None = None
 
     def to_dict(self) -> dict:
         out = {"rank": self.rank, "distance": self.distance, "path": self.path,
                "relative_path": self.relative_path, "metadata": dict(self.metadata)}
         if self.parent is not None:  # a sub-entry: the fields of a whole file's hit stay as they were
             out.update(parent=self.parent, count=self.count)
+        if self.shape_gap is not None:
+            out["shape_gap"] = self.shape_gap
         return out
 
 
@@ -95,6 +102,9 @@ class Answer:
     signature: object = None
     #: With ``--max-distance`` and no hit: the nearest distance there was (merging shards' answers).
     nearest: float | None = None
+    #: With the same-part order: the query's smallest distances, which set the scale of the
+    #: gaps (:mod:`shapeidx.search.same_part`; merging shards' answers).
+    nearest_distances: list | None = None
 
     def to_dict(self) -> dict:
         """The JSON object of one query (docs/cli.md documents every field)."""

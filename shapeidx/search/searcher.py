@@ -33,12 +33,13 @@ from ..errors import StoreError
 from ..io.metadata import FILE_KEYS
 from .distances import RANK_THREADS, nearest
 from .hits import Answer, Hit, absolute
+from .same_part import SAME_PART_CANDIDATES, SAME_PART_RANK, measures_of_solid, same_part_scores, shape_gap, shape_measures
 from .where import Condition, keep_mask, parse_where
 
 
 @dataclass(frozen=True)
 class Filters:
-    """What narrows an answer besides ``top``.
+    """What narrows or orders an answer besides ``top``.
 
     Attributes
     ----------
@@ -51,12 +52,16 @@ class Filters:
         from the query's by more than :data:`shapeidx.distance.scale.SIZE_BAND`.
     where : tuple of Condition (or their texts)
         Metadata conditions (:mod:`shapeidx.search.where`), all of which must hold.
+    same_part : bool
+        Order the hits for the same-part question: the metric's distance with the gap of the
+        exact measures (size modulo a unit, proportions, area) added (:mod:`shapeidx.search.same_part`).
     """
 
     exclude_self: bool = False
     max_distance: float | None = None
     scale: str = "invariant"
     where: tuple = field(default_factory=tuple)
+    same_part: bool = False
 
     def conditions(self) -> tuple:
         return tuple(c if isinstance(c, Condition) else parse_where([c])[0] for c in self.where)
@@ -70,6 +75,8 @@ class Filters:
             out.append("--exclude-self")
         if self.max_distance is not None:
             out.append(f"--max-distance {self.max_distance:g}")
+        if self.same_part:
+            out.append("--same-part")
         return out
 
 
@@ -93,6 +100,9 @@ class Query:
     extents : ndarray or None
         The part's principal radii, kept by a caller that lets ``solid`` go (the web page's
         uploads): where-used's same-size test reads them.
+    measures : ndarray or None
+        Its exact measures (:func:`shapeidx.search.same_part.shape_measures`), when known
+        without ``solid`` or an entry of its own (a sharded store's question): the same-part order reads them.
     """
 
     label: str
@@ -102,6 +112,7 @@ class Query:
     path: str | None = None
     solid: object = None
     extents: object = None
+    measures: object = None
 
 
 def entry_path_in(root, file) -> str | None:
@@ -133,7 +144,7 @@ def entry_path_in(root, file) -> str | None:
 #: :func:`~shapeidx.search.sharded.open_searcher`): the methods the query road's surfaces call
 #: (query, serve, check-new, classify, plot, sheets), with the same parameters, and the
 #: attributes beside them.
-QUERY_INTERFACE = ("search", "query_of_part", "query_of_entry", "entry_path_of", "resolve_entry", "signature_of",
+QUERY_INTERFACE = ("search", "query_of_part", "query_of_entry", "query_measures", "entry_path_of", "resolve_entry", "signature_of",
                    "entry_paths", "metadata_keys", "present_metadata_keys", "warm", "close", "__enter__", "__exit__")
 QUERY_ATTRIBUTES = ("store", "root", "params")
 
@@ -444,7 +455,12 @@ class Searcher:
             return answer
         own = query.own if keep is None or query.own is None or keep[query.own] else None
         self.asked()
-        chosen, exact = self.rank(query.signature, metric, top, keep, own, filters.max_distance, threads)
+        gaps = None
+        if filters.same_part:
+            chosen, exact, gaps = self._same_part_candidates(query, metric, top, keep, own, filters.max_distance, threads)
+            answer.nearest_distances = np.sort(exact[np.isfinite(exact)])[:SAME_PART_RANK].tolist()
+        else:
+            chosen, exact = self.rank(query.signature, metric, top, keep, own, filters.max_distance, threads)
         valid = np.isfinite(exact)
         if filters.max_distance is not None:
             valid &= exact <= filters.max_distance
@@ -455,8 +471,53 @@ class Searcher:
                              + (f" (the nearest is at {nearest_at:.6g})" if np.isfinite(nearest_at) else ""))
             return answer
         chosen, exact = chosen[valid], exact[valid]
-        answer.hits = self._hits(chosen, exact, top, own)
+        if gaps is None:
+            answer.hits = self._hits(chosen, exact, top, own)
+        else:
+            gaps = gaps[valid]
+            answer.hits = self._hits(chosen, exact, top, own, same_part_scores(exact, gaps, answer.nearest_distances), gaps)
         return answer
+
+    def _same_part_candidates(self, query: Query, metric: str, top: int, keep, own, max_distance, threads):
+        """Positions, exact distances and exact-measure gaps of the candidates of
+        :mod:`shapeidx.search.same_part`: the nearest by the metric and the nearest by the gap."""
+        wanted = max(top, SAME_PART_CANDIDATES)
+        chosen, exact = self.rank(query.signature, metric, wanted, keep, own, max_distance, threads)
+        mine = self.query_measures(query)
+        if mine is None:  # nothing to order by but the metric
+            return chosen, exact, np.zeros(len(exact))
+        gaps = shape_gap(mine, self.entry_measures())
+        if keep is not None:
+            gaps = np.where(keep, gaps, np.inf)
+        by_gap = np.argpartition(gaps, min(wanted, len(gaps)) - 1)[:wanted]
+        by_gap = by_gap[np.isfinite(gaps[by_gap]) & ~np.isin(by_gap, chosen)]
+        if len(by_gap):
+            mask = np.zeros(len(self.view), dtype=bool)
+            mask[by_gap] = True
+            more, more_exact = nearest(self.view, query.signature, metric, len(by_gap), mask, None, None, threads)
+            chosen, exact = np.concatenate([chosen, more]), np.concatenate([exact, more_exact])
+        return chosen, exact, gaps[chosen]
+
+    def entry_measures(self) -> np.ndarray:
+        """(N, 4): every ranked entry's exact measures (:func:`shapeidx.search.same_part.shape_measures`), read once."""
+        if "measures" not in self._cache:
+            extents, moments = np.full((len(self.view), 3), np.nan), np.full((len(self.view), 4), np.nan)
+            for i, at, rows in self.view.rows_of(np.arange(len(self.view))):
+                source = self.view.sources[i]
+                extents[at] = source.column("entries/extents")[rows]
+                moments[at] = source.column("entries/moments")[rows]
+            self._cache["measures"] = shape_measures(extents, moments)
+        return self._cache["measures"]
+
+    def query_measures(self, query: Query) -> np.ndarray | None:
+        """The query's exact measures: given, of its loaded part, or its own entry's (None: unknown)."""
+        if query.measures is not None:
+            return np.asarray(query.measures, dtype=np.float64)
+        if query.solid is not None:
+            return measures_of_solid(query.solid)
+        if query.own is not None:
+            return self.entry_measures()[query.own]
+        return None
 
     def _among_mask(self, among) -> np.ndarray:
         """``among`` (entry paths) as a mask over the ranked entries; the last one is kept, as
@@ -490,21 +551,26 @@ class Searcher:
             return self._blocks.nearest(signature, metric, top, keep, max_distance, threads)
         return nearest(self.view, signature, metric, top, keep, first, max_distance, threads)
 
-    def _hits(self, positions: np.ndarray, distances: np.ndarray, top: int, first: int | None) -> list:
+    def _hits(self, positions: np.ndarray, distances: np.ndarray, top: int, first: int | None,
+              scores: np.ndarray | None = None, gaps: np.ndarray | None = None) -> list:
+        """The hits, nearest first by ``scores`` (default: the distances, which the hits carry;
+        ``gaps``: their exact-measure gaps, for the same-part order)."""
         from ..store.layout import object_array
 
+        scores = distances if scores is None else scores
         top = min(top, len(distances))
-        threshold = np.partition(distances, top - 1)[top - 1]
-        near = np.flatnonzero(distances <= threshold)  # every entry within the top-th distance, ties included
+        threshold = np.partition(scores, top - 1)[top - 1]
+        near = np.flatnonzero(scores <= threshold)  # every entry within the top-th score, ties included
         paths = object_array([self.view.path_at(int(p)) for p in positions[near]])
         not_first = positions[near] != first if first is not None else np.ones(len(near), dtype=bool)
-        order = np.lexsort((paths, not_first, distances[near]))[:top]
+        order = np.lexsort((paths, not_first, scores[near]))[:top]
         hits = []
         for rank, k in enumerate(order, start=1):
             position, relative = int(positions[near[k]]), str(paths[k])
             parent, count = self.parent_at(position) if self.parts else (None, None)
             hits.append(Hit(rank, float(distances[near[k]]), absolute(self.root, parent or relative), relative,
-                            self.metadata_at(position), parent, count))
+                            self.metadata_at(position), parent, count,
+                            None if gaps is None else float(gaps[near[k]])))
         return hits
 
     def parent_at(self, position: int) -> tuple[str, int]:

@@ -38,6 +38,7 @@ from ..distance.metrics import default_metric
 from ..errors import StoreError
 from ..store.shards import shard_of_paths
 from .hits import Answer, Hit, absolute
+from .same_part import measures_of_solid, same_part_scores
 from .searcher import Filters, Query, Searcher, entry_path_in, label_of, sign_part
 
 
@@ -133,9 +134,12 @@ def warm_shard(path: str) -> None:
         searcher.warm()
 
 
-def shard_entry(path: str, entry: str):
-    """The stored signature of ``entry`` in the shard (StoreError as :meth:`Searcher.query_of_entry`)."""
-    return _searcher(path).query_of_entry(entry).signature
+def shard_entry(path: str, entry: str) -> tuple:
+    """The stored signature and exact measures of ``entry`` in the shard (StoreError as
+    :meth:`Searcher.query_of_entry`)."""
+    searcher = _searcher(path)
+    query = searcher.query_of_entry(entry)
+    return query.signature, searcher.query_measures(query)
 
 
 def shard_entry_paths(path: str) -> list:
@@ -177,21 +181,27 @@ def shard_sub_part(path: str, entry: str) -> dict | None:
 
 
 def search_shard(path: str, signature, entry: str | None, top: int, metric: str, filters: Filters,
-                 among=None, among_reason: str = "") -> dict:
+                 among=None, among_reason: str = "", measures=None) -> dict:
     """The shard's exact top ``top`` (run where the shard is): each hit as (distance, not the
-    query's own entry, relative path, metadata, its file and count when it is a sub-entry), in
-    the store's order; the counts; why none."""
+    query's own entry, relative path, metadata, its file and count when it is a sub-entry, its
+    exact-measure gap), in the store's order; the counts; why none. With the same-part order
+    (``measures``: the query's exact measures) the shard's top :data:`SAME_PART_CANDIDATES` and
+    its nearest distances, for the merge to order them with the scale of the whole store."""
     import time
+
+    from .same_part import SAME_PART_CANDIDATES
 
     started = time.perf_counter()
     searcher = _searcher(path)
-    query = _shard_query(searcher, signature, entry)
+    query = replace(_shard_query(searcher, signature, entry), measures=measures)
     own = query.own
-    answer = searcher.search(query, top, metric, filters, among=among, among_reason=among_reason)
+    asked = max(top, SAME_PART_CANDIDATES) if filters.same_part else top
+    answer = searcher.search(query, asked, metric, filters, among=among, among_reason=among_reason)
     return {"hits": [(hit.distance, hit.relative_path != query.entry, hit.relative_path, hit.metadata, hit.parent,
-                      hit.count) for hit in answer.hits],
+                      hit.count, hit.shape_gap) for hit in answer.hits],
             "considered": answer.considered, "entries": answer.entries, "reason": answer.reason,
-            "nearest": answer.nearest, "own": own is not None, "seconds": time.perf_counter() - started}
+            "nearest": answer.nearest, "nearest_distances": answer.nearest_distances, "own": own is not None,
+            "seconds": time.perf_counter() - started}
 
 
 class ShardedSearcher:
@@ -293,8 +303,19 @@ class ShardedSearcher:
     def query_of_entry(self, entry) -> Query:
         name = self.resolve_entry(entry)
         k = self.shard_of(name)
-        signature = self._each(shard_entry, [(self.shards[k], name)], [k])[0]
-        return Query(os.fspath(entry), signature, None, name)
+        signature, measures = self._each(shard_entry, [(self.shards[k], name)], [k])[0]
+        return Query(os.fspath(entry), signature, None, name, measures=measures)
+
+    def query_measures(self, query: Query):
+        """The query's exact measures: given (an entry's, from its shard) or of its loaded part;
+        a file of the tree, from the shard that holds it (None: unknown)."""
+        if query.measures is not None:
+            return query.measures
+        if query.solid is not None:
+            return measures_of_solid(query.solid)
+        if query.entry is not None:
+            return self.on_shard(self.shard_of(query.entry), shard_entry, query.entry)[1]
+        return None
 
     def signature_of(self, entry: str):
         """The stored signature of the entry named ``entry`` (its path relative to the root)."""
@@ -364,18 +385,26 @@ class ShardedSearcher:
         filters = filters or Filters()
         if top < 1:
             raise ValueError(f"top must be at least 1, not {top}")
+        measures = self.query_measures(query) if filters.same_part else None
         answers = self._each(search_shard, [(path, query.signature, query.entry, top, metric, filters, among,
-                                             among_reason) for path in self.shards])
+                                             among_reason, measures) for path in self.shards])
         self.last_seconds = [a["seconds"] for a in answers]  # each shard's own time (benchmarks)
         found = [hit for answer in answers for hit in answer["hits"]]
-        found.sort(key=lambda hit: hit[:3])
+        if filters.same_part and found:
+            # ordered as one store orders them: the scale from the whole store's nearest distances
+            nearest = [d for a in answers for d in (a["nearest_distances"] or ())]
+            scores = same_part_scores([hit[0] for hit in found], [hit[6] or 0.0 for hit in found], nearest)
+            order = sorted(range(len(found)), key=lambda k: (scores[k], found[k][1], found[k][2]))
+            found = [found[k] for k in order]
+        else:
+            found.sort(key=lambda hit: hit[:3])
         own = any(a["own"] for a in answers)
         answer = Answer(query.label, query.path, query.entry if own else None, metric, str(self.store.resolve()),
                         self.root, [], considered=sum(a["considered"] for a in answers),
                         entries=sum(a["entries"] for a in answers), filters=filters.described(),
                         signature=query.signature)
-        answer.hits = [Hit(rank, float(distance), absolute(self.root, parent or relative), relative, metadata, parent, count)
-                       for rank, (distance, _, relative, metadata, parent, count) in enumerate(found[:top], start=1)]
+        answer.hits = [Hit(rank, float(distance), absolute(self.root, parent or relative), relative, metadata, parent, count, gap)
+                       for rank, (distance, _, relative, metadata, parent, count, gap) in enumerate(found[:top], start=1)]
         if not answer.hits:
             answer.reason = _reason(answers, filters)
         return answer

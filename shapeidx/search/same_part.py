@@ -1,0 +1,90 @@
+"""The same-part order: "is this the same part?" answered with the exact measures beside the metric.
+
+A signature is drawn from 1,024 random points, so two drawings of one part differ by sampling
+noise, and a series sibling (the same package one pitch longer) can be nearer than the part's
+own entry drawn otherwise: an exact copy of a kicad6 part, its points drawn again, was its own
+first answer 90-98 % of the time by the metrics alone (docs/sampling.md). The store also keeps,
+for every entry, measures integrated exactly from the surface
+(:func:`shapeidx.signing.moments.shape_facts`): the principal radii and the area. They carry no
+sampling noise at all, and they are what tells siblings apart. With ``same_part`` a query ranks
+by
+
+    score = distance + SAME_PART_WEIGHT * d_K * gap
+
+where ``distance`` is the metric's, ``d_K`` the query's :data:`SAME_PART_RANK`-th smallest
+distance (the scale of the metric around this query, so one weight serves every metric) and
+``gap`` (:func:`shape_gap`) the sum of the ``|ln|`` differences of the proportions ``r2/r1``,
+``r3/r1``, of ``area / (r1^2 + r2^2 + r3^2)`` and of the size ``r1``, the size taken modulo the
+unit factors (:data:`shapeidx.distance.scale.UNIT_FACTORS`: a part in mm is the same part as its
+export in tenths of an inch). The candidates are the :data:`SAME_PART_CANDIDATES` nearest by the
+metric and as many nearest by the gap. Hits keep the metric's distance; their order is the score's.
+
+The weight and rank were chosen on kicad6 (exact copies drawn again) and on half A of the
+xexp-dev twins, and checked on half B and on kicad6-step (docs/sampling.md, "The same-part
+order"). This is for the same-part question (twins, duplicates, a part in another format); for
+parts *of a kind* the size and proportions are no distance (a 0402 and a 1206 resistor are one
+kind), and the plain order is the one to use.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..distance.scale import UNIT_FACTORS
+
+#: Weight of the exact-measure gap, in units of the query's SAME_PART_RANK-th distance.
+SAME_PART_WEIGHT = 5.0
+#: Which of the query's nearest distances (the 11th: its own and ten more) sets the scale of the gap.
+SAME_PART_RANK = 11
+#: Candidates taken by the metric, and as many by the gap.
+SAME_PART_CANDIDATES = 200
+#: ln of every factor a size may be off by and still be the same part (1 and the unit factors both ways).
+_LOG_FACTORS = np.log(np.array((1.0,) + tuple(f for u in UNIT_FACTORS for f in (u, 1.0 / u))))
+
+
+def shape_measures(extents, moments) -> np.ndarray:
+    """``(..., 4)``: ``ln r1, ln(r2/r1), ln(r3/r1), ln(area / sum r^2)`` from the principal radii
+    ``(..., 3)`` and the moments ``(..., 4)`` the store keeps (NaN where unknown)."""
+    e = np.asarray(extents, dtype=np.float64)
+    m = np.asarray(moments, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.stack([np.log(e[..., 0]), np.log(e[..., 1] / e[..., 0]), np.log(e[..., 2] / e[..., 0]),
+                         np.log(m[..., 0])], axis=-1)
+
+
+def measures_of_solid(solid) -> np.ndarray:
+    """:func:`shape_measures` of a loaded part, as the store computes them for its entries."""
+    from ..signing.moments import shape_facts
+
+    facts = shape_facts(solid.vertices, solid.faces)
+    return shape_measures(facts["extents"], facts["moments"])
+
+
+def shape_gap(query: np.ndarray, entries: np.ndarray) -> np.ndarray:
+    """The exact-measure gap between the query's measures ``(4,)`` and each entry's ``(N, 4)``:
+    the proportions' and area's ``|ln|`` differences, plus the size's, modulo a unit factor.
+    An unknown measure adds nothing."""
+    entries = np.atleast_2d(np.asarray(entries, dtype=np.float64))
+    query = np.asarray(query, dtype=np.float64)
+    shape = np.nan_to_num(np.abs(entries[:, 1:] - query[1:]), nan=0.0).sum(axis=1)
+    size = np.abs((query[0] - entries[:, 0])[:, None] - _LOG_FACTORS).min(axis=1)
+    return shape + np.nan_to_num(size, nan=0.0)
+
+
+def same_part_scores(distances: np.ndarray, gaps: np.ndarray, nearest=None) -> np.ndarray:
+    """The order's score of each candidate (see the module docstring). ``nearest``: the query's
+    smallest distances (at least :data:`SAME_PART_RANK` of them where there are), when the
+    candidates are not all there is (a sharded store's merge); default: ``distances``."""
+    distances = np.asarray(distances, dtype=np.float64)
+    scale = query_scale(distances if nearest is None else nearest)
+    return distances + SAME_PART_WEIGHT * scale * np.asarray(gaps, dtype=np.float64)
+
+
+def query_scale(distances: np.ndarray) -> float:
+    """``d_K``: the :data:`SAME_PART_RANK`-th smallest finite distance (the largest when fewer; 0: none)."""
+    finite = np.asarray(distances, dtype=np.float64)
+    finite = finite[np.isfinite(finite)]
+    if not len(finite):
+        return 0.0
+    k = min(SAME_PART_RANK, len(finite)) - 1
+    return float(np.partition(finite, k)[k])

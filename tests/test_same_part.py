@@ -1,0 +1,140 @@
+"""The same-part order (``query --same-part``, :mod:`shapeidx.search.same_part`).
+
+The gap is checked against shapes whose exact measures are known (boxes scaled, in another
+unit, stretched); the order on real KiCad parts whose points are drawn with another seed than
+the store's, where the plain order puts a series sibling first; a STEP file against its VRML
+export (millimetres against tenths of an inch); and a sharded store against one store.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import trimesh
+from clitools import cli
+from storetools import copy_tree
+
+from shapeidx.search import Filters, Searcher, open_searcher
+from shapeidx.search.same_part import SAME_PART_RANK, same_part_scores, shape_gap, shape_measures
+from shapeidx.signing.moments import shape_facts
+
+FOLDERS = ("Varistor", "Package_QFP")
+#: A varistor of the KiCad series whose points drawn with seed 7 are nearer, by Weighted, to
+#: its sibling one size over (5.3 mm thick) than to its own stored entry.
+WIDE = "Varistor/RV_Disc_D21.5mm_W5.6mm_P10mm.wrl"
+SIBLING = "Varistor/RV_Disc_D21.5mm_W5.3mm_P10mm.wrl"
+
+
+def measures(mesh: trimesh.Trimesh) -> np.ndarray:
+    facts = shape_facts(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    return shape_measures(facts["extents"], facts["moments"])
+
+
+def test_the_gap_is_the_exact_measures_apart():
+    box = trimesh.creation.box((1.0, 2.0, 3.0))
+    turned = box.copy()
+    turned.apply_transform(trimesh.transformations.random_rotation_matrix(np.random.default_rng(3).random(3)))
+    turned.apply_translation((5.0, -2.0, 1.0))
+    inches = box.copy()
+    inches.apply_scale(1 / 25.4)  # the same part written in inches
+    larger = box.copy()
+    larger.apply_scale(1.5)  # no unit is 1.5 times another: another size
+    longer = trimesh.creation.box((1.0, 2.0, 3.3))
+    m = measures(box)
+    gaps = shape_gap(m, np.array([measures(turned), measures(inches), measures(larger), measures(longer)]))
+    assert gaps[0] == pytest.approx(0.0, abs=1e-9)
+    assert gaps[1] == pytest.approx(0.0, abs=1e-9)
+    assert gaps[2] == pytest.approx(math.log(1.5), rel=1e-9)  # the size alone: proportions and area ratio kept
+    assert gaps[3] > 0.02  # 10% longer: proportions and size both move
+
+
+def test_an_unknown_measure_adds_nothing():
+    known = np.array([0.0, -0.5, -1.0, 1.2])
+    unknown = np.full(4, np.nan)
+    assert shape_gap(known, unknown[None])[0] == 0.0
+
+
+def test_the_scale_is_the_query_s_own_nearest_distances():
+    distances = np.arange(1, 31, dtype=float)
+    scores = same_part_scores(distances, np.ones(30))
+    assert np.allclose(scores - distances, scores[0] - distances[0])
+    assert scores[0] - distances[0] == pytest.approx(5.0 * SAME_PART_RANK)  # d_K = the 11th smallest: 11
+
+
+@pytest.fixture(scope="module")
+def stores(data_dir, tmp_path_factory):
+    """Varistors and QFPs at the store's default 1,024 points (the noise is the point), as one
+    store and as a store of three shards."""
+    tmp = tmp_path_factory.mktemp("same-part")
+    tree = copy_tree(data_dir / "kicad6", tmp / "parts", FOLDERS)
+    one, sharded = tmp / "one.shapeidx", tmp / "sharded.shapeidx"
+    for store, extra in ((one, ()), (sharded, ("--shards", "3"))):
+        result = cli("build", tree, "--store", store, "-q", *extra)
+        assert result.exit_code == 0, result.output
+    return tree, one, sharded
+
+
+def test_a_part_drawn_again_is_its_own_first_answer(stores):
+    tree, one, _ = stores
+    with Searcher(one) as searcher:
+        query = searcher.query_of_part(tree / WIDE, seed=7)
+        plain = searcher.search(query, top=3, metric="weighted")
+        same = searcher.search(query, top=3, metric="weighted", filters=Filters(same_part=True))
+    assert plain.hits[0].relative_path == SIBLING  # the sampling noise: a sibling first
+    assert all(hit.shape_gap is None for hit in plain.hits)
+    assert same.hits[0].relative_path == WIDE
+    assert same.hits[0].shape_gap == pytest.approx(0.0, abs=1e-9)
+    assert same.hits[1].shape_gap > 0.01
+    # a hit keeps the metric's distance; only the order is the same-part order's
+    by_path = {hit.relative_path: hit.distance for hit in plain.hits}
+    assert same.hits[0].distance > by_path[SIBLING]
+    for hit in same.hits:
+        if hit.relative_path in by_path:
+            assert hit.distance == pytest.approx(by_path[hit.relative_path], rel=1e-12)
+    assert "--same-part" in same.filters
+
+
+def test_a_step_file_finds_its_vrml_export_in_another_unit(stores, data_dir):
+    _, one, _ = stores
+    step = data_dir / "kicad6-step" / WIDE.replace(".wrl", ".step")
+    with Searcher(one) as searcher:
+        answer = searcher.search(searcher.query_of_part(step), top=3, metric="weighted", filters=Filters(same_part=True))
+    assert answer.hits[0].relative_path == WIDE
+    assert answer.hits[0].shape_gap < 0.01  # millimetres against tenths of an inch: the factor 2.54 is no gap
+
+
+def test_the_command_line_shows_the_gap(stores):
+    tree, one, _ = stores
+    result = cli("query", "--id", WIDE, "--store", one, "--same-part", "--top", "3", "--json")
+    assert result.exit_code == 0, result.output
+    answer = json.loads(result.output)
+    assert answer["filters"] == ["--same-part"]
+    assert answer["hits"][0]["relative_path"] == WIDE and answer["hits"][0]["shape_gap"] == 0.0
+    assert all("shape_gap" in hit for hit in answer["hits"])
+    csv = cli("query", str(tree / WIDE), "--store", one, "--same-part", "--format", "csv")
+    assert csv.output.splitlines()[0].endswith(",shape_gap")
+    table = cli("query", str(tree / WIDE), "--store", one, "--same-part", "--top", "2")
+    assert "shape_gap=0 " in table.output.splitlines()[0] + " "
+    plain = cli("query", "--id", WIDE, "--store", one, "--json")
+    assert all("shape_gap" not in hit for hit in json.loads(plain.output)["hits"])
+
+
+def test_a_sharded_store_orders_as_one_store(stores):
+    tree, one, sharded = stores
+    files = sorted(tree.rglob("*.wrl"))
+    with Searcher(one) as single, open_searcher(sharded) as shards:
+        for k, path in enumerate(files):
+            for metric in ("weighted", "all-angle"):
+                answers = [s.search(s.query_of_part(path, seed=7 + k), top=5, metric=metric, filters=Filters(same_part=True))
+                           for s in (single, shards)]
+                assert [h.relative_path for h in answers[0].hits] == [h.relative_path for h in answers[1].hits], path
+                assert np.allclose([h.distance for h in answers[0].hits], [h.distance for h in answers[1].hits])
+                assert np.allclose([h.shape_gap for h in answers[0].hits], [h.shape_gap for h in answers[1].hits])
+        entry = files[0].relative_to(tree).as_posix()
+        by_entry = [s.search(s.query_of_entry(entry), top=3, metric="weighted", filters=Filters(same_part=True))
+                    for s in (single, shards)]
+        assert by_entry[0].hits[0].relative_path == by_entry[1].hits[0].relative_path == entry
+        assert by_entry[1].hits[0].shape_gap == 0.0
