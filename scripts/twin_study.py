@@ -207,6 +207,8 @@ def main(argv=None) -> int:
         "Half A is where the choices were made: all-angle's weight of the angle term (5e-4, the best of",
         "0, 3e-4, 5e-4, 7.5e-4, 1e-3, 1.5e-3, 2e-3, 5e-3, 0.01, 0.02 on A; shapeidx.distance.metrics.ALL_ANGLE_WEIGHT)",
         f"and which metric to recommend for twins. Half B (split seed {SPLIT_SEED}) is the check on pairs not tuned on.",
+        "These are the metrics' own order; `query --same-part` adds the exact measures and finds more twins first",
+        "(docs/sampling.md, *The same-part order*, through the search road).",
         "",
         f"With every one of the {len(names)} pairs, the excluded ones too:",
         "",

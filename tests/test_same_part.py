@@ -17,7 +17,7 @@ import trimesh
 from clitools import cli
 from storetools import copy_tree
 
-from shapeidx.search import Filters, Searcher, open_searcher
+from shapeidx.search import Filters, Query, Searcher, open_searcher
 from shapeidx.search.same_part import SAME_PART_RANK, same_part_scores, shape_gap, shape_measures
 from shapeidx.signing.moments import shape_facts
 
@@ -138,3 +138,15 @@ def test_a_sharded_store_orders_as_one_store(stores):
                     for s in (single, shards)]
         assert by_entry[0].hits[0].relative_path == by_entry[1].hits[0].relative_path == entry
         assert by_entry[1].hits[0].shape_gap == 0.0
+
+
+def test_a_bare_signature_keeps_the_metric_s_order(stores):
+    """A query given as a signature alone has no exact measures: the plain order, and no gap claimed."""
+    tree, one, _ = stores
+    with Searcher(one) as searcher:
+        signed = searcher.query_of_part(tree / WIDE, seed=7)
+        bare = Query("signature", signed.signature)
+        plain = searcher.search(bare, top=3, metric="weighted")
+        same = searcher.search(bare, top=3, metric="weighted", filters=Filters(same_part=True))
+    assert [h.relative_path for h in same.hits] == [h.relative_path for h in plain.hits]
+    assert all(h.shape_gap is None for h in same.hits)

@@ -480,12 +480,13 @@ class Searcher:
 
     def _same_part_candidates(self, query: Query, metric: str, top: int, keep, own, max_distance, threads):
         """Positions, exact distances and exact-measure gaps of the candidates of
-        :mod:`shapeidx.search.same_part`: the nearest by the metric and the nearest by the gap."""
+        :mod:`shapeidx.search.same_part`: the nearest by the metric and the nearest by the gap
+        (gaps None: the query's measures are unknown)."""
         wanted = max(top, SAME_PART_CANDIDATES)
         chosen, exact = self.rank(query.signature, metric, wanted, keep, own, max_distance, threads)
         mine = self.query_measures(query)
-        if mine is None:  # nothing to order by but the metric
-            return chosen, exact, np.zeros(len(exact))
+        if mine is None:  # a bare signature: no measures to order by, the metric's order (hits without a gap)
+            return chosen, exact, None
         gaps = shape_gap(mine, self.entry_measures())
         if keep is not None:
             gaps = np.where(keep, gaps, np.inf)
