@@ -104,8 +104,9 @@ def compare(a, b, points: int = DEFAULT_POINTS, seed: int = DEFAULT_SEED) -> dic
     return distances_between(signature(a, points, seed), signature(b, points, seed))
 
 
-def open_store(path):
-    """Open a store to read and query it; keep it open to answer many queries quickly.
+def open_store(path, parts: bool = False):
+    """Open a store to read and query it; keep it open to answer many queries quickly
+    (``parts``: its sub-parts, for ``query(..., parts=True)``; a store built with ``build --parts``).
 
     Use it as a context manager, or close it. It is a :class:`~shapeidx.search.Searcher`:
     pass it to :func:`query`; ``paths``, ``column(name)``, ``counts(name, rows)``,
@@ -118,7 +119,7 @@ def open_store(path):
     """
     from .search.sharded import open_searcher
 
-    return open_searcher(path)
+    return open_searcher(path, parts=parts)
 
 
 def query(store, part=None, top: int = 10, metric: str = default_metric("query"), entry: str | None = None,
@@ -179,8 +180,8 @@ def query(store, part=None, top: int = 10, metric: str = default_metric("query")
     if (part is None) == (entry is None):
         raise ValueError("give a part or an entry, not both or neither")
     filters = Filters(exclude_self, max_distance, scale, parse_where(where), same_part)
-    if parts and isinstance(store, Searcher) and not store.parts:
-        raise ValueError("parts=True ranks the sub-parts: give the store's path, or a Searcher(store, parts=True)")
+    if parts and isinstance(store, (Searcher, ShardedSearcher)) and not store.parts:
+        raise ValueError("parts=True ranks the sub-parts: give the store's path, or open_store(path, parts=True)")
     searcher = store if isinstance(store, (Searcher, ShardedSearcher)) else open_searcher(store, parts=parts)
     try:
         question = searcher.query_of_entry(entry) if entry is not None else searcher.query_of_part(

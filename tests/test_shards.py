@@ -446,3 +446,19 @@ def test_duplicates_of_sub_parts_of_a_sharded_store_are_those_of_one_store(part_
     # once --where keeps one of the two files only
     assert len(answers[0]) >= 5 and answers[1] == []
     assert sum(any(m.startswith("Button_Switch_SMD/holder_copy.wrl#") for m in g["members"]) for g in answers[0]) >= 5
+
+
+def test_the_api_ranks_a_sharded_store_s_sub_parts_only_when_opened_for_them(part_trees):
+    """api.query(parts=True) on a sharded store opened for its files is refused, not answered with files."""
+    import shapeidx
+
+    tree, one, sharded = part_trees
+    part = str(next(tree.rglob("*.wrl")))
+    with shapeidx.open_store(sharded) as files:
+        with pytest.raises(ValueError, match="parts=True ranks the sub-parts"):
+            shapeidx.query(files, part, top=3, parts=True)
+    with shapeidx.open_store(sharded, parts=True) as whole, shapeidx.open_store(one, parts=True) as single:
+        got = shapeidx.query(whole, part, top=3, parts=True)
+        expected = shapeidx.query(single, part, top=3, parts=True)
+    assert [h["relative_path"] for h in got] == [h["relative_path"] for h in expected]
+    assert all("#" in h["relative_path"] and h["parent"] for h in got)
