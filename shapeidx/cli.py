@@ -564,7 +564,7 @@ def _print_block(block: dict, fmt: str, several: bool, first: bool, relative: bo
         shown = "  ".join(f"{key}={printable(value)}" for key, value in hit["metadata"].items())
         if parts:  # the sub-part first: the path is its file
             shown = f"part={printable(hit['relative_path'])} x{hit['count']}" + (f"  {shown}" if shown else "")
-        if same_part:
+        if same_part and hit.get("shape_gap") is not None:
             shown = f"shape_gap={hit['shape_gap']:.3g}" + (f"  {shown}" if shown else "")
         click.echo(f"{row['rank']:>4}  {row['distance']:<11.6g} {printable(row['path'])}" + (f"  {shown}" if shown else ""))
 

@@ -38,7 +38,7 @@ from ..distance.metrics import default_metric
 from ..errors import StoreError
 from ..store.shards import shard_of_paths
 from .hits import Answer, Hit, absolute
-from .same_part import measures_of_solid, same_part_scores
+from .same_part import SAME_PART_CANDIDATES, measures_of_solid, same_part_scores
 from .searcher import Filters, Query, Searcher, entry_path_in, label_of, sign_part
 
 
@@ -188,8 +188,6 @@ def search_shard(path: str, signature, entry: str | None, top: int, metric: str,
     (``measures``: the query's exact measures) the shard's top :data:`SAME_PART_CANDIDATES` and
     its nearest distances, for the merge to order them with the scale of the whole store."""
     import time
-
-    from .same_part import SAME_PART_CANDIDATES
 
     started = time.perf_counter()
     searcher = _searcher(path)
