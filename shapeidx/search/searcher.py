@@ -502,13 +502,17 @@ class Searcher:
     def entry_measures(self) -> np.ndarray:
         """(N, 4): every ranked entry's exact measures (:func:`shapeidx.search.same_part.shape_measures`), read once."""
         if "measures" not in self._cache:
-            extents, moments = np.full((len(self.view), 3), np.nan), np.full((len(self.view), 4), np.nan)
-            for i, at, rows in self.view.rows_of(np.arange(len(self.view))):
-                source = self.view.sources[i]
-                extents[at] = source.column("entries/extents")[rows]
-                moments[at] = source.column("entries/moments")[rows]
-            self._cache["measures"] = shape_measures(extents, moments)
+            self._cache["measures"] = shape_measures(self.entry_numbers("entries/extents", 3),
+                                                     self.entry_numbers("entries/moments", 4))
         return self._cache["measures"]
+
+    def entry_numbers(self, name: str, width: int) -> np.ndarray:
+        """(N, width) float64: a numeric per-entry column of every ranked entry (the store's
+        ``entries/extents``, ``entries/moments``, ...), NaN where a file has none."""
+        out = np.full((len(self.view), width), np.nan)
+        for i, at, rows in self.view.rows_of(np.arange(len(self.view))):
+            out[at] = self.view.sources[i].column(name)[rows]
+        return out
 
     def query_measures(self, query: Query) -> np.ndarray | None:
         """The query's exact measures: given, of its loaded part, or its own entry's (None: unknown)."""

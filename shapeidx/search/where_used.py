@@ -247,9 +247,7 @@ def _same_size(searcher, query, tolerance: float) -> np.ndarray:
     mine = query_extents(searcher, query)
     if mine is None:
         return np.ones(len(searcher.view), dtype=bool)
-    extents = np.full((len(searcher.view), 3), np.nan)
-    for i, at, rows in searcher.view.rows_of(np.arange(len(searcher.view))):
-        extents[at] = searcher.view.sources[i].column("entries/extents")[rows]
+    extents = searcher.entry_numbers("entries/extents", 3)
     with np.errstate(invalid="ignore", divide="ignore"):
         gap = np.abs(np.log(extents / mine)).max(axis=1)
     return ~(gap > np.log1p(tolerance))  # unknown radii (NaN) are kept
