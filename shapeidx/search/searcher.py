@@ -495,7 +495,7 @@ class Searcher:
         if len(by_gap):
             mask = np.zeros(len(self.view), dtype=bool)
             mask[by_gap] = True
-            more, more_exact = nearest(self.view, query.signature, metric, len(by_gap), mask, None, None, threads)
+            more, more_exact = self.rank(query.signature, metric, len(by_gap), mask, threads=threads)
             chosen, exact = np.concatenate([chosen, more]), np.concatenate([exact, more_exact])
         return chosen, exact, gaps[chosen]
 
