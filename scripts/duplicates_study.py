@@ -48,7 +48,7 @@ import numpy as np
 
 from _common import DATA, REPO, machine, quiet_build
 from shapeidx.distance import METRICS
-from shapeidx.families.chirality import is_chiral
+from shapeidx.signing.chirality import is_chiral
 from shapeidx.families.duplicates import find_duplicates, pair_tiers
 from shapeidx.families.table import FamilyTable
 from shapeidx.signing.pipeline import solid_of_file
@@ -496,7 +496,7 @@ def model_relations(table, parts: Path, result) -> dict:
 
 
 def write_report(output, study, held_out, noise, args, command) -> None:
-    from shapeidx.families.chirality import CHIRAL_MIN
+    from shapeidx.signing.chirality import CHIRAL_MIN
     from shapeidx.signing.moments import AXIS_GAP
     from shapeidx.families.duplicates import FINGERPRINT_NEAR, FINGERPRINT_SAME
 

@@ -134,7 +134,7 @@ def origin(path: str) -> tuple[str, str]:
 
 
 def measure(args) -> int:
-    from shapeidx.families.chirality import is_chiral
+    from shapeidx.signing.chirality import is_chiral
     from shapeidx.families.duplicates import TIERS, find_duplicates, pair_tiers
 
     started = time.perf_counter()

@@ -17,7 +17,7 @@ from storetools import copy_tree
 from shapeidx.distance import METRICS, compare
 from shapeidx.families.agreement import ari, nmi
 from shapeidx.store.candidates import candidate_pairs
-from shapeidx.families.chirality import mirror_relation
+from shapeidx.signing.chirality import mirror_relation
 from shapeidx.signing.moments import shape_facts, surface_moments
 from shapeidx.families.cluster import cluster_store
 from shapeidx.families.table import FamilyTable

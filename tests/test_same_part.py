@@ -3,7 +3,8 @@
 The gap is checked against shapes whose exact measures are known (boxes scaled, in another
 unit, stretched); the order on real KiCad parts whose points are drawn with another seed than
 the store's, where the plain order puts a series sibling first; a STEP file against its VRML
-export (millimetres against tenths of an inch); and a sharded store against one store.
+export (millimetres against tenths of an inch); a part beside its mirror image, which D2 cannot
+tell apart; and a sharded store against one store.
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ from clitools import cli
 from storetools import copy_tree
 
 from shapeidx.search import Filters, Query, Searcher, open_searcher
-from shapeidx.search.same_part import SAME_PART_RANK, same_part_scores, shape_gap, shape_measures
+from shapeidx.search.same_part import MIRROR_GAP, SAME_PART_RANK, same_part_scores, shape_gap, shape_measures
+from shapeidx.signing import load_part
 from shapeidx.signing.moments import shape_facts
 
 FOLDERS = ("Varistor", "Package_QFP")
@@ -30,7 +32,23 @@ SIBLING = "Varistor/RV_Disc_D21.5mm_W5.3mm_P10mm.wrl"
 
 def measures(mesh: trimesh.Trimesh) -> np.ndarray:
     facts = shape_facts(np.asarray(mesh.vertices), np.asarray(mesh.faces))
-    return shape_measures(facts["extents"], facts["moments"])
+    return shape_measures(facts["extents"], facts["moments"], facts["handedness"])
+
+
+def chiral_part() -> trimesh.Trimesh:
+    """Three boxes along three axes, each off-centre: no mirror image of it is congruent to it."""
+    long = trimesh.creation.box((4.0, 1.0, 1.0))
+    wide = trimesh.creation.box((1.0, 2.0, 1.0))
+    wide.apply_translation((1.5, 1.5, 0.0))
+    tall = trimesh.creation.box((1.0, 1.0, 3.0))
+    tall.apply_translation((-1.5, 0.0, 2.0))
+    return trimesh.util.concatenate([long, wide, tall])
+
+
+def mirrored(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    out = mesh.copy()
+    out.apply_transform(np.diag([-1.0, 1.0, 1.0, 1.0]))  # trimesh turns the faces back outward
+    return out
 
 
 def test_the_gap_is_the_exact_measures_apart():
@@ -51,9 +69,20 @@ def test_the_gap_is_the_exact_measures_apart():
     assert gaps[3] > 0.02  # 10% longer: proportions and size both move
 
 
+def test_a_mirror_image_is_apart_by_the_mirror_gap_alone():
+    part = chiral_part()
+    turned = part.copy()
+    turned.apply_transform(trimesh.transformations.rotation_matrix(1.0, (1.0, 2.0, 0.5)))
+    box = trimesh.creation.box((1.0, 2.0, 3.0))  # achiral: its mirror image is itself
+    gaps = shape_gap(measures(part), np.array([measures(mirrored(part)), measures(turned)]))
+    assert gaps[0] == pytest.approx(MIRROR_GAP, abs=1e-9)
+    assert gaps[1] == pytest.approx(0.0, abs=1e-9)
+    assert shape_gap(measures(box), measures(mirrored(box))[None])[0] == pytest.approx(0.0, abs=1e-9)
+
+
 def test_an_unknown_measure_adds_nothing():
-    known = np.array([0.0, -0.5, -1.0, 1.2])
-    unknown = np.full(4, np.nan)
+    known = np.array([0.0, -0.5, -1.0, 1.2, 0.3, -0.2])
+    unknown = np.full(6, np.nan)
     assert shape_gap(known, unknown[None])[0] == 0.0
 
 
@@ -120,6 +149,30 @@ def test_the_command_line_shows_the_gap(stores):
     assert "shape_gap=0 " in table.output.splitlines()[0] + " "
     plain = cli("query", "--id", WIDE, "--store", one, "--json")
     assert all("shape_gap" not in hit for hit in json.loads(plain.output)["hits"])
+
+
+def test_a_real_part_ranks_before_its_mirror_image(data_dir, tmp_path):
+    """A KiCad pin socket (pin 1 on the right) beside its mirror image (pin 1 on the left, written
+    as STL), among the rest of its series: D2 sees one shape in the two; the same-part order puts the part itself first, whatever points
+    the query draws, and shows the mirror's gap."""
+    tree = tmp_path / "parts"
+    tree.mkdir()
+    name = "PinSocket_1x02_P1.00mm_Vertical_SMD_Pin1Right"  # two pins: its axes are defined
+    source = data_dir / "kicad6" / "Connector_PinSocket_1.00mm" / f"{name}.wrl"
+    for sibling in source.parent.glob("*.wrl"):  # the series around it: the scale of the question
+        (tree / sibling.name).symlink_to(sibling)
+    solid = load_part(source)
+    mirrored(trimesh.Trimesh(solid.vertices, solid.faces, process=False)).export(tree / f"{name}_mirrored.stl")
+    store = tmp_path / "store.shapeidx"
+    assert cli("build", tree, "--store", store, "-q", "--follow-outside-links").exit_code == 0
+    with Searcher(store) as searcher:
+        for seed in (7, 8, 9):
+            query = searcher.query_of_part(source, seed=seed)
+            for metric in ("weighted", "all-angle"):
+                answer = searcher.search(query, top=2, metric=metric, filters=Filters(same_part=True))
+                assert [h.relative_path for h in answer.hits] == [source.name, f"{name}_mirrored.stl"], (seed, metric)
+                assert answer.hits[0].shape_gap < 0.01
+                assert answer.hits[1].shape_gap >= MIRROR_GAP
 
 
 def test_a_sharded_store_orders_as_one_store(stores):

@@ -101,6 +101,33 @@ class TestAnswers:
         assert got["labels"]["all"] == "ALL (plain D2)"
         assert np.allclose(got["a"]["histograms"]["in"]["p"], sa.histograms["in"].p, atol=1e-7)
 
+    def test_the_same_part_order_equals_the_command_and_reads_an_upload_s_measures(self, served, tmp_path):
+        """``same_part=1`` is ``query --same-part``; an upload keeps its exact measures after its
+        part is let go, so a stored part written again in inches, turned, is first at no gap."""
+        import trimesh
+
+        from shapeidx.signing import load_part
+
+        tree, store, client = served
+        entry = "Diode_SMD/" + sorted(p.name for p in (tree / "Diode_SMD").iterdir())[1]
+        got = client.get("/api/query", params={"id": entry, "top": 6, "same_part": 1}).json()
+        expected = cli_json("query", "--id", entry, "--store", store, "-k", "6", "--same-part")
+        assert got["filters"] == expected["filters"] == ["--same-part"]
+        assert [(h["id"], h["distance"], h["shape_gap"]) for h in got["hits"]] == [
+            (h["relative_path"], h["distance"], h["shape_gap"]) for h in expected["hits"]]
+        plain = client.get("/api/query", params={"id": entry, "top": 6}).json()
+        assert all("shape_gap" not in h for h in plain["hits"])
+        solid = load_part(tree / entry)
+        mesh = trimesh.Trimesh(solid.vertices / 25.4, solid.faces, process=False)
+        mesh.apply_transform(trimesh.transformations.rotation_matrix(0.7, (1.0, 1.0, 0.0)))
+        mesh.export(tmp_path / "in-inches.stl")
+        result = query_by_upload(client, tmp_path / "in-inches.stl", top=4, same_part=1).json()
+        assert result["filters"] == ["--same-part"] and result["hits"][0]["id"] == entry
+        assert result["hits"][0]["shape_gap"] < 0.01 and all(h["shape_gap"] is not None for h in result["hits"])
+        # asked again by its upload id, in the same-part order: the measures are still there
+        again = client.get("/api/query", params={"id": result["query"]["id"], "top": 4, "same_part": 1}).json()
+        assert [h["shape_gap"] for h in again["hits"]] == [h["shape_gap"] for h in result["hits"]]
+
     def test_browse_lists_failed_files_with_reasons(self, served):
         _, _, client = served
         failed = client.get("/api/entries", params={"status": "failed"}).json()
@@ -134,7 +161,8 @@ class TestHostileRequests:
         _, _, client = served
         assert client.get("/api/query", params={"id": "broken/bad.stl"}).status_code == 409
         entry = client.get("/api/entries", params={"status": "ok", "limit": 1}).json()["entries"][0]["id"]
-        for params in ({"metric": "euclid"}, {"top": "0"}, {"top": "ten"}, {"top": "999999"}):
+        for params in ({"metric": "euclid"}, {"top": "0"}, {"top": "ten"}, {"top": "999999"}, {"same_part": "2"},
+                       {"uses": "1", "same_part": "1"}):
             response = client.get("/api/query", params={"id": entry, **params})
             assert response.status_code == 400, params
         assert client.get("/api/nothing").status_code == 404

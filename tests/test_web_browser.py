@@ -178,6 +178,39 @@ def test_every_metric_of_the_menu_answers_and_the_where_filter_narrows(server, b
     assert not errors, errors
 
 
+def test_the_same_part_box_orders_by_the_exact_measures(server, browser):
+    """Ticking *Same part* asks the same-part order (``same_part=1``, kept in the address): the
+    page says so, every hit shows its gap, the part itself first at gap 0; a hit clicked keeps
+    the order; unticked, the gaps are gone."""
+    tree, url, tmp = server
+    page = browser.new_page()
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    entry = "Capacitor_Tantalum_SMD/" + sorted(p.name for p in (tree / "Capacitor_Tantalum_SMD").iterdir())[2]
+    page.goto(url + "#/query?id=" + entry)
+    page.wait_for_selector("[data-testid=hit]")
+    assert page.locator("[data-testid=shape-gap]").count() == 0
+    page.check("#same-part")
+    page.wait_for_function("() => location.hash.includes('same_part=1')")
+    page.wait_for_selector("[data-testid=query-card]:has-text('same-part order')")
+    hits = page.locator("[data-testid=hit]")
+    assert hits.first.get_attribute("data-id") == entry
+    assert page.locator("[data-testid=shape-gap]").count() == hits.count() > 1
+    assert page.locator("[data-testid=shape-gap]").first.inner_text() == "gap 0"
+    assert "left)" not in page.locator("[data-testid=query-card]").inner_text()  # an order, not a filter
+    page.screenshot(path=str(tmp / "same-part.png"))
+    second = hits.nth(1).get_attribute("data-id")
+    hits.nth(1).locator("[data-testid=thumbnail]").click()
+    page.wait_for_function(f"() => decodeURIComponent(location.hash).includes('id={second}')")
+    assert "same_part=1" in page.evaluate("location.hash")
+    page.wait_for_selector(f"[data-testid=hit][data-id='{second}'] [data-testid=shape-gap]")
+    page.uncheck("#same-part")
+    page.wait_for_function("() => !location.hash.includes('same_part')")
+    page.wait_for_selector("[data-testid=query-card]:not(:has-text('same-part order'))")
+    assert page.locator("[data-testid=shape-gap]").count() == 0
+    assert not errors, errors
+
+
 def test_a_bad_upload_is_a_message_on_the_page(server, browser, tmp_path):
     _, url, _ = server
     bad = tmp_path / "bracket.stl"

@@ -4,7 +4,6 @@
 candidate step, FAISS over fixed-length embeddings, is :mod:`shapeidx.store.candidates`.)
 
     table.py       the ok entries laid out for pair work: exact distances of chosen pairs
-    chirality.py   is one part the mirror image of another (from the stored handedness)
     labels.py      labels of entries: folders or a CSV
     classify.py    distance-weighted k-NN vote            (shapeidx classify)
     cluster.py     Ward on the exact matrix, or the graph (shapeidx cluster)

@@ -42,7 +42,7 @@ its thresholds that member lies), not of size.
 Each member's pair with the representative also says ``size_ratio`` (member over
 representative, radii of gyration in file units, so a copy saved in inches shows 1/25.4),
 ``unit`` (that ratio's unit factor, or None) and ``mirrored`` (one is the mirror image of the
-other, :func:`shapeidx.families.chirality.mirror_relation`; always false for parts that are
+other, :func:`shapeidx.signing.chirality.mirror_relation`; always false for parts that are
 their own mirror image). With ``scale="sensitive"`` no unit factor is allowed.
 
 Candidates come from :class:`shapeidx.store.candidates.CandidateIndex`, twice: each
@@ -62,7 +62,7 @@ import numpy as np
 from ..distance.metrics import default_metric
 from ..errors import ShapeidxError
 from ..store.candidates import OVERFETCH as OVERFETCH_MOMENTS
-from .chirality import mirror_relation
+from ..signing.chirality import mirror_relation
 from ..distance.scale import UNIT_FACTORS, check_scale
 
 TIERS = ("identical", "same", "converted", "similar", "near")

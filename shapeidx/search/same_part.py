@@ -16,7 +16,9 @@ distance (the scale of the metric around this query, so one weight serves every 
 ``gap`` (:func:`shape_gap`) the sum of the ``|ln|`` differences of the proportions ``r2/r1``,
 ``r3/r1``, of ``area / (r1^2 + r2^2 + r3^2)`` and of the size ``r1``, the size taken modulo the
 unit factors (:data:`shapeidx.distance.scale.UNIT_FACTORS`: a part in mm is the same part as its
-export in tenths of an inch). The candidates are the :data:`SAME_PART_CANDIDATES` nearest by the
+export in tenths of an inch), plus :data:`MIRROR_GAP` where the two are mirror images by the
+handedness the store keeps (:func:`shapeidx.signing.chirality.mirror_relation`): a left and a
+right pin header have every measure alike, and D2 cannot tell them apart. The candidates are the :data:`SAME_PART_CANDIDATES` nearest by the
 metric and as many nearest by the gap. Hits keep the metric's distance; their order is the score's.
 
 The weight and rank were chosen on kicad6 (exact copies drawn again) and on half A of the
@@ -31,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..distance.scale import UNIT_FACTORS
+from ..signing.chirality import mirror_relation
 
 #: Weight of the exact-measure gap, in units of the query's SAME_PART_RANK-th distance.
 SAME_PART_WEIGHT = 5.0
@@ -38,18 +41,22 @@ SAME_PART_WEIGHT = 5.0
 SAME_PART_RANK = 11
 #: Candidates taken by the metric, and as many by the gap.
 SAME_PART_CANDIDATES = 200
+#: Gap added for a mirror image: as much as proportions some 10 % off (chosen on the library's SMD pin headers).
+MIRROR_GAP = 0.1
 #: ln of every factor a size may be off by and still be the same part (1 and the unit factors both ways).
 _LOG_FACTORS = np.log(np.array((1.0,) + tuple(f for u in UNIT_FACTORS for f in (u, 1.0 / u))))
 
 
-def shape_measures(extents, moments) -> np.ndarray:
-    """``(..., 4)``: ``ln r1, ln(r2/r1), ln(r3/r1), ln(area / sum r^2)`` from the principal radii
-    ``(..., 3)`` and the moments ``(..., 4)`` the store keeps (NaN where unknown)."""
+def shape_measures(extents, moments, handedness) -> np.ndarray:
+    """``(..., 6)``: ``ln r1, ln(r2/r1), ln(r3/r1), ln(area / sum r^2)`` and the two handedness
+    pseudo-scalars, from the principal radii ``(..., 3)``, the moments ``(..., 4)`` and the
+    handedness ``(..., 2)`` the store keeps (NaN where unknown)."""
     e = np.asarray(extents, dtype=np.float64)
     m = np.asarray(moments, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.stack([np.log(e[..., 0]), np.log(e[..., 1] / e[..., 0]), np.log(e[..., 2] / e[..., 0]),
+        logs = np.stack([np.log(e[..., 0]), np.log(e[..., 1] / e[..., 0]), np.log(e[..., 2] / e[..., 0]),
                          np.log(m[..., 0])], axis=-1)
+    return np.concatenate([logs, np.asarray(handedness, dtype=np.float64)], axis=-1)
 
 
 def measures_of_solid(solid) -> np.ndarray:
@@ -57,18 +64,19 @@ def measures_of_solid(solid) -> np.ndarray:
     from ..signing.moments import shape_facts
 
     facts = shape_facts(solid.vertices, solid.faces)
-    return shape_measures(facts["extents"], facts["moments"])
+    return shape_measures(facts["extents"], facts["moments"], facts["handedness"])
 
 
 def shape_gap(query: np.ndarray, entries: np.ndarray) -> np.ndarray:
-    """The exact-measure gap between the query's measures ``(4,)`` and each entry's ``(N, 4)``:
-    the proportions' and area's ``|ln|`` differences, plus the size's, modulo a unit factor.
-    An unknown measure adds nothing."""
+    """The exact-measure gap between the query's measures ``(6,)`` and each entry's ``(N, 6)``
+    (:func:`shape_measures`): the proportions' and area's ``|ln|`` differences, plus the size's,
+    modulo a unit factor, plus :data:`MIRROR_GAP` for a mirror image. An unknown measure adds nothing."""
     entries = np.atleast_2d(np.asarray(entries, dtype=np.float64))
     query = np.asarray(query, dtype=np.float64)
-    shape = np.nan_to_num(np.abs(entries[:, 1:] - query[1:]), nan=0.0).sum(axis=1)
+    shape = np.nan_to_num(np.abs(entries[:, 1:4] - query[1:4]), nan=0.0).sum(axis=1)
     size = np.abs((query[0] - entries[:, 0])[:, None] - _LOG_FACTORS).min(axis=1)
-    return shape + np.nan_to_num(size, nan=0.0)
+    mirrored = mirror_relation(query[4:6], entries[:, 4:6])
+    return shape + np.nan_to_num(size, nan=0.0) + MIRROR_GAP * mirrored
 
 
 def same_part_scores(distances: np.ndarray, gaps: np.ndarray, nearest=None) -> np.ndarray:

@@ -500,10 +500,11 @@ class Searcher:
         return chosen, exact, gaps[chosen]
 
     def entry_measures(self) -> np.ndarray:
-        """(N, 4): every ranked entry's exact measures (:func:`shapeidx.search.same_part.shape_measures`), read once."""
+        """(N, 6): every ranked entry's exact measures (:func:`shapeidx.search.same_part.shape_measures`), read once."""
         if "measures" not in self._cache:
             self._cache["measures"] = shape_measures(self.entry_numbers("entries/extents", 3),
-                                                     self.entry_numbers("entries/moments", 4))
+                                                     self.entry_numbers("entries/moments", 4),
+                                                     self.entry_numbers("entries/handedness", 2))
         return self._cache["measures"]
 
     def entry_numbers(self, name: str, width: int) -> np.ndarray:

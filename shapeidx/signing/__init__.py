@@ -9,6 +9,7 @@
     histogram.py   -> Signature: four D2 histograms and the class fractions (3.2.4)
     angles.py      -> the normal-angle histograms of the same pairs (beyond the paper)
     moments.py     beside it: size, principal radii, handedness, moments (exact integrals)
+    chirality.py   is one part the mirror image of another (from that handedness)
     pipeline.py    the road above in three functions: solid_of_file, signature_of_solid,
                    signature_of_file
     parameters.py  the defaults and names (points, seed, bin divisor, classes, version)

@@ -36,7 +36,7 @@ and a re-faceted one nearly the same.
 Where the axes are not defined (two principal radii within :data:`AXIS_GAP` of each
 other: a square pin, a cylinder) the frame can turn freely in their plane and the values
 mean nothing; :func:`shape_facts` then returns NaN handedness and the part counts as of
-unknown handedness (:mod:`shapeidx.families.chirality` never calls it mirrored).
+unknown handedness (:mod:`shapeidx.signing.chirality` never calls it mirrored).
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ Every request is treated as hostile:
   private temporary file with the original name's suffix (so the loader picks the format),
   read, and deleted; a file that is not a usable part is a 422 with the loader's one-line
   reason;
-* ``top``, ``metric``, ``where``, ``parts`` and ``uses`` are checked (400); unknown ids are 404;
+* ``top``, ``metric``, ``where``, ``parts``, ``uses`` and ``same_part`` are checked (400); unknown ids are 404;
   nothing raises past a handler.
 """
 
@@ -346,12 +346,14 @@ class StoreService:
                        thumbnail=f"/api/thumbnail?id={_quote(query_id)}")
         return out
 
-    def query(self, query_id: str, top: int, metric: str, where=(), parts: bool = False) -> dict:
-        """Rank the store's files (or, ``parts``, its sub-parts: hits with ``parent`` and ``count``)."""
+    def query(self, query_id: str, top: int, metric: str, where=(), parts: bool = False,
+              same_part: bool = False) -> dict:
+        """Rank the store's files (or, ``parts``, its sub-parts: hits with ``parent`` and ``count``);
+        ``same_part``: in the same-part order (``query --same-part``: hits with ``shape_gap``)."""
         from ..search import Filters, parse_where
 
         searcher = self.parts_searcher() if parts else self.searcher
-        filters = Filters(where=parse_where(where))
+        filters = Filters(where=parse_where(where), same_part=same_part)
         query = self.query_of(query_id)
         if parts != self._is_sub_entry(query.entry):
             query = replace(query, own=None)  # its own position is in the other store
@@ -413,10 +415,11 @@ class StoreService:
         return entry is not None and "#" in entry and not self._has_entry(entry)
 
     def query_upload(self, filename: str, data: bytes, top: int, metric: str, where=(), parts: bool = False,
-                     uses: bool = False) -> dict:
+                     uses: bool = False, same_part: bool = False) -> dict:
         """Sign an uploaded part file and rank the store against it (422 for a bad part);
-        ``uses``: the files that use a part like it (:meth:`where_used`)."""
+        ``uses``: the files that use a part like it (:meth:`where_used`); ``same_part`` as :meth:`query`'s."""
         from ..pictures.render import render_solid_png
+        from ..search.same_part import measures_of_solid
         from ..search.where_used import principal_radii
 
         name = os.path.basename((filename or "upload").replace("\\", "/")) or "upload"
@@ -433,7 +436,8 @@ class StoreService:
                 except LoadError as exc:
                     raise RequestError(422, f"{name}: {exc.reason}") from None
                 query.path = query.entry = query.own = None  # a temporary file: not the store's
-                query.extents = principal_radii(query.solid)  # where used's same-size test, once solid is gone
+                # what where-used's same-size test and the same-part order read, once solid is gone
+                query.extents, query.measures = principal_radii(query.solid), measures_of_solid(query.solid)
                 try:
                     png, note = render_solid_png(query.solid), ""
                 except Exception as exc:  # a picture is a nicety: the query still answers
@@ -445,7 +449,7 @@ class StoreService:
                     self._uploads.popitem(last=False)
         if uses:
             return self.where_used(query_id, top, metric)
-        return self.query(query_id, top, metric, where, parts)
+        return self.query(query_id, top, metric, where, parts, same_part)
 
     def thumbnail(self, query_id: str) -> bytes:
         if query_id.startswith(UPLOAD_PREFIX):
@@ -586,11 +590,13 @@ def _int(params, name: str, default: int, lo: int, hi: int) -> int:
 
 def _uses(params) -> bool:
     """``uses=1``: where used (the files holding a sub-part like the query); it takes no ``where``
-    and ranks sub-parts, so ``parts`` is checked but says nothing more."""
+    and no ``same_part`` and ranks sub-parts, so ``parts`` is checked but says nothing more."""
     uses = _flag(params, "uses")
     _flag(params, "parts")
     if uses and any(condition.strip() for condition in _where(params)):
         raise RequestError(400, "where used takes no 'where' conditions (they select files, not sub-parts)")
+    if uses and _flag(params, "same_part"):
+        raise RequestError(400, "where used takes no 'same_part' (it keeps sub-parts of the query's size already)")
     return uses
 
 
@@ -709,7 +715,7 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD, host: str = 
                                              _metric(q, WHERE_USED_METRIC))
         else:
             result = await run_in_threadpool(service.query, _id(q), _int(q, "top", 10, 1, MAX_TOP), _metric(q),
-                                             _where(q), _flag(q, "parts"))
+                                             _where(q), _flag(q, "parts"), _flag(q, "same_part"))
         return JSONResponse(result)
 
     async def query_post(request):
@@ -737,7 +743,7 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD, host: str = 
                 return {"type": "http.request", "body": body, "more_body": False}
 
             try:
-                form = await Request(request.scope, replay).form(max_files=1, max_fields=10, max_part_size=max_upload)
+                form = await Request(request.scope, replay).form(max_files=1, max_fields=12, max_part_size=max_upload)
             except Exception as exc:  # malformed multipart
                 raise RequestError(400, f"cannot read the upload ({getattr(exc, 'detail', None) or exc})") from None
             try:
@@ -750,12 +756,13 @@ def create_app(service: StoreService, max_upload: int = MAX_UPLOAD, host: str = 
                 if not data:
                     raise RequestError(422, f"{upload.filename or 'upload'}: the file is empty")
                 uses = _uses(form)
-                top, metric, parts = (_int(form, "top", 10, 1, MAX_TOP),
-                                      _metric(form, WHERE_USED_METRIC if uses else QUERY_METRIC), _flag(form, "parts"))
+                top, metric, parts, same_part = (_int(form, "top", 10, 1, MAX_TOP),
+                                                 _metric(form, WHERE_USED_METRIC if uses else QUERY_METRIC),
+                                                 _flag(form, "parts"), _flag(form, "same_part"))
                 if parts or uses:
                     service.parts_searcher()  # 409 before signing, when the store has no sub-parts
                 result = await anyio.to_thread.run_sync(service.query_upload, upload.filename or "upload", data, top,
-                                                        metric, _where(form), parts, uses)
+                                                        metric, _where(form), parts, uses, same_part)
             finally:
                 await form.close()
         finally:

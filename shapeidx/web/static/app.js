@@ -53,9 +53,15 @@ function topValue() { return document.getElementById("top").value || "10"; }
 function partsValue() { return state.info && state.info.parts && document.getElementById("parts").checked ? "1" : ""; }
 // "1" for where used: the files holding a sub-part like the query (no where conditions then)
 function usesValue() { return state.info && state.info.parts && document.getElementById("uses").checked ? "1" : ""; }
+// "1" for the same-part order: the hits ranked with the exact measures' gap (query --same-part)
+function samePartValue() { return !usesValue() && document.getElementById("same-part").checked ? "1" : ""; }
 function setSearch(search) {
   if (usesValue()) { search.set("uses", "1"); search.delete("where"); }
-  else { if (partsValue()) search.set("parts", "1"); for (const w of whereValue()) search.append("where", w); }
+  else {
+    if (partsValue()) search.set("parts", "1");
+    if (samePartValue()) search.set("same_part", "1");
+    for (const w of whereValue()) search.append("where", w);
+  }
   return search;
 }
 function subPartLine(part) {
@@ -70,8 +76,12 @@ function subPartLine(part) {
 function whereValue() { return document.getElementById("where").value.split(";").map(s => s.trim()).filter(s => s); }
 function withWhere(values) { return setSearch(new URLSearchParams(values)); }
 // Sub-parts and Where used are two ways of ranking sub-parts: one at a time. Where used takes no
-// where conditions (they select files), so the field is disabled while it is ticked.
-function showWhereUsed() { document.getElementById("where").disabled = !!usesValue(); }
+// where conditions (they select files) and no same-part order (it keeps the query's size itself),
+// so those are disabled while it is ticked.
+function showWhereUsed() {
+  document.getElementById("where").disabled = !!usesValue();
+  document.getElementById("same-part").disabled = !!usesValue();
+}
 function chooseRanking(ev) {
   const other = document.getElementById(ev.target.id === "uses" ? "parts" : "uses");
   if (ev.target.checked) other.checked = false;
@@ -140,10 +150,13 @@ function renderQuery(result) {
   const view = document.getElementById("view");
   const q = result.query;
   const what = result.parts ? "sub-parts" : "parts";
-  const filtered = result.filters && result.filters.length ? ` (${result.filters.join(", ")}: ${result.considered.toLocaleString()} ${what} left)` : "";
+  const samePart = (result.filters || []).includes("--same-part");
+  const kept = (result.filters || []).filter(f => f !== "--same-part");  // an order, not a filter
+  const filtered = kept.length ? ` (${kept.join(", ")}: ${result.considered.toLocaleString()} ${what} left)` : "";
+  const order = samePart ? "in the same-part order (the distance, then the gap of the exact measures: size, proportions, area, handedness), " : "";
   const counted = result.uses
     ? `${metricLabel(result.metric)}, the files holding a sub-part like it (of its size), nearest first: ${result.hits.length} shown, of ${result.entries.toLocaleString()} files. `
-    : `${metricLabel(result.metric)}, top ${result.hits.length} of ${result.entries.toLocaleString()} ${what}${filtered}. `;
+    : `${metricLabel(result.metric)}, ${order}top ${result.hits.length} of ${result.entries.toLocaleString()} ${what}${filtered}. `;
   const info = h("div", {class: "muted"}, counted,
     result.reason ? h("div", {class: "reason", dataset: {testid: "no-answer"}, text: `No hit: ${result.reason}.`}) : null,
     h("details", {}, h("summary", {text: "How the similarity words are calibrated"}), result.calibration));
@@ -152,7 +165,10 @@ function renderQuery(result) {
     const far = hit.words === "weakly similar" || hit.words === "not similar";
     const share = hit.closer_than ? ` (${hit.closer_than})` : "";
     hits.append(h("article", {class: "hit", dataset: {testid: "hit", rank: hit.rank, id: hit.id}},
-      h("div", {class: "top"}, h("span", {class: "rank", text: `#${hit.rank}`}), h("span", {class: "distance", text: `distance ${hit.distance === 0 ? "0" : hit.distance.toPrecision(4)}`})),
+      h("div", {class: "top"}, h("span", {class: "rank", text: `#${hit.rank}`}), h("span", {class: "distance", text: `distance ${hit.distance === 0 ? "0" : hit.distance.toPrecision(4)}`}),
+        hit.shape_gap === undefined || hit.shape_gap === null ? null : h("span", {class: "gap", dataset: {testid: "shape-gap"},
+          title: "the gap of the exact measures (size modulo a unit, proportions, area, handedness): 0 for the same part",
+          text: `gap ${hit.shape_gap === 0 ? "0" : hit.shape_gap.toPrecision(2)}`})),
       h("div", {class: far ? "words far" : "words", text: hit.words + share}),
       thumb(hit.thumbnail, 160, hit.id, () => go("query", {id: hit.id, metric: result.metric, top: result.top}), k >= 12),
       h("div", {class: "path", text: hit.id}),
@@ -226,6 +242,7 @@ async function route() {
   if (p.get("top")) document.getElementById("top").value = p.get("top");
   if (view === "query") document.getElementById("parts").checked = p.get("parts") === "1";
   if (view === "query") document.getElementById("uses").checked = p.get("uses") === "1";
+  if (view === "query") document.getElementById("same-part").checked = p.get("same_part") === "1";
   const key = location.hash;
   busy(true);
   try {
@@ -265,6 +282,7 @@ async function upload(file) {
   form.append("metric", metricValue());
   form.append("parts", partsValue() || "0");
   form.append("uses", usesValue() || "0");
+  form.append("same_part", samePartValue() || "0");
   if (!usesValue()) for (const w of whereValue()) form.append("where", w);
   busy(true);
   try {
@@ -310,6 +328,7 @@ async function start() {
   document.getElementById("where").addEventListener("change", requery);
   document.getElementById("parts").addEventListener("change", chooseRanking);
   document.getElementById("uses").addEventListener("change", chooseRanking);
+  document.getElementById("same-part").addEventListener("change", requery);
   const drop = document.getElementById("drop");
   drop.addEventListener("dragover", (ev) => { ev.preventDefault(); drop.classList.add("over"); });
   drop.addEventListener("dragleave", () => drop.classList.remove("over"));
