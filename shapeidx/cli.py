@@ -695,7 +695,8 @@ def stats(store, list_failed, output_format, as_json):
       shapeidx stats --store parts.shapeidx --failed --format tsv
     """
     from .store import describe_store, open_store
-    from .store.shards import is_sharded, shard_paths
+    from .store.reader import member_stores
+    from .store.shards import is_sharded
     from .store.stats import describe_sharded
 
     fmt = chosen_format(output_format, as_json)
@@ -704,7 +705,7 @@ def stats(store, list_failed, output_format, as_json):
         facts = describe_sharded(store_path)
         failed = []
         if list_failed:
-            for path in (p for p in shard_paths(store_path) if p.exists()):
+            for path in (p for p in member_stores(store_path) if p.exists()):  # a shard not built yet: none
                 with open_store(path) as reader:
                     failed += _failed_entries(reader)
     else:
@@ -849,12 +850,11 @@ def check(store, check_files, repair, output_format, as_json):
     fmt = chosen_format(output_format, as_json)
     if repair:
         from .store.check import repair_ranking
-
-        from .store.shards import is_sharded, shard_paths
+        from .store.reader import member_stores
 
         path = _store_path(store)
         check_store(path)  # no store, not a store: one line, before taking the lock
-        for one in shard_paths(path) if is_sharded(path) else [path]:
+        for one in member_stores(path):
             for line in repair_ranking(one):
                 click.echo(line, err=True)
     report = check_store(_store_path(store), files=check_files)

@@ -83,7 +83,7 @@ class Checker:
         from ..distance import METRIC_HISTOGRAMS
         from ..search.sharded import open_searcher
         from ..store import open_store
-        from ..store.shards import is_sharded, shard_paths
+        from ..store.reader import member_stores
         from .table import FamilyTable
 
         self.metric, self.scale = metric, scale
@@ -91,7 +91,7 @@ class Checker:
         try:
             self.table = FamilyTable.load_store(store, METRIC_HISTOGRAMS[metric])
             self.stored = {}  # every entry's file hash, failed ones too: a file not changed is not news
-            for path in shard_paths(store) if is_sharded(store) else [store]:
+            for path in member_stores(store):
                 with open_store(path) as reader:
                     self.stored.update(zip(reader.paths.tolist(), (_text(h) for h in reader.column("entries/hash"))))
         except BaseException:
