@@ -1074,3 +1074,12 @@ class TestFamiliesOfSubParts:
             assert_one_line_error(result, plain)
             assert "--parts" in result.stderr
 
+
+def test_stats_of_a_sharded_parts_store_sums_the_shards_sub_parts(store, sharded_store):
+    """stats of a store built with --shards 2 --parts: the sub-parts of every shard added up,
+    the numbers of an ordinary --parts build of the same tree (it reported none)."""
+    ordinary = json.loads(cli("stats", "--store", store, "--json").stdout)["parts"]
+    sharded = json.loads(cli("stats", "--store", sharded_store, "--json").stdout)["parts"]
+    assert sharded == ordinary == {"entries": 7, "files": 4, "several": 3, "instances": 17}
+    line = "sub-parts   7 entries (17 counted as the files hold them) of 4 files, 3 with several"
+    assert line in cli("stats", "--store", sharded_store).stdout
