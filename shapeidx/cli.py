@@ -650,13 +650,16 @@ def where_used(part, store, entry, top, metric, max_distance, scale, same_size, 
 @click.option("--points", type=click.IntRange(2, 8192), help="Surface samples for PARTS [default: the store's with --id, else 1024].")
 @click.option("--seed", type=click.IntRange(0, MAX_SEED),
               help="Sampling seed for PARTS [default: the store's with --id, else the fixed default].")
-def plot(parts, output, entries, store, labels, title, points, seed):
+@click.option("--parts", "sub_parts", is_flag=True,
+              help="--id names sub-parts of --store (FILE#n, a store built with build --parts).")
+def plot(parts, output, entries, store, labels, title, points, seed, sub_parts):
     """The ALL, IN, OUT and MIXED histograms of PARTS (and --id entries), overlaid (the paper's Figure 3/4).
 
     \b
     Example:
       shapeidx plot a.wrl b.wrl -o ab.png
       shapeidx plot --id Battery/holder.wrl --id Battery/clip.wrl --store parts.shapeidx -o pair.pdf
+      shapeidx plot --id boards/six.step#2 --store lib.shapeidx --parts -o pin.png
     """
     from .api import signature as signature_of
     from .pictures.plot import check_format, labels_for, plot_signatures
@@ -666,11 +669,13 @@ def plot(parts, output, entries, store, labels, title, points, seed):
         raise click.UsageError("give one or more PARTS or --id PATH")
     if len(labels) > len(parts) + len(entries):
         raise click.UsageError(f"{len(labels)} --label for {len(parts) + len(entries)} parts")
+    if sub_parts and not entries:
+        raise click.UsageError("--parts names the sub-parts that --id gives: give --id FILE#n")
     signatures = []
     if entries:
         from .search import open_searcher
 
-        with open_searcher(_store_path(store)) as searcher:
+        with open_searcher(_store_path(store), parts=sub_parts) as searcher:
             stored = [searcher.query_of_entry(entry).signature for entry in entries]
             points, seed = points or searcher.params.points, searcher.params.seed if seed is None else seed
     for part in parts:
@@ -695,7 +700,8 @@ def stats(store, list_failed, output_format, as_json):
       shapeidx stats --store parts.shapeidx --failed --format tsv
     """
     from .store import describe_store, open_store
-    from .store.shards import is_sharded, shard_paths
+    from .store.reader import member_stores
+    from .store.shards import is_sharded
     from .store.stats import describe_sharded
 
     fmt = chosen_format(output_format, as_json)
@@ -704,7 +710,7 @@ def stats(store, list_failed, output_format, as_json):
         facts = describe_sharded(store_path)
         failed = []
         if list_failed:
-            for path in (p for p in shard_paths(store_path) if p.exists()):
+            for path in (p for p in member_stores(store_path) if p.exists()):  # a shard not built yet: none
                 with open_store(path) as reader:
                     failed += _failed_entries(reader)
     else:
@@ -849,12 +855,11 @@ def check(store, check_files, repair, output_format, as_json):
     fmt = chosen_format(output_format, as_json)
     if repair:
         from .store.check import repair_ranking
-
-        from .store.shards import is_sharded, shard_paths
+        from .store.reader import member_stores
 
         path = _store_path(store)
         check_store(path)  # no store, not a store: one line, before taking the lock
-        for one in shard_paths(path) if is_sharded(path) else [path]:
+        for one in member_stores(path):
             for line in repair_ranking(one):
                 click.echo(line, err=True)
     report = check_store(_store_path(store), files=check_files)
@@ -1032,8 +1037,12 @@ def _empty_store_error(store, parts: bool = False):
               help="CSV of path,label (paths as in the store) instead of folders.")
 @where_option
 @scale_option
+@click.option("--parts", "sub_parts", is_flag=True,
+              help="Vote with the store's sub-parts (FILE#n, a store built with build --parts) instead of its files:"
+                   " labelled by their file's folders, or by --labels rows naming FILE#n; a file of the tree is"
+                   " not voted for by its own sub-parts.")
 @format_options
-def classify(parts, store, k, metric, label_depth, labels_file, where, scale, output_format, as_json):
+def classify(parts, store, k, metric, label_depth, labels_file, where, scale, sub_parts, output_format, as_json):
     """The category of each PART (a file, or a path of the store) by its nearest labelled entries.
 
     \b
@@ -1041,6 +1050,7 @@ def classify(parts, store, k, metric, label_depth, labels_file, where, scale, ou
       shapeidx classify new/bracket.stl --store parts.shapeidx
       shapeidx classify new/*.wrl --store parts.shapeidx --labels categories.csv --json
       shapeidx classify new/bracket.stl --store parts.shapeidx --where 'project!=legacy'
+      shapeidx classify pin.step --store lib.shapeidx --parts
     """
     from .families.classify import DEFAULT_K, classify_parts
     from .families.labels import labels_from_csv, labels_from_paths
@@ -1048,9 +1058,9 @@ def classify(parts, store, k, metric, label_depth, labels_file, where, scale, ou
     from .system import available_cores
 
     filters = Filters(scale=scale, where=parse_where(where))
-    with open_searcher(_store_path(store)) as searcher:
+    with open_searcher(_store_path(store), parts=sub_parts) as searcher:
         if len(searcher) == 0:
-            raise _empty_store_error(store)
+            raise _empty_store_error(store, sub_parts)
         paths = searcher.entry_paths()
         if labels_file:
             labels, unknown = labels_from_csv(labels_file, paths)
@@ -1091,8 +1101,10 @@ def classify(parts, store, k, metric, label_depth, labels_file, where, scale, ou
 @click.option("--plot", "plot_output", metavar="OUT", type=click.Path(dir_okay=False, path_type=str),
               help="Also draw the clusters to OUT (.png, .svg or .pdf): the dendrogram, or beyond the exact"
                    " matrix's size a 2-D embedding.")
+@click.option("--parts", is_flag=True,
+              help="Group the store's sub-parts (FILE#n, a store built with build --parts) instead of its files.")
 @format_options
-def cluster(store, clusters, threshold, metric, where, scale, as_csv, plot_output, output_format, as_json):
+def cluster(store, clusters, threshold, metric, where, scale, as_csv, plot_output, parts, output_format, as_json):
     """Group the whole store into families of similar parts.
 
     Up to 4,000 entries Ward's clustering of the exact distances; above, Leiden's communities of
@@ -1103,6 +1115,7 @@ def cluster(store, clusters, threshold, metric, where, scale, as_csv, plot_outpu
       shapeidx cluster --store parts.shapeidx --clusters 50
       shapeidx cluster --store parts.shapeidx --threshold 40 --format csv
       shapeidx cluster --store parts.shapeidx --where 'path~Connector*' --plot families.png
+      shapeidx cluster --store lib.shapeidx --parts --clusters 20
     """
     from .families.cluster import cluster_store
     from .system import available_cores
@@ -1111,10 +1124,10 @@ def cluster(store, clusters, threshold, metric, where, scale, as_csv, plot_outpu
         from .pictures.plot import check_format
 
         check_format(plot_output)  # before the work, not after it
-    table = _family_table(store, metric)
-    keep = _table_keep(store, table, where)
+    table = _family_table(store, metric, parts)
+    keep = _table_keep(store, table, where, parts)
     if len(table) == 0 or (keep is not None and not keep.any()):
-        raise _empty_store_error(store) if len(table) == 0 else _no_entry_kept(where)
+        raise _empty_store_error(store, parts) if len(table) == 0 else _no_entry_kept(where)
     if keep is not None:
         table = table.subset(keep)
     result = cluster_store(table, metric, clusters, threshold, scale, threads=available_cores())
@@ -1235,8 +1248,12 @@ def duplicates(store, metric, with_similar, with_near, where, scale, parts, as_c
               help="Nearest look-alikes (not duplicates) reported per new part.")
 @metric_option("check-new", choices=duplicate_metrics())  # the tiers need measured thresholds
 @click.option("--sheet", "sheet", metavar="OUT.html", help="Also write the answers as an HTML sheet with pictures.")
+@click.option("--parts", is_flag=True,
+              help="Look for each file among the store's sub-parts (FILE#n, a store built with build --parts): is the"
+                   " new part already a part of a library file? Tiers by geometry alone (a sub-part holds its"
+                   " file's hash); --exclude-self leaves out the file's own sub-parts.")
 @format_options
-def check_new(paths, store, git_rev, exclude_self, look_alikes, metric, sheet, output_format, as_json):
+def check_new(paths, store, git_rev, exclude_self, look_alikes, metric, sheet, parts, output_format, as_json):
     """Is each new or changed part file already in the library? For each, the store's parts that
     are the same part (tiers identical, same, converted, as duplicates says them: size ratio, unit
     factor, mirror flag) and, apart, its nearest look-alikes worth reusing.
@@ -1249,6 +1266,7 @@ def check_new(paths, store, git_rev, exclude_self, look_alikes, metric, sheet, o
     Example:
       shapeidx check-new new/Resistor_0603.wrl --store library.shapeidx
       shapeidx check-new --git origin/main..HEAD --store library.shapeidx --format json
+      shapeidx check-new new/pin.step --store library.shapeidx --parts
     """
     from .errors import LoadError, ShapeidxError, StoreDamagedError, StoreLockedError
     from .families.checkin import Checker, git_changed
@@ -1262,7 +1280,7 @@ def check_new(paths, store, git_rev, exclude_self, look_alikes, metric, sheet, o
             return
         raise click.UsageError("give PATH... or --git REV")
     reports, failed = [], False
-    with Checker(_store_path(store), metric=metric) as checker:
+    with Checker(_store_path(store), metric=metric, parts=parts) as checker:
         if sheet:
             from .pictures.sheet import check_sheet_folder
 

@@ -980,3 +980,106 @@ class TestSheetsAndWeb:
             process.terminate()
             process.wait(timeout=20)
             log.close()
+
+
+@pytest.fixture(scope="module")
+def sharded_store(library, tmp_path_factory):
+    """The library built with --shards 2 --parts: the sub-parts of every shard."""
+    store = tmp_path_factory.mktemp("sharded") / "s.shapeidx"
+    _build(library[0], store, "--shards", "2", "--parts")
+    return store
+
+
+def _pin_parts(store, query) -> list[str]:
+    """The pin's sub-entries (FILE#n) in the two boards that hold it, by where-used."""
+    uses = json.loads(cli("where-used", query, "--store", store, "--top", "2", "--json").stdout)["uses"]
+    return sorted(u["part"] for u in uses)
+
+
+class TestFamiliesOfSubParts:
+    """classify, cluster, check-new and plot --parts: the sub-parts of an ordinary and of a
+    sharded owner, opened as query --parts opens them, with the same answers from both."""
+
+    def test_cluster_parts_groups_the_sub_parts(self, library, store, sharded_store):
+        answers = []
+        for owner in (store, sharded_store):
+            result = cli("cluster", "--store", owner, "--parts", "--clusters", "3", "--json")
+            assert result.exit_code == 0, result.output + result.stderr
+            answers.append(json.loads(result.stdout))
+        with open_store(parts_store(store)) as reader:
+            assert sorted(r["path"] for r in answers[0]) == sorted(reader.paths.tolist())
+        assert answers[0] == answers[1]
+        assert len({r["cluster"] for r in answers[0]}) == 3
+        pins = _pin_parts(store, library[1])  # the pin of both boards: one family
+        assert len({r["cluster"] for r in answers[0] if r["path"] in pins}) == 1
+
+    def test_classify_parts_votes_with_the_sub_parts(self, library, store, sharded_store):
+        root, query = library
+        four = root / "boards" / "four.step"
+        answers = []
+        for owner in (store, sharded_store):
+            result = cli("classify", query, four, "--store", owner, "--parts", "--k", "2", "--json")
+            assert result.exit_code == 0, result.output + result.stderr
+            answers.append(json.loads(result.stdout))
+        assert answers[0] == answers[1]
+        pin, board = answers[0]
+        assert pin["label"] == "boards" and all(n["path"].partition("#")[1] for n in pin["neighbours"])
+        assert sorted(n["path"] for n in pin["neighbours"]) == _pin_parts(store, query)
+        # a file of the tree: its own sub-parts do not vote for it
+        assert board["neighbours"] and not [n for n in board["neighbours"] if n["path"].startswith("boards/four.step#")]
+
+    def test_check_new_parts_finds_the_pin_inside_the_boards(self, library, store, sharded_store, tmp_path):
+        root, query = library
+        four = root / "boards" / "four.step"
+        answers = []
+        for owner in (store, sharded_store):
+            result = cli("check-new", query, "--store", owner, "--parts", "--json")
+            assert result.exit_code == 7, result.output + result.stderr  # a duplicate found
+            answers.append(json.loads(result.stdout))
+            # without --parts the pin alone is no file of the library: new
+            assert cli("check-new", query, "--store", owner).exit_code == 0
+            unchanged = json.loads(cli("check-new", four, "--store", owner, "--parts", "--json").stdout)
+            assert unchanged[0]["status"] == "unchanged"  # the store holds the file itself
+            alone = json.loads(cli("check-new", four, "--store", owner, "--parts", "--exclude-self", "--json").stdout)
+            assert not [h for kind in ("duplicates", "look_alikes") for h in alone[0][kind]
+                        if h["relative_path"].startswith("boards/four.step#")]
+        assert answers[0] == answers[1]
+        (report,) = answers[0]
+        assert report["status"] == "duplicate"
+        assert sorted(h["relative_path"] for h in report["duplicates"]) == _pin_parts(store, query)
+        assert {h["tier"] for h in report["duplicates"]} <= {"same", "converted"}  # never "the same file"
+        sheet = cli("check-new", query, "--store", sharded_store, "--parts", "--sheet", tmp_path / "pin.html")
+        assert sheet.exit_code == 7, sheet.output + sheet.stderr
+        assert all(p in (tmp_path / "pin.html").read_text() for p in _pin_parts(store, query))
+
+    def test_plot_parts_draws_sub_parts(self, library, store, sharded_store, tmp_path):
+        pins = _pin_parts(store, library[1])
+        for k, owner in enumerate((store, sharded_store)):
+            out = tmp_path / f"pins{k}.png"
+            result = cli("plot", "--store", owner, "--parts", *[a for p in pins for a in ("--id", p)], "-o", out)
+            assert result.exit_code == 0, result.output + result.stderr
+            assert out.stat().st_size > 0
+        whole = cli("plot", "--store", store, "--id", pins[0], "-o", tmp_path / "whole.png")
+        assert_one_line_error(whole, pins[0])  # a sub-entry is no file of the store
+        usage = cli("plot", library[1], "--parts", "-o", tmp_path / "none.png")
+        assert usage.exit_code == 2 and "--id" in usage.stderr
+
+    def test_a_store_without_sub_parts_says_which_build_makes_them(self, library, tmp_path):
+        root, query = library
+        plain = tmp_path / "plain.shapeidx"
+        _build(root, plain)
+        for args in (("cluster",), ("classify", query), ("check-new", query), ("plot", "--id", "cube.step#1", "-o",
+                                                                                tmp_path / "x.png")):
+            result = cli(*args, "--store", plain, "--parts")
+            assert_one_line_error(result, plain)
+            assert "--parts" in result.stderr
+
+
+def test_stats_of_a_sharded_parts_store_sums_the_shards_sub_parts(store, sharded_store):
+    """stats of a store built with --shards 2 --parts: the sub-parts of every shard added up,
+    the numbers of an ordinary --parts build of the same tree (it reported none)."""
+    ordinary = json.loads(cli("stats", "--store", store, "--json").stdout)["parts"]
+    sharded = json.loads(cli("stats", "--store", sharded_store, "--json").stdout)["parts"]
+    assert sharded == ordinary == {"entries": 7, "files": 4, "several": 3, "instances": 17}
+    line = "sub-parts   7 entries (17 counted as the files hold them) of 4 files, 3 with several"
+    assert line in cli("stats", "--store", sharded_store).stdout

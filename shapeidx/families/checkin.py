@@ -19,6 +19,7 @@ entry out of the answer: "checked as new against the store without it".
 
 from __future__ import annotations
 
+import dataclasses
 import os
 
 import numpy as np
@@ -79,25 +80,32 @@ def _guest_table(entry, store_table, rows):
 class Checker:
     """A store opened to check new parts against (``with Checker(store) as c: c.check(path)``)."""
 
-    def __init__(self, store, metric: str = default_metric("check-new"), scale: str = "invariant"):
+    def __init__(self, store, metric: str = default_metric("check-new"), scale: str = "invariant",
+                 parts: bool = False):
         from ..distance import METRIC_HISTOGRAMS
         from ..search.sharded import open_searcher
         from ..store import open_store
-        from ..store.shards import is_sharded, shard_paths
+        from ..store.reader import member_stores
         from .table import FamilyTable
 
-        self.metric, self.scale = metric, scale
-        self.searcher = open_searcher(store)  # an ordinary store, or every shard of a sharded one
+        self.metric, self.scale, self.parts = metric, scale, parts
+        self.searcher = open_searcher(store, parts=parts)  # an ordinary store, or every shard of a sharded one
         try:
-            self.table = FamilyTable.load_store(store, METRIC_HISTOGRAMS[metric])
-            self.stored = {}  # every entry's file hash, failed ones too: a file not changed is not news
-            for path in shard_paths(store) if is_sharded(store) else [store]:
+            self.table = FamilyTable.load_store(store, METRIC_HISTOGRAMS[metric], parts)
+            self.stored = {}  # every file's hash, failed ones too: a file not changed is not news
+            for path in member_stores(store):
                 with open_store(path) as reader:
                     self.stored.update(zip(reader.paths.tolist(), (_text(h) for h in reader.column("entries/hash"))))
         except BaseException:
             self.searcher.close()
             raise
         self.by_hash: dict[str, list[int]] = {}
+        if parts:
+            # a sub-part holds its file's hash: tiered by its geometry alone, as duplicates --parts does
+            self.table = dataclasses.replace(self.table, hashes=np.array(
+                [h + b"#" + str(p).encode("utf-8", "surrogatepass") if len(h) else h
+                 for h, p in zip(self.table.hashes, self.table.paths)], dtype=object))
+            return
         for row, digest in enumerate(self.table.hashes):
             self.by_hash.setdefault(_text(digest), []).append(row)
 
@@ -139,18 +147,21 @@ class Checker:
         if not exclude_self and entry_name is not None and self.stored.get(entry_name) == digest:
             return {"file": path, "entry": entry_name, "status": "unchanged", "duplicates": [], "look_alikes": []}
         query = self.searcher.query_of_part(path, seed=seed)
-        answer = self.searcher.search(query, top=candidates, metric=self.metric,
-                                      filters=Filters(exclude_self=exclude_self))
         own = query.entry if exclude_self else None
-        rows = [self.table.index_of(h.relative_path) for h in answer.hits]
-        rows = [r for r in rows if r is not None]
+        # the file's own sub-parts are not its entry to the search (FILE#n): left out here
+        mine = set() if not (self.parts and exclude_self and entry_name) else {
+            p for p in self.table.paths.tolist() if str(p).rpartition("#")[0] == entry_name}
+        answer = self.searcher.search(query, top=candidates + len(mine), metric=self.metric,
+                                      filters=Filters(exclude_self=exclude_self))
+        rows = [self.table.index_of(h.relative_path) for h in answer.hits if h.relative_path not in mine]
+        rows = [r for r in rows if r is not None][:candidates]
         rows += [r for r in self.by_hash.get(digest, []) if r not in rows]
         solid = query.solid
         st = os.stat(path)
         entry = Entry.indexed("\0new/" + os.path.basename(path), digest, st.st_size, st.st_mtime_ns, query.signature, solid.describe(),
                               shape_facts(solid.vertices, solid.faces))
         rows += [r for r in self._moment_neighbours(entry, OVERFETCH * candidates) if r not in rows]
-        rows = [r for r in rows if own is None or self.table.paths[r] != own]
+        rows = [r for r in rows if (own is None or self.table.paths[r] != own) and self.table.paths[r] not in mine]
         dups, looks = [], []
         if rows:
             table = _guest_table(entry, self.table, rows)

@@ -99,9 +99,10 @@ def classify_parts(searcher, parts, labels: dict, k: int = DEFAULT_K, metric: st
     """Classify each part (a file, or an entry path of the store) by the store's labelled entries.
 
     The voters are found by the one search road (a searcher of
-    :func:`~shapeidx.search.open_searcher`: one store or a sharded one): the ``k + 1`` nearest
-    labelled entries that ``filters`` keep (``--where``, ``--scale``), the part's own entry
-    left out.
+    :func:`~shapeidx.search.open_searcher`: one store or a sharded one, of its files or of its
+    sub-parts): the ``k + 1`` nearest labelled entries that ``filters`` keep (``--where``,
+    ``--scale``), the part's own entry left out; a file of the tree asked of the sub-parts
+    (``classify --parts``) leaves out its own sub-parts (``FILE#n``) instead.
 
     Parameters
     ----------
@@ -141,7 +142,13 @@ def classify_parts(searcher, parts, labels: dict, k: int = DEFAULT_K, metric: st
             query = searcher.query_of_part(part, threads=threads)
         else:
             raise ShapeidxError(f"{part}: no such file, and no entry of that path in {searcher.store}")
-        answer = searcher.search(query, k + 1, metric, filters, among=voters,
+        among = voters
+        if getattr(searcher, "parts", False) and query.own is None and query.entry is None:
+            # a file's own sub-parts are not its entry in the search's eyes: leave them out here
+            own = searcher.entry_path_of(part)
+            if own is not None:
+                among = frozenset(p for p in voters if p.rpartition("#")[0] != own)
+        answer = searcher.search(query, k + 1, metric, filters, among=among,
                                  among_reason="no labelled entry is left to vote")
         hits = answer.hits
         distances = np.array([hit.distance for hit in hits], dtype=np.float64)

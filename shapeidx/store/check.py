@@ -126,7 +126,9 @@ class CheckReport:
         if self.shards is not None:
             where = f"{self.files} file(s) of {len(self.shards)} shards"
             if self.problems:
-                repair, _ = recovery_commands(self.store)
+                # damaged sub-parts of a shard are rebuilt by the owner's build with --parts
+                parts = next((s.parts.store for s in self.shards if s.parts is not None and s.parts.problems), None)
+                repair, _ = recovery_commands(parts or self.store)
                 return (f"{self.store}: DAMAGED: {len(self.problems)} problem(s) in {where};"
                         f" '{repair}' rebuilds the damaged entries")
             sums = "checksums verified" if self.checksummed else "some files have no checksums"

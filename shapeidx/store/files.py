@@ -56,7 +56,8 @@ def build_command(store, root: str | None = None) -> str:
     a shard through its sharded store (a build into one shard would put every file in it)."""
     folder, owner = root or "DIR", owner_of_parts(store)
     if owner is not None:
-        return f"shapeidx build {folder} --store {owner} --parts"
+        sharded = owner_of_shard(owner)  # a shard's sub-parts: through the sharded store too
+        return f"shapeidx build {folder} --store {sharded if sharded is not None else owner} --parts"
     sharded = owner_of_shard(store)
     return f"shapeidx build {folder} --store {sharded if sharded is not None else store}"
 

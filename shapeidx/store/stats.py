@@ -99,8 +99,9 @@ def _metadata_facts(store) -> dict | None:
 
 def describe_sharded(store) -> dict:
     """What ``shapeidx stats`` shows of a sharded store (``build --shards``): its shards' facts
-    (:func:`describe_store`) summed, the parameters they share, and each shard's own in ``shards``.
-    A shard that cannot be opened says so in one line, as the store it is."""
+    (:func:`describe_store`) summed (their sub-parts' too, ``build --parts``), the parameters
+    they share, and each shard's own in ``shards``. A shard that cannot be opened says so in
+    one line, as the store it is."""
     from collections import Counter
 
     from .shards import shard_paths
@@ -123,13 +124,22 @@ def describe_sharded(store) -> dict:
     facts = dict(shards[0])
     facts.update(total, store=str(store), updated=max(str(s["updated"] or "") for s in shards) or None,
                  created=min(str(s["created"] or "") for s in shards) or None, build=_sharded_build(builds),
-                 parts=None, older_reader=dict(older),
+                 parts=_summed_parts([s["parts"] for s in shards]), older_reader=dict(older),
                  failure_reasons=[{"reason": r, "count": c} for r, c in sorted(reasons.items(), key=lambda rc: (-rc[1], rc[0]))],
                  parameters_differ=any(s["parameters"] != shards[0]["parameters"] for s in shards),
                  shards_not_built=missing,
                  shards=[{key: s[key] for key in ("store", "entries", "ok", "failed", "bytes", "updated", "build")}
                          for s in shards])
     return facts
+
+
+def _summed_parts(facts: list) -> dict | None:
+    """The shards' sub-parts facts (:func:`_parts_facts`) added up, or None when no shard has
+    sub-parts. A file and its sub-parts share a shard, so ``files`` and ``several`` add up too."""
+    facts = [f for f in facts if f is not None]
+    if not facts:
+        return None
+    return {key: sum(f[key] for f in facts) for key in ("entries", "files", "several", "instances")}
 
 
 def _sharded_build(builds: list) -> dict | None:
