@@ -399,15 +399,15 @@ class Searcher:
         return self.signature_at(self.view.position_of(self.view.find(entry)))
 
     # -- the answer
-    def keep(self, query: Query, filters: Filters) -> tuple[np.ndarray | None, str | None]:
+    def keep(self, query: Query, filters: Filters) -> tuple[np.ndarray | None, tuple[str, str] | None]:
         """The keep-mask of ``filters`` for ``query`` (None: every entry), and, when it keeps
-        nothing, why, in words."""
+        nothing, why: ``(kind, words)``, the kind one of :data:`~shapeidx.search.hits.NO_HIT`."""
         from ..distance.scale import within_band
 
         n = len(self.view)
         mask = keep_mask(filters.conditions(), self.metadata_column, self.metadata_keys())
         if mask is not None and not mask.any():
-            return mask, f"no entry of the store matches {' and '.join(f'--where {c}' for c in filters.conditions())}"
+            return mask, ("where", f"no entry of the store matches {' and '.join(f'--where {c}' for c in filters.conditions())}")
         if filters.scale != "invariant":
             from ..distance.scale import check_scale
 
@@ -416,12 +416,13 @@ class Searcher:
             band = within_band(query.signature.histograms["all"].mean, sizes)
             mask = band if mask is None else mask & band
             if not mask.any():
-                return mask, "no entry of the store (that matches the filters) is within the size band of --scale sensitive"
+                return mask, ("scale", "no entry of the store (that matches the filters) is within the size band of"
+                                       " --scale sensitive")
         if filters.exclude_self and query.own is not None:
             mask = np.ones(n, dtype=bool) if mask is None else mask.copy()
             mask[query.own] = False
             if not mask.any():
-                return mask, "no entry but the query's own is left (--exclude-self)"
+                return mask, ("exclude_self", "no entry but the query's own is left (--exclude-self)")
         return mask, None
 
     def search(self, query: Query, top: int = 10, metric: str = default_metric("query"), filters: Filters | None = None,
@@ -442,16 +443,17 @@ class Searcher:
         answer = Answer(query.label, query.path, query.entry, metric, str(self.store.resolve()), self.root, [],
                         considered=0, entries=len(self.view), filters=filters.described(), signature=query.signature)
         if len(self.view) == 0:
-            answer.reason = self.empty_reason()
+            answer.why, answer.reason = "empty", self.empty_reason()
             return answer
-        keep, answer.reason = self.keep(query, filters)
-        if among is not None and answer.reason is None:
+        keep, why = self.keep(query, filters)
+        if among is not None and why is None:
             among = self._among_mask(among)
             keep = among if keep is None else keep & among
             if not keep.any():
-                answer.reason = among_reason or "no entry is left to rank"
+                why = ("among", among_reason or "no entry is left to rank")
         answer.considered = len(self.view) if keep is None else int(keep.sum())
-        if answer.reason is not None:
+        if why is not None:
+            answer.why, answer.reason = why
             return answer
         own = query.own if keep is None or query.own is None or keep[query.own] else None
         self.asked()
@@ -467,8 +469,7 @@ class Searcher:
         if not valid.any():
             nearest_at = float(np.min(exact)) if len(exact) else float("nan")
             answer.nearest = nearest_at if np.isfinite(nearest_at) else None
-            answer.reason = (f"no hit within --max-distance {filters.max_distance:g}"
-                             + (f" (the nearest is at {nearest_at:.6g})" if np.isfinite(nearest_at) else ""))
+            answer.why, answer.reason = "max_distance", beyond_reason(filters.max_distance, answer.nearest)
             return answer
         chosen, exact = chosen[valid], exact[valid]
         if gaps is None:
@@ -611,20 +612,43 @@ class Searcher:
         return self._cache["parents"]
 
     def empty_reason(self) -> str:
-        """Why a store has nothing to rank: no entry yet (a build runs, stopped, or none ran), or none ok."""
+        """Why this store has nothing to rank (:func:`empty_store_reason`)."""
         from ..store.lock import read_build_state
 
-        total = len(self.reader)
-        if total:
-            return (f"none of the store's {total} entries could be indexed ('shapeidx stats --failed --store"
-                    f" {self.store}' lists why)")
-        state = read_build_state(self.store) or {}
-        if state.get("state") == "running":
-            return (f"the store has no entry yet: a build is running (pid {state.get('pid')} on {state.get('host')},"
-                    f" since {state.get('started')}); its first commit comes within --commit-interval")
-        if state.get("state") in ("stopped", "interrupted"):
-            return f"the store has no entry: its last build {state['state']} before its first commit; run it again"
-        return "the store has no entry yet (run 'shapeidx build DIR' first)"
+        return empty_store_reason(self.store, len(self.reader), read_build_state(self.store))
+
+
+def empty_store_reason(store, rows: int, state: dict | None, sharded: bool = False) -> str:
+    """Why a store has nothing to rank, in words: the one text of every searcher.
+
+    Parameters
+    ----------
+    store : path
+        The store as opened (a sharded store's own folder, not a shard's).
+    rows : int
+        Its entries, failed ones too.
+    state : dict or None
+        Its last build's record (:func:`shapeidx.store.lock.read_build_state`; a sharded
+        store's: a running shard's, else a stopped one's).
+    sharded : bool
+        A sharded store, which its build command names (``--shards N``).
+    """
+    if rows:
+        return (f"none of the store's {rows} entries could be indexed ('shapeidx stats --failed --store"
+                f" {store}' lists why)")
+    state = state or {}
+    if state.get("state") == "running":
+        return (f"the store has no entry yet: a build is running (pid {state.get('pid')} on {state.get('host')},"
+                f" since {state.get('started')}); its first commit comes within --commit-interval")
+    if state.get("state") in ("stopped", "interrupted"):
+        return f"the store has no entry: its last build {state['state']} before its first commit; run it again"
+    return f"the store has no entry yet (run 'shapeidx build DIR{' --shards N' if sharded else ''}' first)"
+
+
+def beyond_reason(max_distance: float, nearest: float | None) -> str:
+    """Why no hit is within ``max_distance``: the words, with the nearest distance when there was one."""
+    nearest_at = f" (the nearest is at {nearest:.6g})" if nearest is not None else ""
+    return f"no hit within --max-distance {max_distance:g}{nearest_at}"
 
 
 def check_usable(reader) -> None:

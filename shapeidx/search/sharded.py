@@ -37,9 +37,9 @@ import numpy as np
 from ..distance.metrics import default_metric
 from ..errors import StoreError
 from ..store.shards import shard_of_paths
-from .hits import Answer, Hit, absolute
+from .hits import NO_HIT, Answer, Hit, absolute
 from .same_part import SAME_PART_CANDIDATES, measures_of_solid, same_part_scores
-from .searcher import Filters, Query, Searcher, entry_path_in, label_of, sign_part
+from .searcher import Filters, Query, Searcher, beyond_reason, empty_store_reason, entry_path_in, label_of, sign_part
 
 
 def open_searcher(store, scheduler: str | None = None, parts: bool = False):
@@ -134,6 +134,13 @@ def warm_shard(path: str) -> None:
         searcher.warm()
 
 
+def shard_build_state(path: str) -> dict | None:
+    """The shard's last build's record (:func:`shapeidx.store.lock.read_build_state`)."""
+    from ..store.lock import read_build_state
+
+    return read_build_state(Path(path))
+
+
 def shard_entry(path: str, entry: str) -> tuple:
     """The stored signature and exact measures of ``entry`` in the shard (StoreError as
     :meth:`Searcher.query_of_entry`)."""
@@ -184,7 +191,8 @@ def search_shard(path: str, signature, entry: str | None, top: int, metric: str,
                  among=None, among_reason: str = "", measures=None) -> dict:
     """The shard's exact top ``top`` (run where the shard is): each hit as (distance, not the
     query's own entry, relative path, metadata, its file and count when it is a sub-entry, its
-    exact-measure gap), in the store's order; the counts; why none. With the same-part order
+    exact-measure gap), in the store's order; the counts; why none (``why``: its kind, one of
+    :data:`~shapeidx.search.hits.NO_HIT`, and ``reason``: its words). With the same-part order
     (``measures``: the query's exact measures) the shard's top :data:`SAME_PART_CANDIDATES` and
     its nearest distances, for the merge to order them with the scale of the whole store."""
     import time
@@ -197,7 +205,7 @@ def search_shard(path: str, signature, entry: str | None, top: int, metric: str,
     answer = searcher.search(query, asked, metric, filters, among=among, among_reason=among_reason)
     return {"hits": [(hit.distance, hit.relative_path != query.entry, hit.relative_path, hit.metadata, hit.parent,
                       hit.count, hit.shape_gap) for hit in answer.hits],
-            "considered": answer.considered, "entries": answer.entries, "reason": answer.reason,
+            "considered": answer.considered, "entries": answer.entries, "why": answer.why, "reason": answer.reason,
             "nearest": answer.nearest, "nearest_distances": answer.nearest_distances, "own": own is not None,
             "seconds": time.perf_counter() - started}
 
@@ -404,19 +412,26 @@ class ShardedSearcher:
         answer.hits = [Hit(rank, float(distance), absolute(self.root, parent or relative), relative, metadata, parent, count, gap)
                        for rank, (distance, _, relative, metadata, parent, count, gap) in enumerate(found[:top], start=1)]
         if not answer.hits:
-            answer.reason = _reason(answers, filters)
+            answer.why, answer.reason = self._no_hit(answers, filters)
         return answer
 
+    def _no_hit(self, answers: list, filters: Filters) -> tuple[str, str]:
+        """Why no shard has a hit, as one store of every entry says it: the road checks in the
+        order of :data:`~shapeidx.search.hits.NO_HIT`, and the whole store passes a check where
+        any shard does, so it stops at the latest check a shard stopped at."""
+        why = max((a["why"] for a in answers if a["why"] is not None), key=NO_HIT.index)  # each shard says why it has none
+        if why == "empty":
+            return why, self.empty_reason()
+        if why == "max_distance":
+            nearest = [a["nearest"] for a in answers if a["nearest"] is not None]
+            return why, beyond_reason(filters.max_distance, min(nearest) if nearest else None)
+        # the other words name the filters only, the same in every shard
+        return why, next(a["reason"] for a in answers if a["why"] == why)
 
-def _reason(answers: list, filters: Filters) -> str:
-    """Why no shard has a hit: the shards' own reason when they agree, else what they share."""
-    nearest = [a["nearest"] for a in answers if a["nearest"] is not None]
-    if filters.max_distance is not None and nearest:
-        return f"no hit within --max-distance {filters.max_distance:g} (the nearest is at {min(nearest):.6g})"
-    reasons = [a["reason"] for a in answers if a["reason"]]
-    if not any(a["entries"] for a in answers):
-        return "the store has no entry yet (run 'shapeidx build DIR --shards N' first)"
-    if filters.where and all(r.startswith("no entry of the store matches") or r.startswith("the store has no")
-                             or r.startswith("none of the store") for r in reasons):
-        return f"no entry of the store matches {' and '.join(f'--where {c}' for c in filters.conditions())}"
-    return min(reasons, key=len) if reasons else "no entry is left to rank"
+    def empty_reason(self) -> str:
+        """Why the store has nothing to rank (:func:`~shapeidx.search.searcher.empty_store_reason`):
+        a running shard's build first, else a stopped one's."""
+        states = [s for s in self._each(shard_build_state, [(path,) for path in self.shards]) if s]
+        state = next((s for s in states if s.get("state") == "running"), None) or next(
+            (s for s in states if s.get("state") in ("stopped", "interrupted")), None)
+        return empty_store_reason(self.store, self.rows, state, sharded=True)

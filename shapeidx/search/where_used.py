@@ -130,9 +130,9 @@ def where_used(searcher, query, top: int = 10, metric: str = DEFAULT_METRIC, max
     parents = np.array([p or searcher.view.path_at(i) for i, p in enumerate(parents)], dtype=object) if (
         parents == "").any() else parents
     answer.files = len(set(parents.tolist()))
-    keep, reason = searcher.keep(query, Filters(scale=scale))
-    if reason is not None:
-        answer.reason = reason
+    keep, why = searcher.keep(query, Filters(scale=scale))
+    if why is not None:
+        answer.reason = why[1]
         return answer
     if scale == "sensitive" and same_size is not None:
         close = _same_size(searcher, query, same_size)
