@@ -405,7 +405,6 @@ def test_where_used_on_a_sharded_store_answers_as_one_store(part_trees, tmp_path
     import re
 
     from shapeidx.search import open_searcher
-    from shapeidx.search.where_used import question_of_entry, where_used
 
     tree, one, sharded = part_trees
     with open_searcher(one, parts=True) as single, open_searcher(sharded, parts=True) as whole:
@@ -415,8 +414,8 @@ def test_where_used_on_a_sharded_store_answers_as_one_store(part_trees, tmp_path
         asked = entries[::3] + files[::2]  # sub-entries, files of one part and files of several
         for entry in asked:
             for scale, within in (("sensitive", None), ("invariant", None), ("invariant", 0.003)):
-                a = where_used(single, question_of_entry(single, entry), 4, "all-angle", within, scale)
-                b = where_used(whole, question_of_entry(whole, entry), 4, "all-angle", within, scale)
+                a = single.where_used(single.question_of_entry(entry), 4, "all-angle", within, scale)
+                b = whole.where_used(whole.question_of_entry(entry), 4, "all-angle", within, scale)
                 assert (a.to_dict() | {"store": ""}, a.reason) == (b.to_dict() | {"store": ""}, b.reason), entry
     # through the command line: a file asked, text and JSON, a sheet with the same pictures
     part = tree / files[1]

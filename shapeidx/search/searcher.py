@@ -35,6 +35,7 @@ from .distances import RANK_THREADS, nearest
 from .hits import Answer, Hit, absolute
 from .same_part import SAME_PART_CANDIDATES, SAME_PART_RANK, measures_of_solid, same_part_scores, shape_gap, shape_measures
 from .where import Condition, keep_mask, parse_where
+from .where_used import DEFAULT_METRIC as WHERE_USED_METRIC, SAME_SIZE
 
 
 @dataclass(frozen=True)
@@ -142,10 +143,12 @@ def entry_path_in(root, file) -> str | None:
 #: What every searcher of a store offers (:class:`Searcher`, and
 #: :class:`~shapeidx.search.sharded.ShardedSearcher` for a sharded store, both opened by
 #: :func:`~shapeidx.search.sharded.open_searcher`): the methods the query road's surfaces call
-#: (query, serve, check-new, classify, plot, sheets), with the same parameters, and the
-#: attributes beside them.
+#: (query, where-used, serve, check-new, classify, plot, sheets), with the same parameters, and
+#: the attributes beside them. ``where_used`` and ``question_of_entry`` ask a searcher opened
+#: with ``parts=True``.
 QUERY_INTERFACE = ("search", "query_of_part", "query_of_entry", "query_measures", "entry_path_of", "resolve_entry", "signature_of",
-                   "entry_paths", "metadata_keys", "present_metadata_keys", "warm", "close", "__enter__", "__exit__")
+                   "entry_paths", "metadata_keys", "present_metadata_keys", "warm", "close", "__enter__", "__exit__",
+                   "where_used", "question_of_entry")
 QUERY_ATTRIBUTES = ("store", "root", "params")
 
 
@@ -197,6 +200,9 @@ class Searcher:
 
         self.store = Path(store)
         if parts:
+            owner = owner_of_parts(self.store)
+            if owner is not None:  # STORE/parts given for STORE: its own sub-parts would be STORE/parts/parts
+                raise StoreError(f"the store {store} is the sub-parts store of {owner}: give --store {owner}")
             self.store = member_stores(store, parts=True)[0]
         #: Whether this searcher ranks the store's sub-entries (``build --parts``) instead of its
         #: files (also when opened on the sub-parts store itself, as each shard's is).
@@ -610,6 +616,61 @@ class Searcher:
             count = self._file_column(COUNT_COLUMN, None)
             self._cache["parents"] = (self._file_column(PARENT_COLUMN, None), count.astype(np.int64))
         return self._cache["parents"]
+
+    # -- where-used (a searcher of a store's sub-parts)
+    def where_used(self, query: Query, top: int = 10, metric: str = WHERE_USED_METRIC, max_distance: float | None = None,
+                   scale: str = "sensitive", same_size: float | None = SAME_SIZE, threads: int = RANK_THREADS):
+        """The ``top`` files holding a sub-part nearest to ``query``, nearest first.
+
+        Parameters
+        ----------
+        query : Query
+            Of this searcher (:meth:`query_of_part`, :meth:`question_of_entry`).
+        top : int
+            Files wanted.
+        metric : str
+            A metric's name (default: where-used's, :data:`shapeidx.search.where_used.DEFAULT_METRIC`).
+        max_distance : float or None
+            Every file with a sub-part within it, each counting all of them.
+        scale : str
+            ``"sensitive"``: only sub-parts of the query's size; ``"invariant"``: any size.
+        same_size : float or None
+            With ``"sensitive"``: the largest relative difference of principal radii (None: the size band only).
+
+        Returns
+        -------
+        WhereUsed
+            :func:`shapeidx.search.where_used.uses_in_store`'s answer; with no file, why.
+        """
+        from .where_used import uses_in_store
+
+        return uses_in_store(self, query, top, metric, Filters(max_distance=max_distance, scale=scale), same_size,
+                             threads)
+
+    def question_of_entry(self, entry, files=None) -> Query:
+        """Where-used's question for an entry of the store (``--id``; the web page's ids).
+
+        A sub-entry ``FILE#n`` is asked as stored; a file that is one part is its ``FILE#1``
+        (the same entry). A file of several parts is asked whole: its signature from the
+        whole-file store ``files`` (a :class:`Searcher` of the store whose sub-parts this
+        searcher ranks, opened here when None), with its principal radii, so that the
+        same-size test holds for it too (a file that holds the same assembly fused into one
+        solid is where it is used).
+        """
+        name = self.resolve_entry(entry)
+        if self.view.find(name) is not None:
+            return self.query_of_entry(name)
+        for whole in dict.fromkeys(w for w in (name, self.entry_path_of(entry)) if w):
+            if self.view.find(f"{whole}#1") is not None and self.view.find(f"{whole}#2") is None:
+                return self.query_of_entry(f"{whole}#1")
+        if files is None:
+            with Searcher(Path(self.store).parent) as files:  # the sub-parts' store is STORE/parts
+                return self.question_of_entry(entry, files)
+        query = files.query_of_entry(entry)  # an unknown or failed entry: StoreError, in words
+        at, row = files.view.locate(query.own)
+        query.extents = np.asarray(files.view.sources[at].column("entries/extents")[row], dtype=np.float64)
+        query.own = None  # its position is in the whole-file store
+        return query
 
     def empty_reason(self) -> str:
         """Why this store has nothing to rank (:func:`empty_store_reason`)."""

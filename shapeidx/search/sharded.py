@@ -40,6 +40,7 @@ from ..store.shards import shard_of_paths
 from .hits import NO_HIT, Answer, Hit, absolute
 from .same_part import SAME_PART_CANDIDATES, measures_of_solid, same_part_scores
 from .searcher import Filters, Query, Searcher, beyond_reason, empty_store_reason, entry_path_in, label_of, sign_part
+from .where_used import DEFAULT_METRIC as WHERE_USED_METRIC, SAME_SIZE
 
 
 def open_searcher(store, scheduler: str | None = None, parts: bool = False):
@@ -158,21 +159,19 @@ def shard_question(path: str, entry: str) -> tuple:
     """Where-used's question for ``entry`` in the shard whose sub-parts are at ``path``: its
     signature, the entry it is (a sub-entry wins its ties), whether that is a sub-entry, its
     principal radii."""
-    from .where_used import query_extents, question_of_entry
+    from .where_used import query_extents
 
     parts = _searcher(path)
-    query = question_of_entry(parts, entry, _searcher(str(Path(path).parent)))
+    query = parts.question_of_entry(entry, _searcher(str(Path(path).parent)))
     return query.signature, query.entry, query.own is not None, query_extents(parts, query)
 
 
 def where_used_shard(path: str, signature, entry: str | None, extents, top: int, metric: str,
                      max_distance: float | None, scale: str, same_size: float | None):
     """The shard's where-used answer (run where the shard is; ``path``: its sub-parts)."""
-    from .where_used import where_used
-
     searcher = _searcher(path)
     query = replace(_shard_query(searcher, signature, entry), extents=extents)
-    return where_used(searcher, query, top, metric, max_distance, scale, same_size)
+    return searcher.where_used(query, top, metric, max_distance, scale, same_size)
 
 
 def _shard_query(searcher: Searcher, signature, entry: str | None) -> Query:
@@ -331,21 +330,24 @@ class ShardedSearcher:
         """The paths of every shard's ranked entries, sorted."""
         return sorted(p for paths in self._each(shard_entry_paths, [(path,) for path in self.shards]) for p in paths)
 
-    def question_of_entry(self, entry) -> Query:
-        """Where-used's question for an entry (:func:`~shapeidx.search.where_used.question_of_entry`),
-        made in the shard that holds its file, with its principal radii for every shard."""
+    def question_of_entry(self, entry, files=None) -> Query:
+        """Where-used's question for an entry (:meth:`Searcher.question_of_entry`), made in the
+        shard that holds its file, with its principal radii for every shard (``files``: unused,
+        each shard asks its own whole-file store, where it is)."""
         name = self.resolve_entry(entry)
         signature, asked, sub_entry, extents = self.on_shard(self.shard_of(name), shard_question, name)
         # labelled as one store's question is: a sub-entry by its name, a whole file as given
         return Query(asked if sub_entry else os.fspath(entry), signature, None, asked, extents=extents)
 
-    def where_used(self, query: Query, top: int, metric: str, max_distance: float | None, scale: str,
-                   same_size: float | None):
-        """Every shard's :func:`~shapeidx.search.where_used.where_used`, merged: a file and its
-        sub-parts live in one shard, so the top ``top`` files are among the shards' top ``top``
-        (ties broken by path, as one store's answer is ordered)."""
-        from .where_used import WhereUsed, no_use_reason, principal_radii
+    def where_used(self, query: Query, top: int = 10, metric: str = WHERE_USED_METRIC,
+                   max_distance: float | None = None, scale: str = "sensitive", same_size: float | None = SAME_SIZE,
+                   threads: int | None = None):
+        """Every shard's :meth:`Searcher.where_used`, merged: a file and its sub-parts live in one
+        shard, so the top ``top`` files are among the shards' top ``top`` (ties broken by path, as
+        one store's answer is ordered); the parameters are :meth:`Searcher.where_used`'s."""
+        from .where_used import NO_USE, WhereUsed, check_question, no_use_reason, principal_radii
 
+        check_question(top, metric)
         extents = query.extents
         if extents is None and query.solid is not None:
             extents = principal_radii(query.solid)
@@ -357,11 +359,14 @@ class ShardedSearcher:
         for rank, use in enumerate(answer.uses, start=1):
             use.rank = rank
         if not answer.uses:
+            # as one store says it: where-used checks in the order of NO_USE, and the whole store
+            # passes a check where any shard does (as in search's merge)
             nearest = [a.nearest for a in answers if a.nearest is not None]
             answer.nearest = min(nearest) if nearest else None
-            reasons = [a.reason for a in answers if a.reason]
-            answer.reason = (no_use_reason(max_distance, answer.nearest) if answer.nearest is not None
-                             else min(reasons, key=len) if reasons else no_use_reason(None, None))
+            answer.why = max((a.why for a in answers if a.why is not None), key=NO_USE.index)
+            answer.reason = (self.empty_reason() if answer.why == "empty"
+                             else no_use_reason(max_distance, answer.nearest) if answer.why == "max_distance"
+                             else next(a.reason for a in answers if a.why == answer.why))
         return answer
 
     def sub_part_of(self, entry: str) -> dict | None:
