@@ -221,7 +221,6 @@ def main() -> None:
     queries = [(name, solids_of(tree / name)[0][index], inv, holders) for name, index, inv, holders in questions]
 
     from shapeidx.search import Searcher
-    from shapeidx.search.where_used import where_used
 
     sizes = args.sizes or [0.05]
     runs = [(m, sc, z) for m in metrics for sc in scales for z in sizes]
@@ -246,7 +245,7 @@ def main() -> None:
             asked.append({"query": name, "solid": index_of[k], "holders": holders})
             for metric, scale, size in runs:
                 res = results[(metric, scale, size)]
-                answer = where_used(searcher, question, top=max(10, r), metric=metric, scale=scale, same_size=size)
+                answer = searcher.where_used(question, top=max(10, r), metric=metric, scale=scale, same_size=size)
                 ranked = [u.relative_path for u in answer.uses]
                 res["r_precision"].append(len(set(ranked[:r]) & set(holders)) / r)
                 res["recall_10"].append(len(set(ranked[:10]) & set(holders)) / r)
@@ -257,11 +256,11 @@ def main() -> None:
                                     for u in answer.uses[:r]
                                     if u.relative_path in holders and u.count != holders[u.relative_path])
                 for tier, t in limits[metric].items():
-                    within = {u.relative_path for u in where_used(searcher, question, top=10**6, metric=metric,
-                                                                   max_distance=t, scale=scale, same_size=size).uses}
+                    within = {u.relative_path for u in searcher.where_used(question, top=10**6, metric=metric,
+                                                                           max_distance=t, scale=scale, same_size=size).uses}
                     if tier == "same":
-                        uses = where_used(searcher, question, top=10**6, metric=metric, max_distance=t, scale=scale,
-                                          same_size=size).uses
+                        uses = searcher.where_used(question, top=10**6, metric=metric, max_distance=t, scale=scale,
+                                                   same_size=size).uses
                         res["count_right_same"].extend(u.count == holders[u.relative_path] for u in uses
                                                        if u.relative_path in holders)
                     res["at"][tier][0] += len(within & set(holders))

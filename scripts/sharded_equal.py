@@ -47,7 +47,6 @@ def main(argv=None) -> int:
     from shapeidx.families.classify import classify_parts
     from shapeidx.families.labels import labels_from_paths
     from shapeidx.search import Filters, open_searcher
-    from shapeidx.search.where_used import question_of_entry, where_used
 
     rng = np.random.default_rng(args.seed)
     tally: dict = {}
@@ -86,8 +85,8 @@ def main(argv=None) -> int:
         for entry in picked + wholes:
             for scale, within in (("sensitive", None), ("invariant", None), ("invariant", 0.002)):
                 t = time.perf_counter()
-                same = _uses(where_used(one, question_of_entry(one, entry), 10, "all-angle", within, scale)) == _uses(
-                    where_used(sharded, question_of_entry(sharded, entry), 10, "all-angle", within, scale))
+                same = _uses(one.where_used(one.question_of_entry(entry), 10, "all-angle", within, scale)) == _uses(
+                    sharded.where_used(sharded.question_of_entry(entry), 10, "all-angle", within, scale))
                 count("where-used", same, time.perf_counter() - t)
     from click.testing import CliRunner
 

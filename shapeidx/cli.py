@@ -603,7 +603,6 @@ def where_used(part, store, entry, top, metric, max_distance, scale, same_size, 
     """
     from .errors import NoAnswer
     from .search import open_searcher
-    from .search.where_used import question_of_entry, where_used as rank_uses
     from .system import available_cores
 
     fmt = chosen_format(output_format, as_json)
@@ -615,10 +614,10 @@ def where_used(part, store, entry, top, metric, max_distance, scale, same_size, 
         raise ShapeidxError(f"{sheet}: no folder {os.path.dirname(os.path.abspath(sheet))} to write the sheet in")
     with open_searcher(_store_path(store), parts=True) as searcher:
         if entry:
-            question = question_of_entry(searcher, entry)
+            question = searcher.question_of_entry(entry)
         else:
             question = searcher.query_of_part(part, label=part, threads=available_cores())
-        answer = rank_uses(searcher, question, top, metric, max_distance, scale, same_size)
+        answer = searcher.where_used(question, top, metric, max_distance, scale, same_size)
         if sheet:
             from .pictures.sheet import where_used_sheet
 

@@ -339,6 +339,25 @@ class TestBuildAndWhereUsed:
         assert "sub-parts   7 entries (17 counted as the files hold them) of 4 files, 3 with several" in cli(
             "stats", "--store", store).stdout
 
+    def test_where_used_of_the_wrong_store_says_which_to_give_in_one_line(self, library, tmp_path):
+        """A store built without --parts: build it with --parts; the sub-parts store STORE/parts
+        given for STORE (its own sub-parts would be STORE/parts/parts): give --store STORE."""
+        root, query = library
+        plain, store = tmp_path / "plain.shapeidx", tmp_path / "s.shapeidx"
+        _build(root, plain)
+        _build(root, store, "--parts")
+        for asked in ((query,), ("--id", "boards/six.step")):
+            without = cli("where-used", *asked, "--store", plain)
+            assert_one_line_error(without, plain)
+            assert f"has no sub-parts: build it with 'shapeidx build DIR --store {plain} --parts'" in without.stderr
+            inside = cli("where-used", *asked, "--store", parts_store(store))
+            assert_one_line_error(inside, parts_store(store))
+            assert f"is the sub-parts store of {store}: give --store {store}" in inside.stderr
+            assert cli("where-used", *asked, "--store", store, "--scale", "invariant").exit_code == 0
+        ranked = cli("query", query, "--parts", "--store", parts_store(store))
+        assert_one_line_error(ranked, parts_store(store))
+        assert f"give --store {store}" in ranked.stderr
+
     def test_query_ranks_files_by_default_and_sub_parts_with_parts(self, library, tmp_path):
         root, query = library
         store = tmp_path / "s.shapeidx"

@@ -112,6 +112,50 @@ def test_ties_a_query_file_and_its_own_entry_merge_as_in_one_store(trees):
     assert nothing.stderr.split("no hit", 1)[1] == reference.stderr.split("no hit", 1)[1]
 
 
+def test_why_no_hit_is_said_as_one_store_says_it(trees, data_dir, tmp_path):
+    """Each shard says why it has no hit in a word (Answer.why) and the merge decides on the word,
+    not on the shards' texts: the same words as one store's, empty shards or not; a store whose
+    every file failed says so (one text for both, with the store's path)."""
+    from shapeidx.search import Filters, open_searcher, parse_where
+
+    def said(store, entry, filters=None, **among):
+        with open_searcher(store) as searcher:
+            answer = searcher.search(searcher.query_of_entry(entry), 3, filters=filters, **among)
+            return answer.why, answer.reason.replace(str(store), "STORE")
+
+    _, _, parts, one, sharded = trees
+    asked = [{"filters": Filters(where=tuple(parse_where(["material=gold"])))},
+             {"filters": Filters(exclude_self=True, max_distance=1e-12)},
+             {"among": {"no/such.wrl"}, "among_reason": "no labelled voter is left"}]
+    for kind, question in zip(("where", "max_distance", "among"), asked):
+        expected = said(one, parts[2], **question)
+        assert expected[0] == kind and said(sharded, parts[2], **question) == expected
+    # one good file among broken ones, in more shards than files: most shards are empty
+    tree = tmp_path / "few"
+    tree.mkdir()
+    good = sorted((data_dir / "kicad6" / "Diode_SMD").glob("*.wrl"))[0]
+    shutil.copy(good, tree / good.name)
+    (tree / "broken.wrl").write_text("not a part")
+    few_one, few_sharded = tmp_path / "few-one.shapeidx", tmp_path / "few-sharded.shapeidx"
+    for store, extra in ((few_one, ()), (few_sharded, ("--shards", 4))):
+        assert build(tree, store, "--workers", "1", *extra).exit_code == 0
+    alone = {"filters": Filters(exclude_self=True)}
+    assert said(few_sharded, good.name, **alone) == said(few_one, good.name, **alone) == (
+        "exclude_self", "no entry but the query's own is left (--exclude-self)")
+    (tree / good.name).unlink()
+    (tree / "also-broken.wrl").write_text("not a part either")
+    for store, extra in ((few_one, ()), (few_sharded, ("--shards", 4))):
+        assert build(tree, store, "--workers", "1", *extra).exit_code == 0
+    part = data_dir / "kicad6" / "Diode_SMD" / good.name
+    answers = []
+    for store in (few_one, few_sharded):
+        with open_searcher(store) as searcher:
+            answer = searcher.search(searcher.query_of_part(part), 3)
+            answers.append((answer.why, answer.reason.replace(str(store), "STORE")))
+    assert answers[0] == answers[1] == (
+        "empty", "none of the store's 2 entries could be indexed ('shapeidx stats --failed --store STORE' lists why)")
+
+
 def test_on_a_dask_cluster_every_shard_answers_from_a_worker(trees, cluster, tmp_path):
     tree, table, parts, one, _ = trees
     # the sharded build on the cluster's workers
@@ -361,7 +405,6 @@ def test_where_used_on_a_sharded_store_answers_as_one_store(part_trees, tmp_path
     import re
 
     from shapeidx.search import open_searcher
-    from shapeidx.search.where_used import question_of_entry, where_used
 
     tree, one, sharded = part_trees
     with open_searcher(one, parts=True) as single, open_searcher(sharded, parts=True) as whole:
@@ -371,8 +414,8 @@ def test_where_used_on_a_sharded_store_answers_as_one_store(part_trees, tmp_path
         asked = entries[::3] + files[::2]  # sub-entries, files of one part and files of several
         for entry in asked:
             for scale, within in (("sensitive", None), ("invariant", None), ("invariant", 0.003)):
-                a = where_used(single, question_of_entry(single, entry), 4, "all-angle", within, scale)
-                b = where_used(whole, question_of_entry(whole, entry), 4, "all-angle", within, scale)
+                a = single.where_used(single.question_of_entry(entry), 4, "all-angle", within, scale)
+                b = whole.where_used(whole.question_of_entry(entry), 4, "all-angle", within, scale)
                 assert (a.to_dict() | {"store": ""}, a.reason) == (b.to_dict() | {"store": ""}, b.reason), entry
     # through the command line: a file asked, text and JSON, a sheet with the same pictures
     part = tree / files[1]

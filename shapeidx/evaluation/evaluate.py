@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..distance import ANGLE_FEATURES, ANGLE_METRICS, FEATURES, LEARNED, METRICS, REGISTRY, metric_values
+from ..distance import ANGLE_FEATURES, FEATURES, LEARNED, METRICS, REGISTRY, metric_values, metric as metric_record
 from ..errors import ShapeidxError
 from ..search.distances import entry_features
 from ..signing.parameters import HISTOGRAMS
@@ -160,13 +160,38 @@ def distance_matrices(data: LabelledFeatures, metrics=METRICS) -> dict:
 
 
 def cross_validate_unified(data: LabelledFeatures, folds: int = 4, repeats: int = 3) -> dict:
-    """unified's scores with combined-angle's weights never trained on the query's class (its
-    twin discount, all-angle, learns nothing)."""
+    """unified's scores with the weights of the metric it is made on (its record's
+    ``learned_from``, combined-angle) never trained on the query's class (its twin discount,
+    all-angle, learns nothing)."""
     from ..distance.combined import unified_of
 
     all_angle = distance_matrices(data, ("all-angle",))["all-angle"]
-    return cross_validate(data.learned_features("combined-angle"), data.labels, folds, repeats,
+    return cross_validate(data.learned_features(REGISTRY["unified"].learned_from), data.labels, folds, repeats,
                           then=lambda distance: unified_of(distance, all_angle))
+
+
+#: How a metric made on a learned one (its record's ``learned_from``) is scored cross-validated:
+#: its distance from the learned one's is its own formula's, which the record does not give apart.
+MADE_ON_LEARNED = {"unified": cross_validate_unified}
+
+
+def cross_validated_rows(data: LabelledFeatures, metrics) -> dict:
+    """The rows of ``--cross-validate``, in the registry's order: ``"NAME (cross-validated)"``
+    -> its scores with weights never trained on the query's class.
+
+    A row for the combined metric (always: what the option learns), for each metric of
+    ``metrics`` whose record has learned weights (``learned``), and for each one made on such
+    a metric (``learned_from``: :data:`MADE_ON_LEARNED` says how).
+    """
+    rows = {}
+    for name, record in REGISTRY.items():
+        if name != "combined" and name not in metrics:
+            continue
+        if record.learned:
+            rows[f"{name} (cross-validated)"] = cross_validate(data.learned_features(name), data.labels)
+        elif record.learned_from:
+            rows[f"{name} (cross-validated)"] = MADE_ON_LEARNED[name](data)
+    return rows
 
 
 def per_class_scores(scores: dict, labels: np.ndarray) -> dict:
@@ -194,7 +219,8 @@ def evaluate(reader, metrics=METRICS, per_class: bool = False, cross_validated: 
         Add each class's scores.
     cross_validated : bool
         Add ``"combined (cross-validated)"``: the combined metric's weights learned on this
-        very collection, each query scored with weights that never saw its class.
+        very collection, each query scored with weights that never saw its class; and such a
+        row for each learned metric of ``metrics`` and each made on one (:func:`cross_validated_rows`).
     query_seeds : sequence of int
         Sign each query again with each of these seeds (:func:`labelled_features`) instead of
         ranking the stored signatures against each other: every score is then the mean over
@@ -227,7 +253,7 @@ def _evaluate_once(reader, data: LabelledFeatures, metrics, per_class: bool, cro
     """:func:`evaluate` on one set of features (with ``drawn``: queries drawn again, so the
     exact copy's figure ``copy`` is added)."""
     if data.angle_features is None:  # a store built before the normal-angle histograms
-        metrics = [m for m in metrics if m not in ANGLE_METRICS]
+        metrics = [m for m in metrics if not metric_record(m).angles]
     sizes = Counter(data.labels)
     if sum(size for size in sizes.values() if size > 1) < 2:
         raise ShapeidxError(
@@ -253,18 +279,15 @@ def _evaluate_once(reader, data: LabelledFeatures, metrics, per_class: bool, cro
 
         entry.update(family_scores(matrices[name], data.labels))
         result["metrics"][name] = entry
-    for metric in result["metrics"]:
-        if metric in REGISTRY and REGISTRY[metric].weights_of:
-            learned = in_sample(reader, result["models"], result["classes"], REGISTRY[metric].weights_of)
-            result["metrics"][metric]["in_sample"] = learned is not None
+    for name, entry in result["metrics"].items():
+        weights_of = REGISTRY[name].weights_of if name in REGISTRY else None
+        if weights_of:
+            learned = in_sample(reader, result["models"], result["classes"], weights_of)
+            entry["in_sample"] = learned is not None
             if learned:
-                result["metrics"][metric].update(learned)
+                entry.update(learned)
     if cross_validated:
-        result["metrics"]["combined (cross-validated)"] = cross_validate(data.features, data.labels)
-        if data.angle_features is not None and "combined-angle" in metrics:
-            result["metrics"]["combined-angle (cross-validated)"] = cross_validate(data.learned_features("combined-angle"),
-                                                                                 data.labels)
-        if data.angle_features is not None and "unified" in metrics:
-            result["metrics"]["unified (cross-validated)"] = cross_validate_unified(data)
+        # the angle metrics are out of `metrics` already for a store without angles
+        result["metrics"].update(cross_validated_rows(data, metrics))
     result["queries"] = int(retrieval_scores(matrices[metrics[0]], data.labels)["queries"]) if metrics else 0
     return result

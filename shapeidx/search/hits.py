@@ -13,6 +13,13 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 
+#: Why an answer has no hit, in a word (:attr:`Answer.why`), in the order the search road
+#: checks: the store has nothing to rank, ``--where`` matches nothing, the size band of
+#: ``--scale sensitive`` keeps nothing, ``--exclude-self`` leaves nothing, the voters
+#: (``among``) leave nothing, nothing within ``--max-distance``. A sharded store's merge
+#: decides on these, not on the words (:mod:`shapeidx.search.sharded`).
+NO_HIT = ("empty", "where", "scale", "exclude_self", "among", "max_distance")
+
 
 @dataclass
 class Hit:
@@ -82,6 +89,8 @@ class Answer:
         The store's ok entries.
     reason : str or None
         Why there is no hit, in words (None when there are hits).
+    why : str or None
+        The same, in a word of :data:`NO_HIT` (None when there are hits).
     filters : list of str
         The filters that applied, as given.
     signature : Signature
@@ -105,6 +114,7 @@ class Answer:
     #: With the same-part order: the query's smallest distances, which set the scale of the
     #: gaps (:mod:`shapeidx.search.same_part`; merging shards' answers).
     nearest_distances: list | None = None
+    why: str | None = None
 
     def to_dict(self) -> dict:
         """The JSON object of one query (docs/cli.md documents every field)."""

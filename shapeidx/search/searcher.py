@@ -35,6 +35,7 @@ from .distances import RANK_THREADS, nearest
 from .hits import Answer, Hit, absolute
 from .same_part import SAME_PART_CANDIDATES, SAME_PART_RANK, measures_of_solid, same_part_scores, shape_gap, shape_measures
 from .where import Condition, keep_mask, parse_where
+from .where_used import DEFAULT_METRIC as WHERE_USED_METRIC, SAME_SIZE
 
 
 @dataclass(frozen=True)
@@ -142,10 +143,12 @@ def entry_path_in(root, file) -> str | None:
 #: What every searcher of a store offers (:class:`Searcher`, and
 #: :class:`~shapeidx.search.sharded.ShardedSearcher` for a sharded store, both opened by
 #: :func:`~shapeidx.search.sharded.open_searcher`): the methods the query road's surfaces call
-#: (query, serve, check-new, classify, plot, sheets), with the same parameters, and the
-#: attributes beside them.
+#: (query, where-used, serve, check-new, classify, plot, sheets), with the same parameters, and
+#: the attributes beside them. ``where_used`` and ``question_of_entry`` ask a searcher opened
+#: with ``parts=True``.
 QUERY_INTERFACE = ("search", "query_of_part", "query_of_entry", "query_measures", "entry_path_of", "resolve_entry", "signature_of",
-                   "entry_paths", "metadata_keys", "present_metadata_keys", "warm", "close", "__enter__", "__exit__")
+                   "entry_paths", "metadata_keys", "present_metadata_keys", "warm", "close", "__enter__", "__exit__",
+                   "where_used", "question_of_entry")
 QUERY_ATTRIBUTES = ("store", "root", "params")
 
 
@@ -197,6 +200,9 @@ class Searcher:
 
         self.store = Path(store)
         if parts:
+            owner = owner_of_parts(self.store)
+            if owner is not None:  # STORE/parts given for STORE: its own sub-parts would be STORE/parts/parts
+                raise StoreError(f"the store {store} is the sub-parts store of {owner}: give --store {owner}")
             self.store = member_stores(store, parts=True)[0]
         #: Whether this searcher ranks the store's sub-entries (``build --parts``) instead of its
         #: files (also when opened on the sub-parts store itself, as each shard's is).
@@ -399,15 +405,15 @@ class Searcher:
         return self.signature_at(self.view.position_of(self.view.find(entry)))
 
     # -- the answer
-    def keep(self, query: Query, filters: Filters) -> tuple[np.ndarray | None, str | None]:
+    def keep(self, query: Query, filters: Filters) -> tuple[np.ndarray | None, tuple[str, str] | None]:
         """The keep-mask of ``filters`` for ``query`` (None: every entry), and, when it keeps
-        nothing, why, in words."""
+        nothing, why: ``(kind, words)``, the kind one of :data:`~shapeidx.search.hits.NO_HIT`."""
         from ..distance.scale import within_band
 
         n = len(self.view)
         mask = keep_mask(filters.conditions(), self.metadata_column, self.metadata_keys())
         if mask is not None and not mask.any():
-            return mask, f"no entry of the store matches {' and '.join(f'--where {c}' for c in filters.conditions())}"
+            return mask, ("where", f"no entry of the store matches {' and '.join(f'--where {c}' for c in filters.conditions())}")
         if filters.scale != "invariant":
             from ..distance.scale import check_scale
 
@@ -416,12 +422,13 @@ class Searcher:
             band = within_band(query.signature.histograms["all"].mean, sizes)
             mask = band if mask is None else mask & band
             if not mask.any():
-                return mask, "no entry of the store (that matches the filters) is within the size band of --scale sensitive"
+                return mask, ("scale", "no entry of the store (that matches the filters) is within the size band of"
+                                       " --scale sensitive")
         if filters.exclude_self and query.own is not None:
             mask = np.ones(n, dtype=bool) if mask is None else mask.copy()
             mask[query.own] = False
             if not mask.any():
-                return mask, "no entry but the query's own is left (--exclude-self)"
+                return mask, ("exclude_self", "no entry but the query's own is left (--exclude-self)")
         return mask, None
 
     def search(self, query: Query, top: int = 10, metric: str = default_metric("query"), filters: Filters | None = None,
@@ -442,16 +449,17 @@ class Searcher:
         answer = Answer(query.label, query.path, query.entry, metric, str(self.store.resolve()), self.root, [],
                         considered=0, entries=len(self.view), filters=filters.described(), signature=query.signature)
         if len(self.view) == 0:
-            answer.reason = self.empty_reason()
+            answer.why, answer.reason = "empty", self.empty_reason()
             return answer
-        keep, answer.reason = self.keep(query, filters)
-        if among is not None and answer.reason is None:
+        keep, why = self.keep(query, filters)
+        if among is not None and why is None:
             among = self._among_mask(among)
             keep = among if keep is None else keep & among
             if not keep.any():
-                answer.reason = among_reason or "no entry is left to rank"
+                why = ("among", among_reason or "no entry is left to rank")
         answer.considered = len(self.view) if keep is None else int(keep.sum())
-        if answer.reason is not None:
+        if why is not None:
+            answer.why, answer.reason = why
             return answer
         own = query.own if keep is None or query.own is None or keep[query.own] else None
         self.asked()
@@ -467,8 +475,7 @@ class Searcher:
         if not valid.any():
             nearest_at = float(np.min(exact)) if len(exact) else float("nan")
             answer.nearest = nearest_at if np.isfinite(nearest_at) else None
-            answer.reason = (f"no hit within --max-distance {filters.max_distance:g}"
-                             + (f" (the nearest is at {nearest_at:.6g})" if np.isfinite(nearest_at) else ""))
+            answer.why, answer.reason = "max_distance", beyond_reason(filters.max_distance, answer.nearest)
             return answer
         chosen, exact = chosen[valid], exact[valid]
         if gaps is None:
@@ -611,21 +618,99 @@ class Searcher:
             self._cache["parents"] = (self._file_column(PARENT_COLUMN, None), count.astype(np.int64))
         return self._cache["parents"]
 
+    # -- where-used (a searcher of a store's sub-parts)
+    def where_used(self, query: Query, top: int = 10, metric: str = WHERE_USED_METRIC, max_distance: float | None = None,
+                   scale: str = "sensitive", same_size: float | None = SAME_SIZE, threads: int = RANK_THREADS):
+        """The ``top`` files holding a sub-part nearest to ``query``, nearest first.
+
+        Parameters
+        ----------
+        query : Query
+            Of this searcher (:meth:`query_of_part`, :meth:`question_of_entry`).
+        top : int
+            Files wanted.
+        metric : str
+            A metric's name (default: where-used's, :data:`shapeidx.search.where_used.DEFAULT_METRIC`).
+        max_distance : float or None
+            Every file with a sub-part within it, each counting all of them.
+        scale : str
+            ``"sensitive"``: only sub-parts of the query's size; ``"invariant"``: any size.
+        same_size : float or None
+            With ``"sensitive"``: the largest relative difference of principal radii (None: the size band only).
+
+        Returns
+        -------
+        WhereUsed
+            :func:`shapeidx.search.where_used.uses_in_store`'s answer; with no file, why.
+        """
+        from .where_used import uses_in_store
+
+        return uses_in_store(self, query, top, metric, Filters(max_distance=max_distance, scale=scale), same_size,
+                             threads)
+
+    def question_of_entry(self, entry, files=None) -> Query:
+        """Where-used's question for an entry of the store (``--id``; the web page's ids).
+
+        A sub-entry ``FILE#n`` is asked as stored; a file that is one part is its ``FILE#1``
+        (the same entry). A file of several parts is asked whole: its signature from the
+        whole-file store ``files`` (a :class:`Searcher` of the store whose sub-parts this
+        searcher ranks, opened here when None), with its principal radii, so that the
+        same-size test holds for it too (a file that holds the same assembly fused into one
+        solid is where it is used).
+        """
+        name = self.resolve_entry(entry)
+        if self.view.find(name) is not None:
+            return self.query_of_entry(name)
+        for whole in dict.fromkeys(w for w in (name, self.entry_path_of(entry)) if w):
+            if self.view.find(f"{whole}#1") is not None and self.view.find(f"{whole}#2") is None:
+                return self.query_of_entry(f"{whole}#1")
+        if files is None:
+            with Searcher(Path(self.store).parent) as files:  # the sub-parts' store is STORE/parts
+                return self.question_of_entry(entry, files)
+        query = files.query_of_entry(entry)  # an unknown or failed entry: StoreError, in words
+        at, row = files.view.locate(query.own)
+        query.extents = np.asarray(files.view.sources[at].column("entries/extents")[row], dtype=np.float64)
+        query.own = None  # its position is in the whole-file store
+        return query
+
     def empty_reason(self) -> str:
-        """Why a store has nothing to rank: no entry yet (a build runs, stopped, or none ran), or none ok."""
+        """Why this store has nothing to rank (:func:`empty_store_reason`)."""
         from ..store.lock import read_build_state
 
-        total = len(self.reader)
-        if total:
-            return (f"none of the store's {total} entries could be indexed ('shapeidx stats --failed --store"
-                    f" {self.store}' lists why)")
-        state = read_build_state(self.store) or {}
-        if state.get("state") == "running":
-            return (f"the store has no entry yet: a build is running (pid {state.get('pid')} on {state.get('host')},"
-                    f" since {state.get('started')}); its first commit comes within --commit-interval")
-        if state.get("state") in ("stopped", "interrupted"):
-            return f"the store has no entry: its last build {state['state']} before its first commit; run it again"
-        return "the store has no entry yet (run 'shapeidx build DIR' first)"
+        return empty_store_reason(self.store, len(self.reader), read_build_state(self.store))
+
+
+def empty_store_reason(store, rows: int, state: dict | None, sharded: bool = False) -> str:
+    """Why a store has nothing to rank, in words: the one text of every searcher.
+
+    Parameters
+    ----------
+    store : path
+        The store as opened (a sharded store's own folder, not a shard's).
+    rows : int
+        Its entries, failed ones too.
+    state : dict or None
+        Its last build's record (:func:`shapeidx.store.lock.read_build_state`; a sharded
+        store's: a running shard's, else a stopped one's).
+    sharded : bool
+        A sharded store, which its build command names (``--shards N``).
+    """
+    if rows:
+        return (f"none of the store's {rows} entries could be indexed ('shapeidx stats --failed --store"
+                f" {store}' lists why)")
+    state = state or {}
+    if state.get("state") == "running":
+        return (f"the store has no entry yet: a build is running (pid {state.get('pid')} on {state.get('host')},"
+                f" since {state.get('started')}); its first commit comes within --commit-interval")
+    if state.get("state") in ("stopped", "interrupted"):
+        return f"the store has no entry: its last build {state['state']} before its first commit; run it again"
+    return f"the store has no entry yet (run 'shapeidx build DIR{' --shards N' if sharded else ''}' first)"
+
+
+def beyond_reason(max_distance: float, nearest: float | None) -> str:
+    """Why no hit is within ``max_distance``: the words, with the nearest distance when there was one."""
+    nearest_at = f" (the nearest is at {nearest:.6g})" if nearest is not None else ""
+    return f"no hit within --max-distance {max_distance:g}{nearest_at}"
 
 
 def check_usable(reader) -> None:

@@ -37,9 +37,10 @@ import numpy as np
 from ..distance.metrics import default_metric
 from ..errors import StoreError
 from ..store.shards import shard_of_paths
-from .hits import Answer, Hit, absolute
+from .hits import NO_HIT, Answer, Hit, absolute
 from .same_part import SAME_PART_CANDIDATES, measures_of_solid, same_part_scores
-from .searcher import Filters, Query, Searcher, entry_path_in, label_of, sign_part
+from .searcher import Filters, Query, Searcher, beyond_reason, empty_store_reason, entry_path_in, label_of, sign_part
+from .where_used import DEFAULT_METRIC as WHERE_USED_METRIC, SAME_SIZE
 
 
 def open_searcher(store, scheduler: str | None = None, parts: bool = False):
@@ -134,6 +135,13 @@ def warm_shard(path: str) -> None:
         searcher.warm()
 
 
+def shard_build_state(path: str) -> dict | None:
+    """The shard's last build's record (:func:`shapeidx.store.lock.read_build_state`)."""
+    from ..store.lock import read_build_state
+
+    return read_build_state(Path(path))
+
+
 def shard_entry(path: str, entry: str) -> tuple:
     """The stored signature and exact measures of ``entry`` in the shard (StoreError as
     :meth:`Searcher.query_of_entry`)."""
@@ -151,21 +159,19 @@ def shard_question(path: str, entry: str) -> tuple:
     """Where-used's question for ``entry`` in the shard whose sub-parts are at ``path``: its
     signature, the entry it is (a sub-entry wins its ties), whether that is a sub-entry, its
     principal radii."""
-    from .where_used import query_extents, question_of_entry
+    from .where_used import query_extents
 
     parts = _searcher(path)
-    query = question_of_entry(parts, entry, _searcher(str(Path(path).parent)))
+    query = parts.question_of_entry(entry, _searcher(str(Path(path).parent)))
     return query.signature, query.entry, query.own is not None, query_extents(parts, query)
 
 
 def where_used_shard(path: str, signature, entry: str | None, extents, top: int, metric: str,
                      max_distance: float | None, scale: str, same_size: float | None):
     """The shard's where-used answer (run where the shard is; ``path``: its sub-parts)."""
-    from .where_used import where_used
-
     searcher = _searcher(path)
     query = replace(_shard_query(searcher, signature, entry), extents=extents)
-    return where_used(searcher, query, top, metric, max_distance, scale, same_size)
+    return searcher.where_used(query, top, metric, max_distance, scale, same_size)
 
 
 def _shard_query(searcher: Searcher, signature, entry: str | None) -> Query:
@@ -184,7 +190,8 @@ def search_shard(path: str, signature, entry: str | None, top: int, metric: str,
                  among=None, among_reason: str = "", measures=None) -> dict:
     """The shard's exact top ``top`` (run where the shard is): each hit as (distance, not the
     query's own entry, relative path, metadata, its file and count when it is a sub-entry, its
-    exact-measure gap), in the store's order; the counts; why none. With the same-part order
+    exact-measure gap), in the store's order; the counts; why none (``why``: its kind, one of
+    :data:`~shapeidx.search.hits.NO_HIT`, and ``reason``: its words). With the same-part order
     (``measures``: the query's exact measures) the shard's top :data:`SAME_PART_CANDIDATES` and
     its nearest distances, for the merge to order them with the scale of the whole store."""
     import time
@@ -197,7 +204,7 @@ def search_shard(path: str, signature, entry: str | None, top: int, metric: str,
     answer = searcher.search(query, asked, metric, filters, among=among, among_reason=among_reason)
     return {"hits": [(hit.distance, hit.relative_path != query.entry, hit.relative_path, hit.metadata, hit.parent,
                       hit.count, hit.shape_gap) for hit in answer.hits],
-            "considered": answer.considered, "entries": answer.entries, "reason": answer.reason,
+            "considered": answer.considered, "entries": answer.entries, "why": answer.why, "reason": answer.reason,
             "nearest": answer.nearest, "nearest_distances": answer.nearest_distances, "own": own is not None,
             "seconds": time.perf_counter() - started}
 
@@ -323,21 +330,24 @@ class ShardedSearcher:
         """The paths of every shard's ranked entries, sorted."""
         return sorted(p for paths in self._each(shard_entry_paths, [(path,) for path in self.shards]) for p in paths)
 
-    def question_of_entry(self, entry) -> Query:
-        """Where-used's question for an entry (:func:`~shapeidx.search.where_used.question_of_entry`),
-        made in the shard that holds its file, with its principal radii for every shard."""
+    def question_of_entry(self, entry, files=None) -> Query:
+        """Where-used's question for an entry (:meth:`Searcher.question_of_entry`), made in the
+        shard that holds its file, with its principal radii for every shard (``files``: unused,
+        each shard asks its own whole-file store, where it is)."""
         name = self.resolve_entry(entry)
         signature, asked, sub_entry, extents = self.on_shard(self.shard_of(name), shard_question, name)
         # labelled as one store's question is: a sub-entry by its name, a whole file as given
         return Query(asked if sub_entry else os.fspath(entry), signature, None, asked, extents=extents)
 
-    def where_used(self, query: Query, top: int, metric: str, max_distance: float | None, scale: str,
-                   same_size: float | None):
-        """Every shard's :func:`~shapeidx.search.where_used.where_used`, merged: a file and its
-        sub-parts live in one shard, so the top ``top`` files are among the shards' top ``top``
-        (ties broken by path, as one store's answer is ordered)."""
-        from .where_used import WhereUsed, no_use_reason, principal_radii
+    def where_used(self, query: Query, top: int = 10, metric: str = WHERE_USED_METRIC,
+                   max_distance: float | None = None, scale: str = "sensitive", same_size: float | None = SAME_SIZE,
+                   threads: int | None = None):
+        """Every shard's :meth:`Searcher.where_used`, merged: a file and its sub-parts live in one
+        shard, so the top ``top`` files are among the shards' top ``top`` (ties broken by path, as
+        one store's answer is ordered); the parameters are :meth:`Searcher.where_used`'s."""
+        from .where_used import NO_USE, WhereUsed, check_question, no_use_reason, principal_radii
 
+        check_question(top, metric)
         extents = query.extents
         if extents is None and query.solid is not None:
             extents = principal_radii(query.solid)
@@ -349,11 +359,14 @@ class ShardedSearcher:
         for rank, use in enumerate(answer.uses, start=1):
             use.rank = rank
         if not answer.uses:
+            # as one store says it: where-used checks in the order of NO_USE, and the whole store
+            # passes a check where any shard does (as in search's merge)
             nearest = [a.nearest for a in answers if a.nearest is not None]
             answer.nearest = min(nearest) if nearest else None
-            reasons = [a.reason for a in answers if a.reason]
-            answer.reason = (no_use_reason(max_distance, answer.nearest) if answer.nearest is not None
-                             else min(reasons, key=len) if reasons else no_use_reason(None, None))
+            answer.why = max((a.why for a in answers if a.why is not None), key=NO_USE.index)
+            answer.reason = (self.empty_reason() if answer.why == "empty"
+                             else no_use_reason(max_distance, answer.nearest) if answer.why == "max_distance"
+                             else next(a.reason for a in answers if a.why == answer.why))
         return answer
 
     def sub_part_of(self, entry: str) -> dict | None:
@@ -404,19 +417,26 @@ class ShardedSearcher:
         answer.hits = [Hit(rank, float(distance), absolute(self.root, parent or relative), relative, metadata, parent, count, gap)
                        for rank, (distance, _, relative, metadata, parent, count, gap) in enumerate(found[:top], start=1)]
         if not answer.hits:
-            answer.reason = _reason(answers, filters)
+            answer.why, answer.reason = self._no_hit(answers, filters)
         return answer
 
+    def _no_hit(self, answers: list, filters: Filters) -> tuple[str, str]:
+        """Why no shard has a hit, as one store of every entry says it: the road checks in the
+        order of :data:`~shapeidx.search.hits.NO_HIT`, and the whole store passes a check where
+        any shard does, so it stops at the latest check a shard stopped at."""
+        why = max((a["why"] for a in answers if a["why"] is not None), key=NO_HIT.index)  # each shard says why it has none
+        if why == "empty":
+            return why, self.empty_reason()
+        if why == "max_distance":
+            nearest = [a["nearest"] for a in answers if a["nearest"] is not None]
+            return why, beyond_reason(filters.max_distance, min(nearest) if nearest else None)
+        # the other words name the filters only, the same in every shard
+        return why, next(a["reason"] for a in answers if a["why"] == why)
 
-def _reason(answers: list, filters: Filters) -> str:
-    """Why no shard has a hit: the shards' own reason when they agree, else what they share."""
-    nearest = [a["nearest"] for a in answers if a["nearest"] is not None]
-    if filters.max_distance is not None and nearest:
-        return f"no hit within --max-distance {filters.max_distance:g} (the nearest is at {min(nearest):.6g})"
-    reasons = [a["reason"] for a in answers if a["reason"]]
-    if not any(a["entries"] for a in answers):
-        return "the store has no entry yet (run 'shapeidx build DIR --shards N' first)"
-    if filters.where and all(r.startswith("no entry of the store matches") or r.startswith("the store has no")
-                             or r.startswith("none of the store") for r in reasons):
-        return f"no entry of the store matches {' and '.join(f'--where {c}' for c in filters.conditions())}"
-    return min(reasons, key=len) if reasons else "no entry is left to rank"
+    def empty_reason(self) -> str:
+        """Why the store has nothing to rank (:func:`~shapeidx.search.searcher.empty_store_reason`):
+        a running shard's build first, else a stopped one's."""
+        states = [s for s in self._each(shard_build_state, [(path,) for path in self.shards]) if s]
+        state = next((s for s in states if s.get("state") == "running"), None) or next(
+            (s for s in states if s.get("state") in ("stopped", "interrupted")), None)
+        return empty_store_reason(self.store, self.rows, state, sharded=True)

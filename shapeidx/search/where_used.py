@@ -1,8 +1,8 @@
 """Where is a part used? The files that hold a sub-part like it, nearest first.
 
-    with Searcher("library.shapeidx", parts=True) as searcher:   # built with --parts
-        query = searcher.query_of_part("pin.step")               # or query_of_entry("a.step#3")
-        answer = where_used(searcher, query, top=10, metric="weighted")
+    with open_searcher("library.shapeidx", parts=True) as searcher:   # built with --parts
+        query = searcher.query_of_part("pin.step")            # or question_of_entry("a.step#3")
+        answer = searcher.where_used(query, top=10, metric="weighted")
         for use in answer.uses:
             print(use.rank, use.distance, use.path, use.count, use.part)
 
@@ -13,12 +13,16 @@ warm store), as many as it takes to find ``top`` files; the files are then ranke
 nearest sub-part. A file's ``count`` is how many times it holds that nearest sub-part; with
 ``max_distance`` it is how many times it holds any sub-part within that distance, and
 ``parts`` lists them.
+
+Where-used is a method of every searcher (:data:`~shapeidx.search.searcher.QUERY_INTERFACE`):
+:meth:`Searcher.where_used <shapeidx.search.searcher.Searcher.where_used>` answers one store
+by :func:`uses_in_store`; a sharded store's asks it of every shard and merges the files
+(:meth:`shapeidx.search.sharded.ShardedSearcher.where_used`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -33,6 +37,11 @@ DEFAULT_METRIC = default_metric("where-used")
 #: query and a sub-part it can be (measured on KiCad: 0.02 loses 8 % of the files that hold
 #: the part, 0.05 none, and keeps the precision at 0.96).
 SAME_SIZE = 0.05
+#: Why no file answers, in a word (:attr:`WhereUsed.why`), in the order where-used checks: the
+#: store has nothing to rank, no sub-part is in the size band of ``--scale sensitive``, none has
+#: the query's principal radii (``same_size``), none within ``max_distance`` (or none ranked).
+#: A sharded store's merge decides on these, not on the words.
+NO_USE = ("empty", "scale", "same_size", "max_distance")
 
 
 @dataclass
@@ -75,7 +84,8 @@ class Use:
 
 @dataclass
 class WhereUsed:
-    """The answer of :func:`where_used`: the files, nearest first, and what was asked."""
+    """The answer of where-used (:func:`uses_in_store`): the files, nearest first, and what was
+    asked; with none, why (``reason``, in words; ``why``, its kind of :data:`NO_USE`)."""
 
     query: str
     entry: str | None
@@ -89,6 +99,8 @@ class WhereUsed:
     reason: str | None = None
     #: With no use within ``max_distance``: the distance of the nearest sub-part (None: none ranked).
     nearest: float | None = None
+    #: With no use: why, in a word of :data:`NO_USE` (what a sharded store's merge decides on).
+    why: str | None = None
 
     def to_dict(self) -> dict:
         return {"query": self.query, "entry": self.entry, "metric": self.metric, "store": self.store,
@@ -98,13 +110,30 @@ class WhereUsed:
 
 def where_used(searcher, query, top: int = 10, metric: str = DEFAULT_METRIC, max_distance: float | None = None,
                scale: str = "sensitive", same_size: float | None = SAME_SIZE, threads: int = RANK_THREADS) -> WhereUsed:
-    """The ``top`` files holding a sub-part nearest to ``query`` (see the module docstring).
+    """``searcher.where_used(query, ...)``: the method of every searcher opened with
+    ``parts=True`` (:func:`uses_in_store` for one store)."""
+    return searcher.where_used(query, top, metric, max_distance, scale, same_size, threads)
 
-    ``searcher`` is a searcher opened with ``parts=True`` (a
-    :class:`~shapeidx.search.searcher.Searcher`, or a sharded store's
-    :class:`~shapeidx.search.sharded.ShardedSearcher`, which asks this of every shard and
-    merges the files: each file lives in one shard); ``query`` one of its
-    :class:`~shapeidx.search.searcher.Query`. ``scale``: ``"sensitive"``
+
+def check_question(top: int, metric: str) -> None:
+    """Refuse ``top`` below 1 and an unknown metric (ValueError naming the known ones)."""
+    from ..distance.metrics import metric as metric_record
+
+    metric_record(metric)
+    if top < 1:
+        raise ValueError(f"top must be at least 1, not {top}")
+
+
+def uses_in_store(searcher, query, top: int, metric: str, filters, same_size: float | None,
+                  threads: int = RANK_THREADS) -> WhereUsed:
+    """The ``top`` files of one store holding a sub-part nearest to ``query`` (see the module
+    docstring): the work of :meth:`Searcher.where_used <shapeidx.search.searcher.Searcher.where_used>`.
+
+    ``searcher`` is a :class:`~shapeidx.search.searcher.Searcher` of the store's sub-parts
+    (opened with ``parts=True``, or on ``STORE/parts`` itself, as a shard's is); ``query``
+    one of its :class:`~shapeidx.search.searcher.Query`; ``filters`` a
+    :class:`~shapeidx.search.searcher.Filters` of ``max_distance`` and ``scale`` (made by the
+    method: this module does not import the searcher's). ``scale``: ``"sensitive"``
     (the default) keeps only sub-parts of the query's size: a part used in an assembly has its
     size there, and D2 alone, which is scale-invariant, would take a small pin for any
     elongated box. That is ``query --scale sensitive``'s band (a factor 2), and with
@@ -112,33 +141,27 @@ def where_used(searcher, query, top: int = 10, metric: str = DEFAULT_METRIC, max
     ``entries/extents``) within that share of the query's (default :data:`SAME_SIZE`; None:
     the band only). ``"invariant"``: any size.
     """
-    from .searcher import Filters
-    from ..distance.metrics import metric as metric_record
-
-    metric_record(metric)
-    if top < 1:
-        raise ValueError(f"top must be at least 1, not {top}")
-    if hasattr(searcher, "shards"):
-        return searcher.where_used(query, top, metric, max_distance, scale, same_size)
+    check_question(top, metric)
+    max_distance, scale = filters.max_distance, filters.scale
     n = len(searcher.view)
     answer = WhereUsed(query.label, query.entry, metric, str(searcher.store.resolve()), searcher.root, n, 0, [],
                        max_distance)
     if n == 0:
-        answer.reason = searcher.empty_reason()
+        answer.why, answer.reason = "empty", searcher.empty_reason()
         return answer
     parents, counts = searcher.parents()
     parents = np.array([p or searcher.view.path_at(i) for i, p in enumerate(parents)], dtype=object) if (
         parents == "").any() else parents
     answer.files = len(set(parents.tolist()))
-    keep, reason = searcher.keep(query, Filters(scale=scale))
-    if reason is not None:
-        answer.reason = reason
+    keep, why = searcher.keep(query, filters)
+    if why is not None:
+        answer.why, answer.reason = why
         return answer
     if scale == "sensitive" and same_size is not None:
         close = _same_size(searcher, query, same_size)
         keep = close if keep is None else keep & close
         if not keep.any():
-            answer.reason = f"no sub-part has the query's size within {same_size:g}"
+            answer.why, answer.reason = "same_size", f"no sub-part has the query's size within {same_size:g}"
             return answer
     searcher.asked()
     # the nearest sub-entries on the search's road, more of them until `top` files are among those
@@ -182,7 +205,7 @@ def where_used(searcher, query, top: int = 10, metric: str = DEFAULT_METRIC, max
     if not answer.uses:
         nearest_at = float(distances[0]) if len(distances) else float("nan")
         answer.nearest = nearest_at if np.isfinite(nearest_at) else None
-        answer.reason = no_use_reason(max_distance, answer.nearest)
+        answer.why, answer.reason = "max_distance", no_use_reason(max_distance, answer.nearest)
     return answer
 
 
@@ -194,32 +217,9 @@ def no_use_reason(max_distance: float | None, nearest: float | None) -> str:
 
 
 def question_of_entry(parts, entry, files=None):
-    """Where-used's question for an entry of the store (``--id``; the web page's ids).
-
-    A sub-entry ``FILE#n`` is asked as stored; a file that is one part is its ``FILE#1``
-    (the same entry). A file of several parts is asked whole: its signature from the
-    whole-file store ``files`` (a :class:`~shapeidx.search.searcher.Searcher`, opened here
-    when None), with its principal radii, so that the same-size test holds for it too (a
-    file that holds the same assembly fused into one solid is where it is used).
-    """
-    from .searcher import Searcher
-
-    if hasattr(parts, "shards"):  # a sharded store's: asked of the shard that holds the file
-        return parts.question_of_entry(entry)
-    name = parts.resolve_entry(entry)
-    if parts.view.find(name) is not None:
-        return parts.query_of_entry(name)
-    for whole in dict.fromkeys(w for w in (name, parts.entry_path_of(entry)) if w):
-        if parts.view.find(f"{whole}#1") is not None and parts.view.find(f"{whole}#2") is None:
-            return parts.query_of_entry(f"{whole}#1")
-    if files is None:
-        with Searcher(Path(parts.store).parent) as files:  # the sub-parts' store is STORE/parts
-            return question_of_entry(parts, entry, files)
-    query = files.query_of_entry(entry)  # an unknown or failed entry: StoreError, in words
-    at, row = files.view.locate(query.own)
-    query.extents = np.asarray(files.view.sources[at].column("entries/extents")[row], dtype=np.float64)
-    query.own = None  # its position is in the whole-file store
-    return query
+    """``parts.question_of_entry(entry, files)``: where-used's question for an entry of the
+    store (:meth:`shapeidx.search.searcher.Searcher.question_of_entry`)."""
+    return parts.question_of_entry(entry, files)
 
 
 def principal_radii(solid) -> np.ndarray:

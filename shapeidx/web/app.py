@@ -370,9 +370,7 @@ class StoreService:
     def where_used(self, query_id: str, top: int, metric: str) -> dict:
         """The files holding a sub-part like the query, nearest first (``shapeidx where-used``):
         the answer of :meth:`query` with one hit per file, its nearest sub-part and its count.
-        An id is asked as the command's ``--id`` is (:func:`~shapeidx.search.where_used.question_of_entry`)."""
-        from ..search.where_used import question_of_entry, where_used
-
+        An id is asked as the command's ``--id`` is (:meth:`~shapeidx.search.searcher.Searcher.question_of_entry`)."""
         searcher = self.parts_searcher()
         if query_id.startswith(UPLOAD_PREFIX):
             query = self.query_of(query_id)
@@ -380,9 +378,9 @@ class StoreService:
             if self.sub_entry(query_id) is None:
                 self.position_of(query_id)  # 404 for an unknown id, 409 for a failed one
             with self._lock:
-                query = question_of_entry(searcher, query_id, self.searcher)
+                query = searcher.question_of_entry(query_id, self.searcher)
         with self._lock:
-            answer = where_used(searcher, query, top=top, metric=metric)
+            answer = searcher.where_used(query, top=top, metric=metric)
             fractions = self._fractions_of(searcher, [use.part for use in answer.uses])
             facts = [self.parts.sub_part_of(use.part) for use in answer.uses]
         scale = self.scale(metric, True)
