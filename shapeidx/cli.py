@@ -1018,10 +1018,9 @@ def _table_keep(store, table, where, parts: bool = False):
 def _empty_store_error(store, parts: bool = False):
     """No entry to work on: no answer (status 6), with why (as the search road says it)."""
     from .errors import NoAnswer
-    from .search import Searcher
-    from .store.reader import member_stores
+    from .search import open_searcher
 
-    with Searcher(member_stores(_store_path(store), parts)[0]) as searcher:
+    with open_searcher(_store_path(store), parts=parts) as searcher:  # a sharded store: every shard's rows
         return NoAnswer(f"store {_store_path(store)} has no indexed entries: {searcher.empty_reason()}")
 
 

@@ -505,3 +505,23 @@ def test_the_api_ranks_a_sharded_store_s_sub_parts_only_when_opened_for_them(par
         expected = shapeidx.query(single, part, top=3, parts=True)
     assert [h["relative_path"] for h in got] == [h["relative_path"] for h in expected]
     assert all("#" in h["relative_path"] and h["parent"] for h in got)
+
+
+def test_whole_store_commands_count_every_shard_s_failures(tmp_path):
+    """classify and cluster on a sharded store whose every file failed: one line counting the
+    failures of every shard (it counted the first shard's), as an ordinary store says it."""
+    tree = tmp_path / "tree"
+    tree.mkdir()
+    for i in range(5):
+        (tree / f"bad{i}.stl").write_text("solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0\nendsolid\n")
+    answers = {}
+    for name, extra in (("one", ()), ("sharded", ("--shards", "2"))):
+        store = tmp_path / f"{name}.shapeidx"
+        assert cli("build", tree, "--store", store, "-q", *extra).exit_code == 0
+        for command in (("classify", str(tree / "bad0.stl")), ("cluster",)):
+            result = cli(*command, "--store", store)
+            assert result.exit_code == 6, result.output
+            answers[name, command[0]] = result.stderr.strip().replace(str(store), "STORE").replace(store.name, "STORE")
+    for command in ("classify", "cluster"):
+        assert answers["sharded", command] == answers["one", command]
+        assert "none of the store's 5 entries could be indexed" in answers["sharded", command]
