@@ -930,7 +930,7 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, query
     if fmt == "json":
         emit_json({"collection": directory, "store": str(store_path), **result})
         return
-    scores = ("nn", "ft", "st", "e", "dcg") + (("copy",) if query_seeds else ())
+    scores = ("nn", "ft", "st", "e", "dcg") + (("copy", "copy_same_part") if query_seeds else ())
     family = ("knn", "nmi", "ari")  # classification and clustering agreement: the whole collection's only
     if fmt != "table":
         rows = []
@@ -951,8 +951,9 @@ def evaluate(directory, store, metrics, per_class, cross_validate, points, query
     width = max([30, *map(len, labels.values())] + [len(c) + 2 for f in result["metrics"].values() for c in f.get("per_class", {})])
     if query_seeds:
         click.echo(f"queries signed again with seed {', '.join(map(str, query_seeds))} (figures: their mean);"
-                   " copy: the query's own entry first")
-    click.echo(f"{'distance':{width}s} " + " ".join(f"{s.upper():>6s}" for s in scores)
+                   " copy: the query's own entry first; same: so in the same-part order (query --same-part)")
+    heads = {"copy_same_part": "SAME"}
+    click.echo(f"{'distance':{width}s} " + " ".join(f"{heads.get(s, s.upper()):>6s}" for s in scores)
                + f"   {'kNN':>6s} {'NMI':>6s} {'ARI':>6s}")
     for name, figures in result["metrics"].items():
         agreement = "   " + " ".join(f"{figures[s]:6.3f}" for s in family) if "knn" in figures else ""

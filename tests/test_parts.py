@@ -357,6 +357,9 @@ class TestBuildAndWhereUsed:
         ranked = cli("query", query, "--parts", "--store", parts_store(store))
         assert_one_line_error(ranked, parts_store(store))
         assert f"give --store {store}" in ranked.stderr
+        as_files = cli("query", query, "--store", parts_store(store))  # sub-parts would read as whole files
+        assert_one_line_error(as_files, parts_store(store))
+        assert f"is the sub-parts store of {store}: give --store {store} --parts" in as_files.stderr
 
     def test_query_ranks_files_by_default_and_sub_parts_with_parts(self, library, tmp_path):
         root, query = library

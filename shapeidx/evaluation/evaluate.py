@@ -31,6 +31,7 @@ class LabelledFeatures:
     features: np.ndarray  # (len(FEATURES), n, n)
     unlabelled: int  # ok entries outside any class folder, left out
     angle_features: np.ndarray | None = None  # (len(ANGLE_FEATURES), n, n); None: a store without angles
+    measures: np.ndarray | None = None  # (n, 6) exact measures (shapeidx.search.same_part.shape_measures)
 
     def all_features(self) -> np.ndarray:
         """``features`` and, when known, ``angle_features``, in the order of :meth:`named`."""
@@ -130,6 +131,7 @@ def labelled_features(store, query_seed: int | None = None) -> LabelledFeatures:
         features=features[: len(FEATURES)],
         unlabelled=len(paths) - len(chosen),
         angle_features=features[len(FEATURES) :] if with_angles else None,
+        measures=searcher.entry_measures()[chosen],
     )
 
 
@@ -152,6 +154,15 @@ def copy_first(distances: np.ndarray) -> float:
     d = np.asarray(distances, dtype=np.float64)
     own = np.diag(d)[:, None]
     return float(((d <= own).sum(axis=1) == 1).mean())
+
+
+def same_part_order(distances: np.ndarray, measures: np.ndarray) -> np.ndarray:
+    """(n, n) scores of the same-part order (``query --same-part``, :mod:`shapeidx.search.same_part`)
+    from a metric's distances and the models' exact measures: each row is a query, its measures
+    its own entry's (a copy drawn again has the same surface)."""
+    from ..search.same_part import same_part_scores, shape_gap
+
+    return np.stack([same_part_scores(row, shape_gap(measures[q], measures)) for q, row in enumerate(distances)])
 
 
 def distance_matrices(data: LabelledFeatures, metrics=METRICS) -> dict:
@@ -226,13 +237,15 @@ def evaluate(reader, metrics=METRICS, per_class: bool = False, cross_validated: 
         ranking the stored signatures against each other: every score is then the mean over
         the seeds, ``spread`` gives each score's lowest and highest, ``per_seed`` the seeds'
         own, and ``copy`` how often the query's own entry (an exact copy drawn again) came
-        first. Empty: the stored signatures (they share their points with the entries).
+        first (``copy_same_part``: in the same-part order). Empty: the stored signatures (they
+        share their points with the entries).
 
     Returns
     -------
     dict
         ``models``, ``classes``, ``unlabelled``, ``points``, ``query_seeds`` and ``metrics``:
-        name -> scores.
+        name -> scores; with ``query_seeds`` also ``copy_same_part``: ``copy`` in the same-part
+        order (:func:`same_part_order`).
     """
     runs = [_evaluate_once(reader, labelled_features(reader, seed), metrics, per_class, cross_validated, seed is not None)
             for seed in (tuple(query_seeds) or (None,))]
@@ -273,6 +286,7 @@ def _evaluate_once(reader, data: LabelledFeatures, metrics, per_class: bool, cro
         entry = {s: scores[s] for s in SCORES}
         if drawn:
             entry["copy"] = copy_first(matrices[name])
+            entry["copy_same_part"] = copy_first(same_part_order(matrices[name], data.measures))
         if per_class:
             entry["per_class"] = per_class_scores(scores, data.labels)
         from ..families.scores import family_scores  # classification and clustering (issue 11)

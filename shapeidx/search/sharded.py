@@ -46,9 +46,14 @@ from .where_used import DEFAULT_METRIC as WHERE_USED_METRIC, SAME_SIZE
 def open_searcher(store, scheduler: str | None = None, parts: bool = False):
     """A :class:`Searcher` of an ordinary store, a :class:`ShardedSearcher` of a sharded one
     (``scheduler``: ranked on that Dask cluster's workers); ``parts``: ranking the sub-entries
-    (``build --parts``). ``scheduler`` with an ordinary store is refused in one line."""
+    (``build --parts``). ``scheduler`` with an ordinary store is refused in one line, and so is
+    a sub-parts store ``OWNER/parts`` asked for files (its owner answers with ``parts``)."""
+    from ..store.files import owner_of_parts
     from ..store.shards import is_sharded
 
+    owner = None if parts else owner_of_parts(store)
+    if owner is not None:  # its hits would read as whole files, without their file and count
+        raise StoreError(f"the store {store} is the sub-parts store of {owner}: give --store {owner} --parts")
     if is_sharded(store):
         return ShardedSearcher(store, scheduler, parts=parts)
     if scheduler:

@@ -64,11 +64,10 @@ def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int, seed: in
     face_index : (count,) int64
         The triangle each point lies on.
     """
-    rng = np.random.Generator(np.random.PCG64(seed))
     faces = np.asarray(faces)
     order = curve_order(vertices, faces)
     cumulative = np.cumsum(triangle_areas(vertices, faces[order]))
-    start, *offset = rng.random(3)
+    start, *offset = random_offsets(seed)
     step = np.arange(count)
     pick = (step + start) * (cumulative[-1] / count)
     face_index = order[np.minimum(np.searchsorted(cumulative, pick, side="right"), len(faces) - 1)]
@@ -77,6 +76,14 @@ def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int, seed: in
     a, b, c = (vertices[faces[face_index, k]] for k in range(3))
     points = (1 - s) * a + s * (1 - r2[:, None]) * b + s * r2[:, None] * c
     return points, face_index
+
+
+def random_offsets(seed: int) -> np.ndarray:
+    """The three uniform numbers a drawing takes from ``seed``: the systematic start ``u`` and
+    the two Cranley-Patterson offsets. Two drawings of one surface are as near as these are (on
+    the unit torus): a query seed whose start falls near the store's draws nearly the store's
+    points, so a benchmark's seeds are read with their offsets (scripts/same_part_study.py)."""
+    return np.random.Generator(np.random.PCG64(seed)).random(3)
 
 
 def curve_order(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
