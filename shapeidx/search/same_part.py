@@ -18,12 +18,14 @@ distance (the scale of the metric around this query, so one weight serves every 
 unit factors (:data:`shapeidx.distance.scale.UNIT_FACTORS`: a part in mm is the same part as its
 export in tenths of an inch), plus :data:`MIRROR_GAP` where the two are mirror images by the
 handedness the store keeps (:func:`shapeidx.signing.chirality.mirror_relation`): a left and a
-right pin header have every measure alike, and D2 cannot tell them apart. The candidates are the :data:`SAME_PART_CANDIDATES` nearest by the
-metric and as many nearest by the gap. Hits keep the metric's distance; their order is the score's.
+right pin header have every measure alike, and D2 cannot tell them apart (a part whose two
+principal radii nearly coincide has no defined handedness, and no such gap). The candidates are
+the :data:`SAME_PART_CANDIDATES` nearest by the metric and as many nearest by the gap. Hits
+keep the metric's distance; their order is the score's.
 
 The weight and rank were chosen on kicad6 (exact copies drawn again) and on half A of the
-xexp-dev twins, and checked on half B and on kicad6-step (docs/sampling.md, "The same-part
-order"). This is for the same-part question (twins, duplicates, a part in another format); for
+xexp-dev twins, and checked on half B and on kicad6-step; the mirror gap on the SMD pin headers
+of Debian's whole library (docs/sampling.md, "The same-part order"). This is for the same-part question (twins, duplicates, a part in another format); for
 parts *of a kind* the size and proportions are no distance (a 0402 and a 1206 resistor are one
 kind), and the plain order is the one to use.
 """
