@@ -65,7 +65,11 @@ def measures_of_solid(solid) -> np.ndarray:
     """:func:`shape_measures` of a loaded part, as the store computes them for its entries."""
     from ..signing.moments import shape_facts
 
-    facts = shape_facts(solid.vertices, solid.faces)
+    return measures_of_facts(shape_facts(solid.vertices, solid.faces))
+
+
+def measures_of_facts(facts: dict) -> np.ndarray:
+    """:func:`shape_measures` of :func:`shapeidx.signing.moments.shape_facts`' answer."""
     return shape_measures(facts["extents"], facts["moments"], facts["handedness"])
 
 
