@@ -417,6 +417,12 @@ def test_where_used_on_a_sharded_store_answers_as_one_store(part_trees, tmp_path
                 a = single.where_used(single.question_of_entry(entry), 4, "all-angle", within, scale)
                 b = whole.where_used(whole.question_of_entry(entry), 4, "all-angle", within, scale)
                 assert (a.to_dict() | {"store": ""}, a.reason) == (b.to_dict() | {"store": ""}, b.reason), entry
+        # an entry asked as a query (not as where-used's question): every shard reads its
+        # exact measures for the same-size test, not only the shard that holds it
+        for entry in entries[::3]:
+            a = single.where_used(single.query_of_entry(entry), 6, "all-angle")
+            b = whole.where_used(whole.query_of_entry(entry), 6, "all-angle")
+            assert a.to_dict() | {"store": ""} == b.to_dict() | {"store": ""}, entry
     # through the command line: a file asked, text and JSON, a sheet with the same pictures
     part = tree / files[1]
     for args in (("--top", 6, "--scale", "invariant"), ("--max-distance", 0.002, "--scale", "invariant", "--json")):

@@ -61,15 +61,18 @@ def shape_measures(extents, moments, handedness) -> np.ndarray:
     return np.concatenate([logs, np.asarray(handedness, dtype=np.float64)], axis=-1)
 
 
+def radii_of_measures(measures) -> np.ndarray:
+    """The principal radii ``(..., 3)`` that :func:`shape_measures` ``(..., 6)`` were made from
+    (NaN where unknown): ``r1 = exp m0``, ``r2 = r1 exp m1``, ``r3 = r1 exp m2``."""
+    m = np.asarray(measures, dtype=np.float64)
+    return np.exp(m[..., :1]) * np.exp(np.concatenate([np.zeros_like(m[..., :1]), m[..., 1:3]], axis=-1))
+
+
 def measures_of_solid(solid) -> np.ndarray:
     """:func:`shape_measures` of a loaded part, as the store computes them for its entries."""
     from ..signing.moments import shape_facts
 
-    return measures_of_facts(shape_facts(solid.vertices, solid.faces))
-
-
-def measures_of_facts(facts: dict) -> np.ndarray:
-    """:func:`shape_measures` of :func:`shapeidx.signing.moments.shape_facts`' answer."""
+    facts = shape_facts(solid.vertices, solid.faces)
     return shape_measures(facts["extents"], facts["moments"], facts["handedness"])
 
 

@@ -98,12 +98,11 @@ class Query:
         The query's file, absolute (None for standard input, arrays, entries).
     solid : Solid or None
         The part as loaded (when it was signed here), for its picture.
-    extents : ndarray or None
-        The part's principal radii, kept by a caller that lets ``solid`` go (the web page's
-        uploads): where-used's same-size test reads them.
     measures : ndarray or None
-        Its exact measures (:func:`shapeidx.search.same_part.shape_measures`), when known
-        without ``solid`` or an entry of its own (a sharded store's question): the same-part order reads them.
+        Its exact measures (:func:`shapeidx.search.same_part.shape_measures`: size, proportions,
+        area, handedness), when known without ``solid`` or an entry of its own (a sharded
+        store's question, a multi-part file asked where it is used, an upload whose part is let
+        go): the same-part order and where-used's same-size test read them.
     """
 
     label: str
@@ -112,7 +111,6 @@ class Query:
     entry: str | None = None
     path: str | None = None
     solid: object = None
-    extents: object = None
     measures: object = None
 
 
@@ -529,7 +527,12 @@ class Searcher:
         if query.solid is not None:
             return measures_of_solid(query.solid)
         if query.own is not None:
-            return self.entry_measures()[query.own]
+            if "measures" in self._cache:
+                return self._cache["measures"][query.own]
+            at, row = self.view.locate(query.own)
+            column = self.view.sources[at].column
+            return shape_measures(column("entries/extents")[row], column("entries/moments")[row],
+                                  column("entries/handedness")[row])
         return None
 
     def _among_mask(self, among) -> np.ndarray:
@@ -654,7 +657,7 @@ class Searcher:
         A sub-entry ``FILE#n`` is asked as stored; a file that is one part is its ``FILE#1``
         (the same entry). A file of several parts is asked whole: its signature from the
         whole-file store ``files`` (a :class:`Searcher` of the store whose sub-parts this
-        searcher ranks, opened here when None), with its principal radii, so that the
+        searcher ranks, opened here when None), with its exact measures, so that the
         same-size test holds for it too (a file that holds the same assembly fused into one
         solid is where it is used).
         """
@@ -668,8 +671,7 @@ class Searcher:
             with Searcher(Path(self.store).parent) as files:  # the sub-parts' store is STORE/parts
                 return self.question_of_entry(entry, files)
         query = files.query_of_entry(entry)  # an unknown or failed entry: StoreError, in words
-        at, row = files.view.locate(query.own)
-        query.extents = np.asarray(files.view.sources[at].column("entries/extents")[row], dtype=np.float64)
+        query.measures = files.query_measures(query)
         query.own = None  # its position is in the whole-file store
         return query
 

@@ -163,19 +163,18 @@ def shard_entry_paths(path: str) -> list:
 def shard_question(path: str, entry: str) -> tuple:
     """Where-used's question for ``entry`` in the shard whose sub-parts are at ``path``: its
     signature, the entry it is (a sub-entry wins its ties), whether that is a sub-entry, its
-    principal radii."""
-    from .where_used import query_extents
-
+    exact measures."""
     parts = _searcher(path)
     query = parts.question_of_entry(entry, _searcher(str(Path(path).parent)))
-    return query.signature, query.entry, query.own is not None, query_extents(parts, query)
+    return query.signature, query.entry, query.own is not None, parts.query_measures(query)
 
 
-def where_used_shard(path: str, signature, entry: str | None, extents, top: int, metric: str,
+def where_used_shard(path: str, signature, entry: str | None, measures, top: int, metric: str,
                      max_distance: float | None, scale: str, same_size: float | None):
-    """The shard's where-used answer (run where the shard is; ``path``: its sub-parts)."""
+    """The shard's where-used answer (run where the shard is; ``path``: its sub-parts;
+    ``measures``: the query's exact measures, for the same-size test in every shard)."""
     searcher = _searcher(path)
-    query = replace(_shard_query(searcher, signature, entry), extents=extents)
+    query = replace(_shard_query(searcher, signature, entry), measures=measures)
     return searcher.where_used(query, top, metric, max_distance, scale, same_size)
 
 
@@ -337,12 +336,12 @@ class ShardedSearcher:
 
     def question_of_entry(self, entry, files=None) -> Query:
         """Where-used's question for an entry (:meth:`Searcher.question_of_entry`), made in the
-        shard that holds its file, with its principal radii for every shard (``files``: unused,
+        shard that holds its file, with its exact measures for every shard (``files``: unused,
         each shard asks its own whole-file store, where it is)."""
         name = self.resolve_entry(entry)
-        signature, asked, sub_entry, extents = self.on_shard(self.shard_of(name), shard_question, name)
+        signature, asked, sub_entry, measures = self.on_shard(self.shard_of(name), shard_question, name)
         # labelled as one store's question is: a sub-entry by its name, a whole file as given
-        return Query(asked if sub_entry else os.fspath(entry), signature, None, asked, extents=extents)
+        return Query(asked if sub_entry else os.fspath(entry), signature, None, asked, measures=measures)
 
     def where_used(self, query: Query, top: int = 10, metric: str = WHERE_USED_METRIC,
                    max_distance: float | None = None, scale: str = "sensitive", same_size: float | None = SAME_SIZE,
@@ -350,13 +349,11 @@ class ShardedSearcher:
         """Every shard's :meth:`Searcher.where_used`, merged: a file and its sub-parts live in one
         shard, so the top ``top`` files are among the shards' top ``top`` (ties broken by path, as
         one store's answer is ordered); the parameters are :meth:`Searcher.where_used`'s."""
-        from .where_used import NO_USE, WhereUsed, check_question, no_use_reason, principal_radii
+        from .where_used import NO_USE, WhereUsed, check_question, no_use_reason
 
         check_question(top, metric)
-        extents = query.extents
-        if extents is None and query.solid is not None:
-            extents = principal_radii(query.solid)
-        answers = self._each(where_used_shard, [(path, query.signature, query.entry, extents, top, metric,
+        measures = self.query_measures(query)
+        answers = self._each(where_used_shard, [(path, query.signature, query.entry, measures, top, metric,
                                                  max_distance, scale, same_size) for path in self.shards])
         answer = WhereUsed(query.label, query.entry, metric, str(self.store.resolve()), self.root,
                            sum(a.sub_entries for a in answers), sum(a.files for a in answers), [], max_distance)

@@ -222,29 +222,18 @@ def question_of_entry(parts, entry, files=None):
     return parts.question_of_entry(entry, files)
 
 
-def principal_radii(solid) -> np.ndarray:
-    """A loaded part's principal radii (from its exact surface moments), as the store keeps them."""
-    from ..signing.moments import shape_facts
+def query_radii(searcher, query) -> np.ndarray | None:
+    """The query's principal radii, from its exact measures (``searcher.query_measures``:
+    given, of its loaded part, or its own entry's; None: unknown)."""
+    from .same_part import radii_of_measures
 
-    return np.asarray(shape_facts(solid.vertices, solid.faces)["extents"], dtype=np.float64)
-
-
-def query_extents(searcher, query) -> np.ndarray | None:
-    """The query's principal radii: given, of its loaded part, or stored with its own entry
-    (None: unknown)."""
-    if query.extents is not None:
-        return np.asarray(query.extents, dtype=np.float64)
-    if query.solid is not None:
-        return principal_radii(query.solid)
-    if query.own is not None:
-        i, row = searcher.view.locate(query.own)
-        return np.asarray(searcher.view.sources[i].column("entries/extents")[row], dtype=np.float64)
-    return None
+    measures = searcher.query_measures(query)
+    return None if measures is None else radii_of_measures(measures)
 
 
 def _same_size(searcher, query, tolerance: float) -> np.ndarray:
     """Which ranked sub-entries have principal radii within ``tolerance`` (relative) of the query's."""
-    mine = query_extents(searcher, query)
+    mine = query_radii(searcher, query)
     if mine is None:
         return np.ones(len(searcher.view), dtype=bool)
     extents = searcher.entry_numbers("entries/extents", 3)

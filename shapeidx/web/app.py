@@ -417,8 +417,7 @@ class StoreService:
         """Sign an uploaded part file and rank the store against it (422 for a bad part);
         ``uses``: the files that use a part like it (:meth:`where_used`); ``same_part`` as :meth:`query`'s."""
         from ..pictures.render import render_solid_png
-        from ..search.same_part import measures_of_facts
-        from ..signing.moments import shape_facts
+        from ..search.same_part import measures_of_solid
 
         name = os.path.basename((filename or "upload").replace("\\", "/")) or "upload"
         digest = hashlib.sha256(data).hexdigest()
@@ -435,8 +434,7 @@ class StoreService:
                     raise RequestError(422, f"{name}: {exc.reason}") from None
                 query.path = query.entry = query.own = None  # a temporary file: not the store's
                 # what where-used's same-size test and the same-part order read, once solid is gone
-                facts = shape_facts(query.solid.vertices, query.solid.faces)
-                query.extents, query.measures = np.asarray(facts["extents"], dtype=np.float64), measures_of_facts(facts)
+                query.measures = measures_of_solid(query.solid)
                 try:
                     png, note = render_solid_png(query.solid), ""
                 except Exception as exc:  # a picture is a nicety: the query still answers
