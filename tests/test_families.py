@@ -68,13 +68,13 @@ def test_handedness_is_invariant_under_rotation_and_scale_and_flips_under_mirror
     vertices, faces = chiral_blocks()
     facts = shape_facts(vertices, faces)
     h = np.array(facts["handedness"])
-    assert np.abs(h).max() > 1e-3  # chiral
+    assert np.abs(h[:2]).max() > 1e-3 and np.isnan(h[2])  # chiral, its three axes defined: h3 is not
     moved = shape_facts(vertices @ rotation(2).T * 7.5 + 3.0, faces)
-    assert np.allclose(moved["handedness"], h, atol=1e-9)
+    assert np.allclose(moved["handedness"], h, atol=1e-9, equal_nan=True)
     assert np.allclose(moved["extents"], np.array(facts["extents"]) * 7.5, rtol=1e-9)
     for mirror in (np.diag([-1.0, 1, 1]), np.diag([1.0, -1, 1]) @ rotation(3)):
         mirrored = shape_facts(vertices @ mirror.T, faces[:, ::-1])
-        assert np.allclose(mirrored["handedness"], -h, atol=1e-9)
+        assert np.allclose(mirrored["handedness"], -h, atol=1e-9, equal_nan=True)
         assert mirror_relation(h, np.array(mirrored["handedness"]))
     assert not mirror_relation(h, np.array(moved["handedness"]))
 
@@ -82,11 +82,41 @@ def test_handedness_is_invariant_under_rotation_and_scale_and_flips_under_mirror
 def test_a_part_with_a_mirror_plane_has_no_handedness_and_a_cube_none_measurable():
     box = trimesh.creation.box((3, 2, 1))
     facts = shape_facts(box.vertices @ rotation(4).T, box.faces)
-    assert np.abs(facts["handedness"]).max() < 1e-9
+    assert np.nanmax(np.abs(facts["handedness"])) < 1e-9
     assert np.allclose(sorted(facts["extents"]), sorted(np.sqrt(_box_surface_variances(3, 2, 1))), rtol=1e-9)
     cube = trimesh.creation.box((2, 2, 2))
     assert np.isnan(shape_facts(cube.vertices, cube.faces)["handedness"]).all()  # axes undefined
-    assert not mirror_relation(np.array(shape_facts(cube.vertices, cube.faces)["handedness"]), np.array([0.5, 0.5]))
+    assert not mirror_relation(np.array(shape_facts(cube.vertices, cube.faces)["handedness"]), np.array([0.5, 0.5, 0.5]))
+
+
+def _long_bar(bumps):
+    """A 20 x 1 x 1 bar along x with 1 x 0.5 x 0.5 bumps at (x, side) on its +y or +z face:
+    its two small principal radii are within AXIS_GAP of each other, so only its long axis is defined."""
+    meshes = [trimesh.creation.box((20, 1, 1))]
+    for x, side in bumps:
+        bump = trimesh.creation.box((1, 0.5, 0.5))
+        bump.apply_translation((x, 0.75 if side == "y" else 0, 0.75 if side == "z" else 0))
+        meshes.append(bump)
+    mesh = trimesh.util.concatenate(meshes)
+    return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+
+
+def test_a_long_part_has_the_handedness_of_its_one_axis():
+    """h1, h2 need all three axes; h3 only the one that stands apart, and it flips under a
+    mirroring, whatever the turn about that axis (analytic shapes: the chiral bar has a bump on
+    +y at one end and on +z at the other, the achiral one both on +y, a mirror plane z = 0)."""
+    from shapeidx.signing.chirality import AXIAL_CHIRAL_MIN, is_chiral
+
+    vertices, faces = _long_bar(((-8, "y"), (8, "z")))
+    h = np.array(shape_facts(vertices, faces)["handedness"])
+    assert np.isnan(h[:2]).all() and abs(h[2]) > 3 * AXIAL_CHIRAL_MIN
+    for turn in range(5):
+        moved = np.array(shape_facts(vertices @ rotation(turn).T * 3.0 - 1.0, faces)["handedness"])
+        mirrored = np.array(shape_facts(vertices @ (rotation(turn) @ np.diag([1.0, -1, 1])).T, faces[:, ::-1])["handedness"])
+        assert moved[2] == pytest.approx(h[2], rel=1e-6) and mirrored[2] == pytest.approx(-h[2], rel=1e-6)
+        assert mirror_relation(h, mirrored) and not mirror_relation(h, moved)
+    achiral = np.array(shape_facts(*_long_bar(((-8, "y"), (8, "y"))))["handedness"])
+    assert np.isnan(achiral[:2]).all() and abs(achiral[2]) < 1e-9 and not is_chiral(achiral)
 
 
 def _box_surface_variances(a, b, c):
@@ -104,8 +134,26 @@ def test_a_mirrored_real_part_flips_and_a_rotated_one_does_not(data_dir):
     h = np.array(shape_facts(solid.vertices, solid.faces)["handedness"])
     rotated = shape_facts(solid.vertices @ rotation(5).T, solid.faces)["handedness"]
     mirrored = shape_facts(solid.vertices @ np.diag([1.0, 1, -1]).T, solid.faces[:, ::-1])["handedness"]
-    assert np.allclose(rotated, h, atol=1e-9) and np.allclose(mirrored, -h, atol=1e-9)
+    assert np.allclose(rotated, h, atol=1e-9, equal_nan=True) and np.allclose(mirrored, -h, atol=1e-9, equal_nan=True)
     assert mirror_relation(h, np.array(mirrored)) and not mirror_relation(h, np.array(rotated))
+
+
+def test_a_long_real_pin_socket_keeps_its_axial_handedness_turned_or_refaceted(data_dir):
+    """A 1 x 34 SMD pin socket: its two small radii coincide (h1, h2 undefined) and h3 is
+    defined, kept by a turned and re-faceted copy and reversed by the mirror image; it is below
+    AXIAL_CHIRAL_MIN (the socket's symmetric body dilutes its alternating pins), so no copy of
+    it is called mirrored, nor is its mirror image."""
+    from shapeidx.signing.chirality import AXIAL_CHIRAL_MIN
+
+    solid = solid_of_file(data_dir / "kicad6" / "Connector_PinSocket_2.00mm/PinSocket_1x34_P2.00mm_Vertical_SMD_Pin1Right.wrl")
+    h = np.array(shape_facts(solid.vertices, solid.faces)["handedness"])
+    assert np.isnan(h[:2]).all() and 1e-7 < abs(h[2]) < AXIAL_CHIRAL_MIN
+    v, f = trimesh.remesh.subdivide(solid.vertices, solid.faces)  # every triangle in four
+    refaceted = np.array(shape_facts(v @ rotation(8).T, f)["handedness"])
+    mirrored = np.array(shape_facts(solid.vertices @ np.diag([-1.0, 1, 1]), solid.faces[:, ::-1])["handedness"])
+    assert refaceted[2] == pytest.approx(h[2], rel=1e-6) and mirrored[2] == pytest.approx(-h[2], rel=1e-6)
+    assert not mirror_relation(h, refaceted) and not mirror_relation(h, mirrored)
+    assert mirror_relation(h, mirrored, chiral_min=(1e-3, 1e-3, 1e-7))  # seen, were the threshold that low
 
 
 # ---------------------------------------------------------------------------- the store
@@ -158,17 +206,39 @@ def test_a_store_of_layout_1_still_opens_with_unknown_sizes(dup_store, tmp_path)
 
     shutil.copytree(store, old)
     with h5py.File(old / "main.h5", "r+") as f:
-        for name in ("entries/bounds", "entries/extents", "entries/handedness"):
+        for name in ("entries/bounds", "entries/extents", "entries/handedness", "entries/axial_handedness"):
             del f[name]
         f.attrs["schema_version"] = 1
     with open_store(old) as reader:
-        assert reader.missing_columns == ["entries/bounds", "entries/extents", "entries/handedness"]
+        assert reader.missing_columns == ["entries/bounds", "entries/extents", "entries/handedness",
+                                          "entries/axial_handedness"]
         table = FamilyTable.load(reader)
     assert np.isnan(table.extents).all() and np.isnan(table.handedness).all()
     result = cli("duplicates", "--store", old)
     assert result.exit_code == 0, result.output
     assert "predates the size and handedness columns" in result.stderr and "--full" in result.stderr
     assert "identical" in result.stdout  # the byte copy is still found by its hash
+
+
+def test_a_store_of_before_the_axial_handedness_says_so_and_a_full_build_fills_it(dup_store, tmp_path):
+    """A file written before h3 (entries/axial_handedness) opens with h3 unknown, says which
+    build fills it, and ``build --full`` does."""
+    import shutil
+
+    tree, store = dup_store
+    old = tmp_path / "old.h5"
+    shutil.copytree(store, old)
+    with h5py.File(old / "main.h5", "r+") as f:
+        del f["entries/axial_handedness"]
+    with open_store(old) as reader:
+        assert reader.missing_columns == ["entries/axial_handedness"]
+        assert np.isnan(FamilyTable.load(reader).handedness[:, 2]).all()
+    result = cli("duplicates", "--store", old)
+    assert result.exit_code == 0 and "entries/axial_handedness" in result.stderr and "--full" in result.stderr
+    assert cli("build", tree, "--store", old, "--full", "-q").exit_code == 0
+    with open_store(old) as reader, open_store(store) as fresh:
+        assert reader.missing_columns == []
+        assert np.array_equal(FamilyTable.load(reader).handedness, FamilyTable.load(fresh).handedness, equal_nan=True)
 
 
 # ---------------------------------------------------------------------------- duplicates

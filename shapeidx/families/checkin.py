@@ -44,7 +44,7 @@ def _text(digest) -> str:
 def _guest_table(entry, store_table, rows):
     """A FamilyTable of the new part (row 0, named by ``entry.path``, whose suffix gives its file
     format for the tier ``converted``) and the store table's ``rows``."""
-    from ..store.layout import entries_to_columns
+    from ..store.layout import entries_to_columns, handedness_columns
     from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
     from ..signing.parameters import HISTOGRAMS
     from .table import FamilyTable, RaggedHistograms
@@ -72,7 +72,7 @@ def _guest_table(entry, store_table, rows):
         rows=np.concatenate([[-1], part.rows]), histograms=hists,
         fractions=join("entries/fractions", part.fractions), means=np.concatenate([means, part.means]),
         hashes=np.concatenate([columns["entries/hash"], part.hashes]),
-        extents=join("entries/extents", part.extents), handedness=join("entries/handedness", part.handedness),
+        extents=join("entries/extents", part.extents), handedness=None if part.handedness is None else np.concatenate([handedness_columns(columns.__getitem__), part.handedness]),
         missing_columns=part.missing_columns, bounds=join("entries/bounds", part.bounds),
         moments=join("entries/moments", part.moments), angles=angles)
 

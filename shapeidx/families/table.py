@@ -22,6 +22,7 @@ from ..ragged import offsets_of
 from ..search.searcher import check_usable
 from ..signing.parameters import HISTOGRAMS
 from ..store import STATUS_OK, StoreReader
+from ..store.layout import handedness_columns
 
 #: Pair values handled per step of :meth:`FamilyTable.pair_distances` (bounds its memory).
 PAIR_BLOCK_VALUES = 1 << 22
@@ -195,7 +196,7 @@ class FamilyTable:
             means=means,
             hashes=reader.column("entries/hash")[rows],
             extents=reader.column("entries/extents")[rows],
-            handedness=reader.column("entries/handedness")[rows],
+            handedness=handedness_columns(reader.column)[rows],
             missing_columns=reader.missing_columns,
             bounds=reader.column("entries/bounds")[rows],
             moments=reader.column("entries/moments")[rows],

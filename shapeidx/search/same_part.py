@@ -19,7 +19,8 @@ unit factors (:data:`shapeidx.distance.scale.UNIT_FACTORS`: a part in mm is the 
 export in tenths of an inch), plus :data:`MIRROR_GAP` where the two are mirror images by the
 handedness the store keeps (:func:`shapeidx.signing.chirality.mirror_relation`): a left and a
 right pin header have every measure alike, and D2 cannot tell them apart (a part whose two
-principal radii nearly coincide has no defined handedness, and no such gap). The candidates are
+principal radii nearly coincide has only the handedness about its one axis, ``h3``, and no
+part whose three radii coincide has any: no such gap there). The candidates are
 the :data:`SAME_PART_CANDIDATES` nearest by the metric and as many nearest by the gap. Hits
 keep the metric's distance; their order is the score's.
 
@@ -50,9 +51,9 @@ _LOG_FACTORS = np.log(np.array((1.0,) + tuple(f for u in UNIT_FACTORS for f in (
 
 
 def shape_measures(extents, moments, handedness) -> np.ndarray:
-    """``(..., 6)``: ``ln r1, ln(r2/r1), ln(r3/r1), ln(area / sum r^2)`` and the two handedness
+    """``(..., 7)``: ``ln r1, ln(r2/r1), ln(r3/r1), ln(area / sum r^2)`` and the three handedness
     pseudo-scalars, from the principal radii ``(..., 3)``, the moments ``(..., 4)`` and the
-    handedness ``(..., 2)`` the store keeps (NaN where unknown)."""
+    handedness ``(..., 3)`` the store keeps (NaN where unknown)."""
     e = np.asarray(extents, dtype=np.float64)
     m = np.asarray(moments, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -77,14 +78,14 @@ def measures_of_solid(solid) -> np.ndarray:
 
 
 def shape_gap(query: np.ndarray, entries: np.ndarray) -> np.ndarray:
-    """The exact-measure gap between the query's measures ``(6,)`` and each entry's ``(N, 6)``
+    """The exact-measure gap between the query's measures ``(7,)`` and each entry's ``(N, 7)``
     (:func:`shape_measures`): the proportions' and area's ``|ln|`` differences, plus the size's,
     modulo a unit factor, plus :data:`MIRROR_GAP` for a mirror image. An unknown measure adds nothing."""
     entries = np.atleast_2d(np.asarray(entries, dtype=np.float64))
     query = np.asarray(query, dtype=np.float64)
     shape = np.nan_to_num(np.abs(entries[:, 1:4] - query[1:4]), nan=0.0).sum(axis=1)
     size = np.abs((query[0] - entries[:, 0])[:, None] - _LOG_FACTORS).min(axis=1)
-    mirrored = mirror_relation(query[4:6], entries[:, 4:6])
+    mirrored = mirror_relation(query[4:], entries[:, 4:])
     return shape + np.nan_to_num(size, nan=0.0) + MIRROR_GAP * mirrored
 
 

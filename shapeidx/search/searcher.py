@@ -506,10 +506,12 @@ class Searcher:
 
     def entry_measures(self) -> np.ndarray:
         """(N, 6): every ranked entry's exact measures (:func:`shapeidx.search.same_part.shape_measures`), read once."""
+        from ..store.layout import SHAPE_COLUMNS, handedness_columns
+
         if "measures" not in self._cache:
             self._cache["measures"] = shape_measures(self.entry_numbers("entries/extents", 3),
                                                      self.entry_numbers("entries/moments", 4),
-                                                     self.entry_numbers("entries/handedness", 2))
+                                                     handedness_columns(lambda name: self.entry_numbers(name, SHAPE_COLUMNS[name])))
         return self._cache["measures"]
 
     def entry_numbers(self, name: str, width: int) -> np.ndarray:
@@ -529,10 +531,12 @@ class Searcher:
         if query.own is not None:
             if "measures" in self._cache:
                 return self._cache["measures"][query.own]
+            from ..store.layout import handedness_columns
+
             at, row = self.view.locate(query.own)
             column = self.view.sources[at].column
             return shape_measures(column("entries/extents")[row], column("entries/moments")[row],
-                                  column("entries/handedness")[row])
+                                  handedness_columns(lambda name: column(name)[row])[0])
         return None
 
     def _among_mask(self, among) -> np.ndarray:

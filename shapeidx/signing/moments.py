@@ -35,8 +35,20 @@ and a re-faceted one nearly the same.
 
 Where the axes are not defined (two principal radii within :data:`AXIS_GAP` of each
 other: a square pin, a cylinder) the frame can turn freely in their plane and the values
-mean nothing; :func:`shape_facts` then returns NaN handedness and the part counts as of
-unknown handedness (:mod:`shapeidx.signing.chirality` never calls it mirrored).
+mean nothing: ``h1`` and ``h2`` are NaN. One axis ``u`` is still defined when the third
+radius stands apart (a long pin header of nearly square section: ``u`` along its row), and
+so is a third pseudo-scalar that needs no other axis (:func:`axial_handedness`): in the
+whitened frame (``x -> Sigma^(-1/2) x``, unique even where two radii coincide) let
+``v_i = T_ijj``; then
+
+    h3 = u . (v x T(., u, v))
+
+is even in the sign of ``u``, unchanged by any rotation, and changes sign under a mirroring
+(a triple product of three vectors). It is defined exactly where ``h1, h2`` are not and one
+axis is, and it is far smaller than they are (a long header's h3 is about 3e-4), hence its
+own threshold (:data:`shapeidx.signing.chirality.AXIAL_CHIRAL_MIN`). Where no axis is
+defined, or the surface is flat, all three are NaN and the part counts as of unknown
+handedness (:mod:`shapeidx.signing.chirality` never calls it mirrored).
 """
 
 from __future__ import annotations
@@ -46,7 +58,7 @@ import numpy as np
 #: Two principal variances closer than this share of the largest make the axes undefined.
 AXIS_GAP = 0.02
 #: The facts :func:`shape_facts` returns for a part it cannot measure.
-UNKNOWN = {"bounds": (np.nan,) * 6, "extents": (np.nan,) * 3, "handedness": (np.nan,) * 2, "moments": (np.nan,) * 4}
+UNKNOWN = {"bounds": (np.nan,) * 6, "extents": (np.nan,) * 3, "handedness": (np.nan,) * 3, "moments": (np.nan,) * 4}
 
 # Degree-3 rule on a triangle: vertices 3/60, edge midpoints 8/60, centroid 27/60.
 _BARY = np.array(
@@ -112,8 +124,26 @@ def handedness_of(covariance: np.ndarray, third: np.ndarray) -> tuple[np.ndarray
     return radii, np.array([det * t[0, 0, 0] * t[1, 1, 1] * t[2, 2, 2], det * t[0, 1, 2]])
 
 
+def axial_handedness(covariance: np.ndarray, third: np.ndarray) -> float:
+    """``h3`` (module docstring): the handedness about the one defined principal axis, where
+    exactly two principal variances are within :data:`AXIS_GAP` of each other (NaN otherwise:
+    ``h1, h2`` are defined, or no axis is, or the surface is flat)."""
+    variances, axes = np.linalg.eigh(covariance)
+    variances, axes = variances[::-1], axes[:, ::-1]
+    top = max(float(variances[0]), np.finfo(float).tiny)
+    close = -np.diff(variances) / top < AXIS_GAP
+    if close.all() or not close.any() or variances[2] <= 1e-12 * top:
+        return float("nan")
+    u = axes[:, 2] if close[0] else axes[:, 0]  # the radius that stands apart
+    whiten = (axes / np.sqrt(variances)) @ axes.T  # Sigma^(-1/2)
+    t = np.einsum("ijk,ia,jb,kc->abc", third, whiten, whiten, whiten)
+    v = np.einsum("ijj->i", t)
+    return float(u @ np.cross(v, np.einsum("ijk,j,k->i", t, u, v)))
+
+
 def shape_facts(vertices: np.ndarray, faces: np.ndarray) -> dict:
-    """``bounds`` (6,), ``extents`` (3,), ``handedness`` (2,) and ``moments`` (4,) of a surface.
+    """``bounds`` (6,), ``extents`` (3,), ``handedness`` (3,: ``h1, h2, h3``) and ``moments``
+    (4,) of a surface.
 
     A surface that cannot be measured (no area) gives :data:`UNKNOWN` (NaN everywhere).
     """
@@ -139,7 +169,8 @@ def shape_facts(vertices: np.ndarray, faces: np.ndarray) -> dict:
         t = np.einsum("ijk,ia,ja,ka->a", third, axes, axes, axes) / radii**3
         skew = np.abs(t)
     moments = (area / spread if spread > 0 else np.nan, *skew.tolist())
-    return {"bounds": bounds, "extents": tuple(radii.tolist()), "handedness": tuple(handedness.tolist()),
+    handedness = (*handedness.tolist(), axial_handedness(covariance, third))
+    return {"bounds": bounds, "extents": tuple(radii.tolist()), "handedness": handedness,
             "moments": tuple(float(m) for m in moments)}
 
 

@@ -54,7 +54,12 @@ ENTRY_COLUMNS = {
 #: xyz) and principal radii in file units, the two handedness pseudo-scalars and four
 #: scale-free surface moments (area / sum r^2, |skewness| per axis). Absent from
 #: older files: read as NaN (``StoreReader.missing_columns`` names them).
-SHAPE_COLUMNS = {"entries/bounds": 6, "entries/extents": 3, "entries/handedness": 2, "entries/moments": 4}
+SHAPE_COLUMNS = {"entries/bounds": 6, "entries/extents": 3, "entries/handedness": 2, "entries/moments": 4,
+                 "entries/axial_handedness": 1}
+#: The columns of the three handedness pseudo-scalars of :func:`shapeidx.signing.moments.shape_facts`,
+#: in its order: ``h1, h2`` (layout 2) and ``h3``, the handedness about the one defined axis,
+#: added later in the same layout (absent from older files: NaN, the mirror unknown there).
+HANDEDNESS_COLUMNS = ("entries/handedness", "entries/axial_handedness")
 #: Later, in the same layout: the pair counts of the normal-angle histograms
 #: (shapeidx.signing.angles; rows all, in, out, mixed, laid end to end). Absent from older
 #: files, read as NaN like the columns above: the metrics that use them then refuse the store.
@@ -196,6 +201,7 @@ class Entry:
     extents: tuple = (float("nan"),) * 3
     handedness: tuple = (float("nan"),) * 2
     moments: tuple = (float("nan"),) * 4
+    axial_handedness: tuple = (float("nan"),)
     angles: tuple = (float("nan"),) * (len(ANGLE_HISTOGRAMS) * ANGLE_BINS)
     title: str = ""
     product_id: str = ""
@@ -222,7 +228,10 @@ class Entry:
             watertight=bool(facts["watertight"]),
             fractions=tuple(signature.fractions[c] for c in FRACTION_CLASSES),
             histograms=dict(signature.histograms),
-            **{k: tuple(float(v) for v in shape[k]) for k in ("bounds", "extents", "handedness", "moments") if k in (shape or {})},
+            **{k: tuple(float(v) for v in shape[k]) for k in ("bounds", "extents", "moments") if k in (shape or {})},
+            **({} if "handedness" not in (shape or {}) else
+               {"handedness": tuple(float(v) for v in shape["handedness"][:2]),
+                "axial_handedness": tuple(float(v) for v in shape["handedness"][2:3]) or (float("nan"),)}),
             **({} if signature.angles is None else {"angles": tuple(float(v) for v in np.ravel(signature.angles))}),
             **{key: str(value) for key, value in facts.get("metadata", {}).items() if key in FILE_KEYS},
         )
@@ -304,6 +313,13 @@ def write_columns(f: h5py.File, columns: dict) -> None:
 
 #: Attribute of a text column (:data:`TEXT_COLUMNS`): whether any of its values is not empty.
 TEXT_PRESENT = "any_value"
+
+
+def handedness_columns(column) -> np.ndarray:
+    """``(N, 3)``: the handedness pseudo-scalars ``h1, h2, h3`` (:data:`HANDEDNESS_COLUMNS`),
+    ``column(name)`` giving each column (a reader's ``column``, a dict's ``__getitem__``)."""
+    return np.hstack([np.asarray(column(name), dtype=np.float64).reshape(-1, SHAPE_COLUMNS[name])
+                      for name in HANDEDNESS_COLUMNS])
 
 
 def missing_column(name: str, rows: int) -> np.ndarray:
