@@ -16,10 +16,11 @@ import numpy as np
 #: see docs/duplicates.md.
 CHIRAL_MIN = 1e-3
 #: The same for ``h3``, which is far smaller (a long bare SMD pin header's is 2e-4 to 1e-3, a
-#: long pin socket's, whose symmetric body dilutes its pins, 1e-7 to 2e-5): 4.5 times the
-#: largest ``|h3|`` that a part's VRML and its STEP file faceted by OpenCASCADE both reach with
-#: opposite signs (C_Radial_D8.0mm_H7.0mm_P3.50mm: -6.6e-6 and 1.4e-5; the 336 kicad6 /
-#: kicad6-step twins; scripts/chirality_twins.py).
+#: long pin socket's, whose symmetric body dilutes its pins, 1e-7 to 2e-5). Of the 336 kicad6
+#: VRML / kicad6-step STEP twins (other triangles, by OpenCASCADE), 60 have h3 in both and 21
+#: of them opposite signs, all tiny: the largest that both reach is 1.4e-6 (Altech_AK300_1x02
+#: 45-Degree), 21 times below this threshold (scripts/chirality_twins.py). Kept well above it:
+#: a false mirror costs a twin its place, a missed one leaves the order as it was.
 AXIAL_CHIRAL_MIN = 3e-5
 #: Each pseudo-scalar's threshold, in shape_facts' order (h1, h2, h3).
 CHIRAL_MINS = (CHIRAL_MIN, CHIRAL_MIN, AXIAL_CHIRAL_MIN)
