@@ -63,7 +63,7 @@ def shape_measures(extents, moments, handedness) -> np.ndarray:
 
 
 def radii_of_measures(measures) -> np.ndarray:
-    """The principal radii ``(..., 3)`` that :func:`shape_measures` ``(..., 6)`` were made from
+    """The principal radii ``(..., 3)`` that :func:`shape_measures` ``(..., 7)`` were made from
     (NaN where unknown): ``r1 = exp m0``, ``r2 = r1 exp m1``, ``r3 = r1 exp m2``."""
     m = np.asarray(measures, dtype=np.float64)
     return np.exp(m[..., :1]) * np.exp(np.concatenate([np.zeros_like(m[..., :1]), m[..., 1:3]], axis=-1))

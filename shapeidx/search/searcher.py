@@ -170,6 +170,15 @@ def sign_part(params, part, file_type: str | None = None, threads: int | None = 
                               threads or 1), solid
 
 
+def _measures_of_columns(numbers) -> np.ndarray:
+    """:func:`shapeidx.search.same_part.shape_measures` of the store's columns, ``numbers(name,
+    width)`` giving each for the rows wanted."""
+    from ..store.layout import SHAPE_COLUMNS, handedness_columns
+
+    return shape_measures(numbers("entries/extents", 3), numbers("entries/moments", 4),
+                          handedness_columns(lambda name: numbers(name, SHAPE_COLUMNS[name])))
+
+
 def label_of(part, label: str | None = None) -> str:
     """What an answer calls its query: ``label``, else the path given, else the object's name."""
     if label is not None:
@@ -505,13 +514,9 @@ class Searcher:
         return chosen, exact, gaps[chosen]
 
     def entry_measures(self) -> np.ndarray:
-        """(N, 6): every ranked entry's exact measures (:func:`shapeidx.search.same_part.shape_measures`), read once."""
-        from ..store.layout import SHAPE_COLUMNS, handedness_columns
-
+        """(N, 7): every ranked entry's exact measures (:func:`shapeidx.search.same_part.shape_measures`), read once."""
         if "measures" not in self._cache:
-            self._cache["measures"] = shape_measures(self.entry_numbers("entries/extents", 3),
-                                                     self.entry_numbers("entries/moments", 4),
-                                                     handedness_columns(lambda name: self.entry_numbers(name, SHAPE_COLUMNS[name])))
+            self._cache["measures"] = _measures_of_columns(self.entry_numbers)
         return self._cache["measures"]
 
     def entry_numbers(self, name: str, width: int) -> np.ndarray:
@@ -531,12 +536,9 @@ class Searcher:
         if query.own is not None:
             if "measures" in self._cache:
                 return self._cache["measures"][query.own]
-            from ..store.layout import handedness_columns
-
             at, row = self.view.locate(query.own)
             column = self.view.sources[at].column
-            return shape_measures(column("entries/extents")[row], column("entries/moments")[row],
-                                  handedness_columns(lambda name: column(name)[row])[0])
+            return _measures_of_columns(lambda name, width: column(name)[row:row + 1])[0]
         return None
 
     def _among_mask(self, among) -> np.ndarray:
