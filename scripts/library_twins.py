@@ -5,7 +5,7 @@
         --work /work/stores/families/twins [--parts 300] [--seed 22]
     shapeidx build WORK/parts --store WORK/twins.h5 --workers 1 -q
     python scripts/library_twins.py measure --store LIBRARY_STORE --twins WORK/twins.h5 \
-        [--metric combined-angle] [--sample 40] [--output report.md]
+        [--metric combined-angle] [--sample 40] [--output report.md] [--twin-seed 7 --twin-seed 8 ...]
 
 ``make`` draws ``--parts`` parts of the library at random (seeded) and writes, per part, in
 ``WORK/parts/FOLDER/NAME.VARIANT.stl``: ``rotated`` (a random rotation of its cleaned
@@ -32,7 +32,13 @@ under ``twins/``), runs :func:`shapeidx.families.duplicates.find_duplicates` on 
 reports: recall (a twin in its original's group), the tier, size ratio and unit each lands
 with, the groups' sizes and the library folders they span, and a random sample of groups for
 a person to judge (names, sizes, pictures: ``--sheet DIR`` renders each sampled group's
-thumbnails into one PNG).
+thumbnails into one PNG). ``--twin-seed S`` (repeatable) measures again with every twin
+signed in the process with its points drawn with S (+ 1000 per twin kind, :func:`kind_seed`),
+independently of its original's (a store signs every file with one seed, so a rotated copy
+gets its original's points): each twin file loaded once, its exact columns kept, one round
+per seed beside the stored signatures' table, the twins that move named (``--resign-cache
+FILE``: keep the signatures for another run; it is keyed by the twins' paths and the seeds,
+not by their contents).
 """
 
 from __future__ import annotations
