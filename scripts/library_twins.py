@@ -5,7 +5,7 @@
         --work /work/stores/families/twins [--parts 300] [--seed 22]
     shapeidx build WORK/parts --store WORK/twins.h5 --workers 1 -q
     python scripts/library_twins.py measure --store LIBRARY_STORE --twins WORK/twins.h5 \
-        [--metric combined-angle] [--sample 40] [--output report.md]
+        [--metric combined-angle] [--sample 40] [--output report.md] [--twin-seed 7 --twin-seed 8 ...]
 
 ``make`` draws ``--parts`` parts of the library at random (seeded) and writes, per part, in
 ``WORK/parts/FOLDER/NAME.VARIANT.stl``: ``rotated`` (a random rotation of its cleaned
@@ -32,7 +32,13 @@ under ``twins/``), runs :func:`shapeidx.families.duplicates.find_duplicates` on 
 reports: recall (a twin in its original's group), the tier, size ratio and unit each lands
 with, the groups' sizes and the library folders they span, and a random sample of groups for
 a person to judge (names, sizes, pictures: ``--sheet DIR`` renders each sampled group's
-thumbnails into one PNG).
+thumbnails into one PNG). ``--twin-seed S`` (repeatable) measures again with every twin
+signed in the process with its points drawn with S (+ 1000 per twin kind, :func:`kind_seed`),
+independently of its original's (a store signs every file with one seed, so a rotated copy
+gets its original's points): each twin file loaded once, its exact columns kept, one round
+per seed beside the stored signatures' table, the twins that move named (``--resign-cache
+FILE``: keep the signatures for another run; it is keyed by the twins' paths and the seeds,
+not by their contents).
 """
 
 from __future__ import annotations
@@ -91,16 +97,21 @@ def make(args) -> int:
     return 0
 
 
-def combined_table(library_store, twins_store):
-    """The library's and the twins' ok entries as one FamilyTable (twins' paths under twins/)."""
+def combined_table(library_store, twins_store, twins_table=None, library_table=None):
+    """The library's and the twins' ok entries as one FamilyTable (twins' paths under twins/);
+    ``twins_table`` / ``library_table``: those tables instead of loading them (the twins signed
+    again, :func:`drawn_again`)."""
     from shapeidx.families.table import FamilyTable, RaggedHistograms
     from shapeidx.ragged import offsets_of
     from shapeidx.store import open_store
 
-    with open_store(library_store) as r:
-        lib = FamilyTable.load(r)
-    with open_store(twins_store) as r:
-        tw = FamilyTable.load(r)
+    lib, tw = library_table, twins_table
+    if lib is None:
+        with open_store(library_store) as r:
+            lib = FamilyTable.load(r)
+    if tw is None:
+        with open_store(twins_store) as r:
+            tw = FamilyTable.load(r)
 
     def ragged(a, b):
         lengths = np.concatenate([a.lengths, b.lengths])
@@ -133,20 +144,100 @@ def origin(path: str) -> tuple[str, str]:
     return rel, "?"
 
 
-def measure(args) -> int:
+#: A twin kind's seed in a round of drawing again (``measure --twin-seed S``): S for the
+#: rotated twins, S + 1000 for the rescaled, and so on in VARIANTS order, so that no two twins
+#: of one part share their points either (one seed on two copies of one triangle list draws
+#: the same points on both).
+KIND_SEED_STEP = 1000
+
+
+def kind_seed(seed: int, variant: str) -> int:
+    return seed + KIND_SEED_STEP * VARIANTS.index(variant)
+
+
+def _same_signature(a, b) -> bool:
+    if any(not np.array_equal(a.histograms[h].counts, b.histograms[h].counts) for h in a.histograms):
+        return False
+    return (a.angles is None) == (b.angles is None) and (a.angles is None or np.array_equal(a.angles, b.angles))
+
+
+def drawn_again(twins_store, seeds, root=None, cache=None, check_every: int = 5):
+    """The twins' store's table once per seed of ``seeds``, every twin signed again in this
+    process with its points drawn with :func:`kind_seed` (the exact columns kept,
+    ``FamilyTable.with_signatures``): ``({seed: FamilyTable}, facts)``. Each twin file is
+    loaded once (faceted as the store's, from ``root``, default the store's root) and signed
+    once per seed; every ``check_every``-th is signed with the store's own seed too, which
+    must give its stored signature (``facts``: checked, matched, seconds loading and signing,
+    failed). ``cache``: a pickle of the signatures, read when it holds these seeds and twins,
+    else written."""
+    import pickle
+
+    from shapeidx.families.table import FamilyTable
+    from shapeidx.io import LoadLimits, load
+    from shapeidx.signing.pipeline import signature_of_solid
+    from shapeidx.signing.solid import make_solid
+    from shapeidx.store import open_store
+
+    seeds = [int(x) for x in seeds]
+    with open_store(twins_store) as reader:
+        table = FamilyTable.load(reader)
+        params = reader.params
+        stored_root = reader.attrs.get("root")
+        root = Path(root or (stored_root.decode() if isinstance(stored_root, bytes) else str(stored_root)))
+        paths = [str(p) for p in table.paths]
+        kept = None
+        if cache and Path(cache).exists():
+            kept = pickle.loads(Path(cache).read_bytes())
+            if kept.get("paths") != paths or not set(seeds) <= set(kept["signatures"]) \
+                    or kept.get("store_seed") != params.seed:
+                kept = None
+        if kept is None:
+            limits = LoadLimits(root=root, faceting=params.faceting)
+            signatures = {s: [] for s in seeds}
+            facts = {"checked": 0, "matched": 0, "load": 0.0, "sign": 0.0, "failed": [], "twins": len(paths)}
+            started = time.perf_counter()
+            for k, path in enumerate(paths):
+                t0 = time.perf_counter()
+                try:
+                    solid = make_solid(load(root / path, limits), root / path)
+                except Exception as exc:  # kept with its stored signature, and said
+                    facts["failed"].append(f"{path}: {exc}")
+                    for s in seeds:
+                        signatures[s].append(None)
+                    continue
+                t1 = time.perf_counter()
+                variant = origin("twins/" + path)[1]
+                for s in seeds:
+                    signatures[s].append(signature_of_solid(solid, params.points, kind_seed(s, variant), params.bin_divisor))
+                if check_every and k % check_every == 0:
+                    again = signature_of_solid(solid, params.points, params.seed, params.bin_divisor)
+                    facts["checked"] += 1
+                    facts["matched"] += _same_signature(again, reader.signature(int(table.rows[k])))
+                facts["load"] += t1 - t0
+                facts["sign"] += time.perf_counter() - t1
+                if (k + 1) % 100 == 0:
+                    print(f"  signed again {k + 1} of {len(paths)} twins, {time.perf_counter() - started:.0f} s",
+                          file=sys.stderr, flush=True)
+            kept = {"paths": paths, "signatures": signatures, "facts": facts, "store_seed": params.seed}
+            if cache:
+                Path(cache).write_bytes(pickle.dumps(kept))
+    tables = {}
+    for s in seeds:
+        rows = [k for k, sig in enumerate(kept["signatures"][s]) if sig is not None]
+        tables[s] = table.with_signatures(rows, [kept["signatures"][s][k] for k in rows])
+    return tables, kept["facts"]
+
+
+def twin_figures(table, metric, tiers, threads, limits) -> dict:
+    """find_duplicates on the combined table, and per twin kind: the twins, those in their
+    original's group, the tier each is listed with, the unit and mirror flag of its pair with
+    its original (asked directly: the group's representative may be another twin), and the
+    distance of every twin to its original."""
     from shapeidx.signing.chirality import is_chiral
-    from shapeidx.families.duplicates import TIERS, find_duplicates, pair_tiers
+    from shapeidx.families.duplicates import find_duplicates, pair_tiers
 
     started = time.perf_counter()
-    table, n_lib, n_tw = combined_table(args.store, args.twins)
-    load = time.perf_counter() - started
-    started = time.perf_counter()
-    limits = None
-    if args.same_limit:
-        from shapeidx.families.duplicates import thresholds
-
-        limits = {**thresholds(args.metric), "same": args.same_limit}
-    groups = find_duplicates(table, args.metric, tiers=tuple(args.tiers), threads=args.threads, limits=limits)
+    groups = find_duplicates(table, metric, tiers=tuple(tiers), threads=threads, limits=limits)
     seconds = time.perf_counter() - started
     group_of, entry_of = {}, {}
     for g, group in enumerate(groups):
@@ -156,36 +247,91 @@ def measure(args) -> int:
         for pair in group["pairs"]:
             entry_of[pair["b"]] = pair
     chiral = dict(zip(map(str, table.paths), is_chiral(table.handedness)))
-    lines = [f"# Twins injected into the library ({args.metric})", "",
-             f"`{shlex.join([sys.executable, *sys.argv])}`; {machine()}", "",
-             f"{n_lib} library entries, {n_tw} twins; find_duplicates {seconds:.1f} s (table loaded in {load:.1f} s);"
-             f" {len(groups)} groups of {sum(len(g['members']) for g in groups)} entries; tiers {', '.join(args.tiers)}", ""]
-    lines += ["| twin | twins | in the original's group | listed in its group as: " + ", ".join(TIERS + ("representative",))
-              + " | unit factor reported | mirrored flagged (chiral originals) |",
-              "|---|---|---|---|---|---|"]
-    misses = []
+    index = {str(p): i for i, p in enumerate(table.paths)}
+    kinds, misses = {}, []
     for v in VARIANTS:
         twins = [p for p in map(str, table.paths) if origin(p)[1] == v]
         if not twins:
             continue
         found = [p for p in twins if origin(p)[0] in group_of and group_of.get(p) == group_of[origin(p)[0]]]
         misses += [(p, v) for p in twins if p not in found]
-        # the tier, unit and mirror flag of the pair (original, twin), asked directly: the group's
-        # representative may be another twin
-        index = {str(p): i for i, p in enumerate(table.paths)}
-        said = pair_tiers(table, np.array([index[origin(p)[0]] for p in found], dtype=np.int64),
-                          np.array([index[p] for p in found], dtype=np.int64), args.metric, limits=limits)
-        tiers = Counter(entry_of[p]["tier"] for p in found)
-        units = Counter("none" if not np.isfinite(u) else f"{u:.4g}" for u in said["unit"])
-        mirrored = int(sum(bool(m) for p, m in zip(found, said["mirrored"]) if chiral.get(origin(p)[0])))
-        chiral_n = sum(bool(chiral.get(origin(p)[0])) for p in twins)
+        everyone = pair_tiers(table, np.array([index[origin(p)[0]] for p in twins], dtype=np.int64),
+                              np.array([index[p] for p in twins], dtype=np.int64), metric, limits=limits)
+        at = {p: k for k, p in enumerate(twins)}
+        picked = np.array([at[p] for p in found], dtype=np.int64)
+        kinds[v] = {
+            "twins": twins, "found": found, "tiers": Counter(entry_of[p]["tier"] for p in found),
+            "units": Counter("none" if not np.isfinite(u) else f"{u:.4g}" for u in everyone["unit"][picked]),
+            "mirrored": int(sum(bool(m) for p, m in zip(found, everyone["mirrored"][picked]) if chiral.get(origin(p)[0]))),
+            "chiral": sum(bool(chiral.get(origin(p)[0])) for p in twins),
+            "distance": dict(zip(twins, everyone["distance"].tolist())),
+            "pair_tier": dict(zip(twins, everyone["tier"].tolist())),
+        }
+    return {"groups": groups, "group_of": group_of, "entry_of": entry_of, "kinds": kinds, "misses": misses,
+            "seconds": seconds, "index": index}
+
+
+def _spread(values) -> str:
+    values = np.asarray(values, dtype=np.float64)
+    return f"{values.mean():.1f} ({values.min():.0f}-{values.max():.0f})"
+
+
+def _whereabouts(table, figures, path, metric) -> str:
+    """Where a twin is in one round: its group's representative and its pair with it, or its
+    closest partner in the whole table when it is in no group; and its distance to its original."""
+    i = figures["index"][path]
+    original = origin(path)[0]
+    d_orig = figures["kinds"][origin(path)[1]]["distance"][path]
+    tier = figures["kinds"][origin(path)[1]]["pair_tier"][path] or "none"
+    g = figures["group_of"].get(path)
+    if g is not None:
+        group = figures["groups"][g]
+        pair = figures["entry_of"][path]
+        joined = (f"in the group of `{group['representative']}`"
+                  + ("" if pair["tier"] == "representative" else f" ({pair['tier']}, d {pair['distance']:.3g})"))
+    else:
+        others = np.array([k for k in range(len(table)) if k != i], dtype=np.int64)
+        d = table.pair_distances(np.full(len(others), i, dtype=np.int64), others, metric)
+        nearest = int(others[int(np.argmin(d))])
+        joined = f"in no group; closest `{table.paths[nearest]}` (d {float(d.min()):.3g})"
+    return f"with its original `{original}`: {tier}, d {d_orig:.3g}; {joined}"
+
+
+def measure(args) -> int:
+    from shapeidx.families.duplicates import TIERS
+    from shapeidx.families.table import FamilyTable
+    from shapeidx.store import open_store
+
+    started = time.perf_counter()
+    with open_store(args.store) as r:
+        library = FamilyTable.load(r)
+    table, n_lib, n_tw = combined_table(args.store, args.twins, library_table=library)
+    load = time.perf_counter() - started
+    limits = None
+    if args.same_limit:
+        from shapeidx.families.duplicates import thresholds
+
+        limits = {**thresholds(args.metric), "same": args.same_limit}
+    figures = twin_figures(table, args.metric, args.tiers, args.threads, limits)
+    groups, misses = figures["groups"], figures["misses"]
+    lines = [f"# Twins injected into the library ({args.metric})", "",
+             f"`{shlex.join([sys.executable, *sys.argv])}`; {machine()}", "",
+             f"{n_lib} library entries, {n_tw} twins; find_duplicates {figures['seconds']:.1f} s (table loaded in {load:.1f} s);"
+             f" {len(groups)} groups of {sum(len(g['members']) for g in groups)} entries; tiers {', '.join(args.tiers)}", ""]
+    lines += ["| twin | twins | in the original's group | listed in its group as: " + ", ".join(TIERS + ("representative",))
+              + " | unit factor reported | mirrored flagged (chiral originals) |",
+              "|---|---|---|---|---|---|"]
+    for v, k in figures["kinds"].items():
+        twins, found, tiers = k["twins"], k["found"], k["tiers"]
         lines.append(f"| {v} | {len(twins)} | {len(found)} ({len(found) / len(twins):.3f}) |"
                      f" {', '.join(str(tiers.get(t, 0)) for t in TIERS + ('representative',))} |"
-                     f" {', '.join(f'{u}: {c}' for u, c in sorted(units.items()))} | {mirrored} of {chiral_n} |")
-    total = sum(1 for p in map(str, table.paths) if origin(p)[1] in VARIANTS)
+                     f" {', '.join(f'{u}: {c}' for u, c in sorted(k['units'].items()))} | {k['mirrored']} of {k['chiral']} |")
+    total = sum(len(k["twins"]) for k in figures["kinds"].values())
     lines += ["", f"Recall over all twins: {total - len(misses)} of {total} = {(total - len(misses)) / max(total, 1):.4f}", ""]
     if misses:
         lines += ["Twins not in their original's group: " + "; ".join(f"`{p}`" for p, _ in misses[:60]), ""]
+    if args.twin_seed:
+        lines += drawn_again_report(args, library, table, figures, limits)
     sizes = np.array([len(g["members"]) for g in groups])
     folders = np.array([len({origin(m)[0].split("/")[0] for m in g["members"]}) for g in groups])
     lines += [f"Group sizes: largest {sizes.max() if len(sizes) else 0}, groups larger than 25: {int((sizes > 25).sum())};"
@@ -213,6 +359,68 @@ def measure(args) -> int:
     if args.sheet:
         sheets(sample, groups, args)
     return 0
+
+
+def drawn_again_report(args, library, shared_table, shared, limits) -> list:
+    """The twins table again with every twin signed with the seeds of ``--twin-seed`` (its
+    points drawn independently of its original's), beside the shared seed's."""
+    from shapeidx.families.duplicates import TIERS
+
+    started = time.perf_counter()
+    tables, facts = drawn_again(args.twins, args.twin_seed, root=args.twins_root, cache=args.resign_cache)
+    rounds = {}
+    for s, tw in tables.items():
+        table, _, _ = combined_table(args.store, args.twins, twins_table=tw, library_table=library)
+        rounds[s] = (table, twin_figures(table, args.metric, args.tiers, args.threads, limits))
+    seconds = time.perf_counter() - started
+    seeds = list(tables)
+    names = ", ".join(map(str, seeds))
+    lines = [f"## Drawn again: every twin signed with seeds {names} (the library with its own)", "",
+             f"Each twin loaded once and signed once per round, its kind's points drawn with seed S + 1000 x kind"
+             f" (S for rotated, S + 1000 rescaled, ... S + 4000 step); {facts['twins']} twins; loading"
+             f" {facts['load']:.0f} s, signing {facts['sign']:.0f} s (this run {seconds:.0f} s with the rounds' find_duplicates);"
+             f" signed with the store's seed again: {facts['matched']} of {facts['checked']} checked give the stored"
+             f" signature; failed to load: {len(facts['failed'])}", ""]
+    lines += ["| twin | twins | in the original's group: shared seed | drawn again: mean (low-high) |"
+              " listed as " + ", ".join(TIERS + ("representative",)) + ": shared | drawn again, mean |"
+              " mirrored flagged: shared | drawn again | distance to original, median / 99th pct: shared | drawn again |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
+    for v, k in shared["kinds"].items():
+        again = [f["kinds"][v] for _, f in rounds.values()]
+        tier_means = ", ".join(f"{np.mean([a['tiers'].get(t, 0) for a in again]):.1f}" for t in TIERS + ("representative",))
+        d_shared = np.array(list(k["distance"].values()))
+        d_again = np.concatenate([np.array(list(a["distance"].values())) for a in again])
+        lines.append(
+            f"| {v} | {len(k['twins'])} | {len(k['found'])} ({len(k['found']) / len(k['twins']):.3f}) |"
+            f" {_spread([len(a['found']) for a in again])} ({np.mean([len(a['found']) for a in again]) / len(k['twins']):.3f}) |"
+            f" {', '.join(str(k['tiers'].get(t, 0)) for t in TIERS + ('representative',))} | {tier_means} |"
+            f" {k['mirrored']} of {k['chiral']} | {_spread([a['mirrored'] for a in again])} of {k['chiral']} |"
+            f" {np.median(d_shared):.3g} / {np.quantile(d_shared, 0.99):.3g} | {np.median(d_again):.3g} / {np.quantile(d_again, 0.99):.3g} |")
+    total = sum(len(k["twins"]) for k in shared["kinds"].values())
+    found_again = [total - len(f["misses"]) for _, f in rounds.values()]
+    lines += ["", f"Recall over all twins drawn again: {_spread(found_again)} of {total}"
+              f" (shared seed: {total - len(shared['misses'])}); per round "
+              + ", ".join(f"seed {s}: {n}" for s, n in zip(seeds, found_again)), ""]
+    lost_shared = {p for p, _ in shared["misses"]}
+    lost = {}
+    for s, (_, f) in rounds.items():
+        for p, _ in f["misses"]:
+            lost.setdefault(p, []).append(s)
+    changed = sorted(p for p in lost if p not in lost_shared)
+    regained = sorted(p for p in lost_shared if len(lost.get(p, [])) < len(seeds))
+    lines += [f"Found with the shared seed, lost drawn again (in some round): {len(changed)}", ""]
+    for p in changed:
+        lines.append(f"- `{p}` lost with seeds {', '.join(map(str, lost[p]))}; shared seed: "
+                     + _whereabouts(shared_table, shared, p, args.metric) + "; "
+                     + "; ".join(f"seed {s}: " + _whereabouts(rounds[s][0], rounds[s][1], p, args.metric) for s in lost[p]))
+    lines += ["", f"Lost with the shared seed, found drawn again (in some round): {len(regained)}", ""]
+    for p in regained:
+        back = [s for s in seeds if s not in lost.get(p, [])]
+        lines.append(f"- `{p}` found with seeds {', '.join(map(str, back))}; shared seed: "
+                     + _whereabouts(shared_table, shared, p, args.metric) + "; "
+                     + "; ".join(f"seed {s}: " + _whereabouts(rounds[s][0], rounds[s][1], p, args.metric) for s in back))
+    lines.append("")
+    return lines
 
 
 def sample(args) -> int:
@@ -331,7 +539,13 @@ def main() -> int:
     q.add_argument("--output")
     q.add_argument("--sheet", help="write one PNG per sampled group into this folder")
     q.add_argument("--library", default="/work/debian/wrl", help="the library's folder (for --sheet)")
-    q.add_argument("--twins-root", help="the twins' parts folder (for --sheet)")
+    q.add_argument("--twins-root", help="the twins' parts folder (for --sheet and --twin-seed; default for"
+                                        " --twin-seed: the twins' store's root)")
+    q.add_argument("--twin-seed", type=int, action="append", default=[],
+                   help="also measure with every twin signed again, its points drawn with this seed (repeatable:"
+                        " one round per seed; each twin file loaded once)")
+    q.add_argument("--resign-cache", help="a pickle of the twins' signatures drawn again (read if it holds the"
+                                          " seeds, else written)")
     s = sub.add_parser("sample")
     s.add_argument("--store", required=True)
     s.add_argument("--twins", help="the twins' store (for --pool converted)")

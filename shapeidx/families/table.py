@@ -269,6 +269,45 @@ class FamilyTable:
             d2_basis=None if self.d2_basis is None else {h: v[rows] for h, v in self.d2_basis.items()},
         )
 
+    def with_signatures(self, rows, signatures) -> "FamilyTable":
+        """This table with entries ``rows`` signed again: their D2 histograms, class fractions,
+        means and normal-angle histograms taken from ``signatures`` (one
+        :class:`~shapeidx.signing.histogram.Signature` per row, e.g. its points drawn with
+        another seed), every exact column (hash, moments, extents, handedness, bounds) kept.
+        For studies of the sampling: a copy of a part whose points land elsewhere than its
+        original's, as a re-export's would. The stored embedding (``d2_basis``) is dropped, so
+        the candidates come from the new histograms."""
+        rows = np.asarray(rows, dtype=np.int64)
+        signatures = list(signatures)
+        if len(rows) != len(signatures):
+            raise ValueError(f"{len(rows)} rows for {len(signatures)} signatures")
+        new = dict(zip(rows.tolist(), signatures))
+        histograms = {}
+        for name, ragged in self.histograms.items():
+            pieces = []
+            for i in range(len(self)):
+                if i in new:
+                    counts = np.asarray(new[i].histograms[name].counts, dtype=np.float64)
+                    pieces.append(counts / max(counts.sum(), 1.0))
+                else:
+                    pieces.append(ragged.p[ragged.offsets[i]:ragged.offsets[i + 1]])
+            lengths = np.array([len(x) for x in pieces], dtype=np.int64)
+            histograms[name] = RaggedHistograms(np.concatenate(pieces) if pieces else np.zeros(0), offsets_of(lengths))
+        fractions, means = self.fractions.copy(), self.means.copy()
+        angles = None if self.angles is None else self.angles.copy()
+        for i, signature in new.items():
+            shares = signature.fractions
+            fractions[i] = [shares[c] for c in HISTOGRAMS[1:]]
+            means[i] = [signature.histograms[h].mean for h in HISTOGRAMS]
+            if angles is not None:
+                angles[i] = np.nan if signature.angles is None else angle_probabilities(
+                    np.asarray(signature.angles, dtype=np.float64).reshape(len(ANGLE_HISTOGRAMS), ANGLE_BINS))
+        return FamilyTable(
+            paths=self.paths, rows=self.rows, histograms=histograms, fractions=fractions, means=means,
+            hashes=self.hashes, extents=self.extents, handedness=self.handedness, missing_columns=self.missing_columns,
+            bounds=self.bounds, moments=self.moments, angles=angles, d2_basis=None,
+        )
+
     def index_of(self, path: str) -> int | None:
         """Position of the entry with this relative path, or None."""
         i = int(np.searchsorted(self.paths, path))
