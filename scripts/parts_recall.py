@@ -4,6 +4,7 @@
     python scripts/parts_recall.py STORE --tree /work/debian/step --metric all-angle --scale sensitive \
         --sample 200 --truth-cache step-truth.json        # a whole library: a random 200 of its solids
     python scripts/parts_recall.py STORE ... --questions run.json   # ask what an earlier run (its --json) asked
+    python scripts/parts_recall.py STORE --query-seed 7 --query-seed 8 --query-seed 9   # drawn again (issue 33)
 
 STORE must be built from the tree with ``shapeidx build TREE --store STORE --parts``.
 
@@ -28,7 +29,18 @@ many are in the top R), recall in the top 10, precision and recall with ``--max-
 at the metric's duplicate thresholds (``same`` and ``near``, shapeidx/distance/thresholds.json),
 and how often the reported count of a relevant file found in the top R is right;
 ``--show-wrong`` lists each file whose count is wrong (the query's file, the file, our count,
-the truth's), per run.
+the truth's), per run, and each question whose first R files are not all its holders (what
+came first, at what distance, and where its holders are).
+
+The store's seed and the query's: by default each question is signed as the store signs its
+entries, with the store's seed, so an exact copy of a stored sub-part (every question here is
+one, moved) gets its points at nearly the same places on the surface as the stored sub-part
+had: an advantage no real query has. ``--query-seed S`` (repeatable) asks every question again
+signed with seed ``S`` (``Searcher.query_of_part(..., seed=S)``: the same written file, the same
+rigid motion, only the points drawn otherwise); each run is then reported with the store's
+seed and, drawn again, as the mean and the lowest-highest over the seeds. The JSON keeps the
+store's-seed runs as ``runs`` (as without the option) and every seed's own as
+``drawn_again``'s ``per_seed``.
 """
 
 from __future__ import annotations
@@ -152,6 +164,114 @@ def write_solid(solid, trsf, path: Path) -> None:
     writer.Write(str(path))
 
 
+def new_result(tiers) -> dict:
+    """What one run (a seed, metric, scale and size) gathers over its questions."""
+    return {"r_precision": [], "recall_10": [], "count_right": [], "count_right_same": [], "wrong": [],
+            "misses": [], "at": {t: [0, 0, 0] for t in tiers}}
+
+
+def ask(searcher, question, name, holders, res, metric, scale, size, tiers) -> None:
+    """Ask ``question`` (a solid of file ``name``, held by ``holders``: file -> count) one run's
+    where-used and add what it found to ``res``."""
+    r = len(holders)
+    answer = searcher.where_used(question, top=max(10, r), metric=metric, scale=scale, same_size=size)
+    ranked = [u.relative_path for u in answer.uses]
+    res["r_precision"].append(len(set(ranked[:r]) & set(holders)) / r)
+    res["recall_10"].append(len(set(ranked[:10]) & set(holders)) / r)
+    res["count_right"].extend(u.count == holders[u.relative_path] for u in answer.uses[:r]
+                              if u.relative_path in holders)
+    res["wrong"].extend({"query": name, "file": u.relative_path, "part": u.part, "count": u.count,
+                         "truth": holders[u.relative_path], "distance": u.distance}
+                        for u in answer.uses[:r]
+                        if u.relative_path in holders and u.count != holders[u.relative_path])
+    if set(ranked[:r]) != set(holders):
+        res["misses"].append({"query": name, "holders": sorted(holders),
+                              "first": [{"file": u.relative_path, "part": u.part, "distance": u.distance,
+                                         "holds": u.relative_path in holders} for u in answer.uses[:r + 2]],
+                              "holders_at": {u.relative_path: [u.rank, u.distance] for u in answer.uses
+                                             if u.relative_path in holders}})
+    for tier, t in tiers.items():
+        uses = searcher.where_used(question, top=10**6, metric=metric, max_distance=t, scale=scale,
+                                   same_size=size).uses
+        within = {u.relative_path for u in uses}
+        if tier == "same":
+            res["count_right_same"].extend(u.count == holders[u.relative_path] for u in uses
+                                           if u.relative_path in holders)
+        res["at"][tier][0] += len(within & set(holders))
+        res["at"][tier][1] += len(within)
+        res["at"][tier][2] += r
+
+
+def summarise(res, tiers) -> dict:
+    """One run's figures (what the JSON's ``runs`` hold)."""
+    return {
+        "r_precision": float(np.mean(res["r_precision"])),
+        "recall_top10": float(np.mean(res["recall_10"])),
+        "count_right": f"{sum(res['count_right'])}/{len(res['count_right'])}",
+        "count_right_within_same": f"{sum(res['count_right_same'])}/{len(res['count_right_same'])}",
+        "wrong_counts": res["wrong"],
+        "misses": res["misses"],
+        "max_distance": {tier: {"threshold": tiers[tier], "precision": (f / w if w else float("nan")),
+                                "recall": f / r} for tier, (f, w, r) in res["at"].items()},
+    }
+
+
+#: The figures a drawn-again run reports as mean and lowest-highest over the seeds
+SPREAD = ("r_precision", "recall_top10", "count_right", "count_right_within_same",
+          "same_precision", "same_recall", "near_precision", "near_recall")
+
+
+def figures_of(run: dict) -> dict:
+    """A summarised run's figures as numbers (a count right as its share; ``"a/b"`` kept beside)."""
+    out = {"r_precision": run["r_precision"], "recall_top10": run["recall_top10"]}
+    for key in ("count_right", "count_right_within_same"):
+        right, of = map(int, run[key].split("/"))
+        out[key] = right / of if of else float("nan")
+    for tier, v in run["max_distance"].items():
+        out[f"{tier}_precision"], out[f"{tier}_recall"] = v["precision"], v["recall"]
+    return out
+
+
+def spread_of(per_seed: list) -> dict:
+    """Mean, lowest and highest over the seeds' runs of each figure of :data:`SPREAD` (the
+    counts right also as the seeds' ``"a/b"``)."""
+    numbers = [figures_of(run) for run in per_seed]
+    out = {key: {"mean": float(np.mean([n[key] for n in numbers])), "low": float(min(n[key] for n in numbers)),
+                 "high": float(max(n[key] for n in numbers))} for key in SPREAD if key in numbers[0]}
+    for key in ("count_right", "count_right_within_same"):
+        out[key]["per_seed"] = [run[key] for run in per_seed]
+    out["thresholds"] = {tier: v["threshold"] for tier, v in per_seed[0]["max_distance"].items()}
+    return out
+
+
+def describe(run: dict) -> str:
+    tiers = "  ".join(f"{tier} (<= {v['threshold']:.4g}): P {v['precision']:.3f} R {v['recall']:.3f}"
+                      for tier, v in run["max_distance"].items())
+    return (f"R-precision {run['r_precision']:.3f}  recall@10 {run['recall_top10']:.3f}  count right"
+            f" {run['count_right']} (within same: {run['count_right_within_same']})  {tiers}")
+
+
+def describe_spread(spread: dict) -> str:
+    def f(key):
+        v = spread[key]
+        return f"{v['mean']:.3f} ({v['low']:.3f}-{v['high']:.3f})"
+
+    tiers = "  ".join(f"{tier} (<= {t:.4g}): P {f(tier + '_precision')} R {f(tier + '_recall')}"
+                      for tier, t in spread["thresholds"].items())
+    return (f"R-precision {f('r_precision')}  recall@10 {f('recall_top10')}  count right"
+            f" {' '.join(spread['count_right']['per_seed'])} (within same:"
+            f" {' '.join(spread['count_right_within_same']['per_seed'])})  {tiers}")
+
+
+def show_wrong(run: dict) -> None:
+    for w in run["wrong_counts"]:
+        print(f"    wrong count: pin of {w['query']} in {w['file']} ({w['part']}): {w['count']}, truth {w['truth']}")
+    for m in run["misses"]:
+        first = ", ".join(f"{u['file']} ({u['part'].rsplit('#', 1)[-1]}) {u['distance']:.3g}"
+                          + ("" if u["holds"] else " [not a holder]") for u in m["first"])
+        print(f"    miss: {m['query']}: first {first}; holders at {m['holders_at']}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("store")
@@ -159,7 +279,9 @@ def main() -> None:
     parser.add_argument("--metric", action="append", dest="metrics")
     parser.add_argument("--scale", action="append", dest="scales", choices=("sensitive", "invariant"))
     parser.add_argument("--same-size", action="append", dest="sizes", type=float)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="the sample's draw and the questions' rigid motions")
+    parser.add_argument("--query-seed", action="append", dest="query_seeds", type=int, default=[], metavar="S",
+                        help="also sign every question with seed S instead of the store's (repeatable)")
     parser.add_argument("--json", dest="json_out")
     parser.add_argument("--show-wrong", action="store_true", help="list the files whose reported count is wrong")
     parser.add_argument("--sample", type=int, help="ask a random N of the distinct solids (a whole library has thousands)")
@@ -225,72 +347,52 @@ def main() -> None:
     sizes = args.sizes or [0.05]
     runs = [(m, sc, z) for m in metrics for sc in scales for z in sizes]
     limits = {m: duplicate_thresholds(m) for m in metrics}
-    results = {run: {"r_precision": [], "recall_10": [], "count_right": [], "count_right_same": [], "wrong": [],
-                     "at": {t: [0, 0, 0] for t in limits[run[0]]}} for run in runs}
+    seeds = [None] + [seed for seed in dict.fromkeys(args.query_seeds)]  # None: the store's
+    results = {(seed, *run): new_result(limits[run[0]]) for seed in seeds for run in runs}
     from shapeidx.errors import ShapeidxError
 
     index_of = [index for _, index, _, _ in questions]
     refused, asked = [], []
     with tempfile.TemporaryDirectory() as folder, Searcher(args.store, parts=True) as searcher:
+        store_seed = searcher.params.seed
         for k, (name, solid, inv, holders) in enumerate(queries):
             path = Path(folder) / f"q{k}.step"
             write_solid(solid, random_rigid(rng), path)
             try:
-                question = searcher.query_of_part(str(path))
+                # the same file for every seed: only where its points are drawn differs
+                signed = {seed: searcher.query_of_part(str(path), seed=seed) for seed in seeds}
             except ShapeidxError as exc:  # a solid the loader refuses alone is a query a user could not ask
                 refused.append({"query": name, "solid": index_of[k], "reason": str(exc).split(": ", 1)[-1]})
                 print(f"refused: a solid of {name}: {refused[-1]['reason']}", file=sys.stderr)
                 continue
-            r = len(holders)
             asked.append({"query": name, "solid": index_of[k], "holders": holders})
-            for metric, scale, size in runs:
-                res = results[(metric, scale, size)]
-                answer = searcher.where_used(question, top=max(10, r), metric=metric, scale=scale, same_size=size)
-                ranked = [u.relative_path for u in answer.uses]
-                res["r_precision"].append(len(set(ranked[:r]) & set(holders)) / r)
-                res["recall_10"].append(len(set(ranked[:10]) & set(holders)) / r)
-                res["count_right"].extend(u.count == holders[u.relative_path] for u in answer.uses[:r]
-                                          if u.relative_path in holders)
-                res["wrong"].extend({"query": name, "file": u.relative_path, "part": u.part, "count": u.count,
-                                     "truth": holders[u.relative_path], "distance": u.distance}
-                                    for u in answer.uses[:r]
-                                    if u.relative_path in holders and u.count != holders[u.relative_path])
-                for tier, t in limits[metric].items():
-                    within = {u.relative_path for u in searcher.where_used(question, top=10**6, metric=metric,
-                                                                           max_distance=t, scale=scale, same_size=size).uses}
-                    if tier == "same":
-                        uses = searcher.where_used(question, top=10**6, metric=metric, max_distance=t, scale=scale,
-                                                   same_size=size).uses
-                        res["count_right_same"].extend(u.count == holders[u.relative_path] for u in uses
-                                                       if u.relative_path in holders)
-                    res["at"][tier][0] += len(within & set(holders))
-                    res["at"][tier][1] += len(within)
-                    res["at"][tier][2] += r
+            for seed, question in signed.items():
+                for metric, scale, size in runs:
+                    ask(searcher, question, name, holders, results[(seed, metric, scale, size)], metric, scale, size,
+                        limits[metric])
     summary = {"machine": machine(), "tree": str(tree), "files": len(files), "multi_solid_files": multi,
                "distinct_solids": distinct_solids, "queries": len(asked), "refused": refused,
                "relevant_files": int(sum(len(q["holders"]) for q in asked)), "truth_unwound": UNWIND,
-               "multi_turn_faces": turning if len(repaired) == len(files) else None, "asked": asked, "runs": []}
-    for (metric, scale, size), res in results.items():
-        summary["runs"].append({
-            "metric": metric, "scale": scale, "same_size": size,
-            "r_precision": float(np.mean(res["r_precision"])),
-            "recall_top10": float(np.mean(res["recall_10"])),
-            "count_right": f"{sum(res['count_right'])}/{len(res['count_right'])}",
-            "count_right_within_same": f"{sum(res['count_right_same'])}/{len(res['count_right_same'])}",
-            "wrong_counts": res["wrong"],
-            "max_distance": {tier: {"threshold": limits[metric][tier], "precision": (f / w if w else float("nan")),
-                                    "recall": f / r} for tier, (f, w, r) in res["at"].items()},
-        })
-    text = json.dumps(summary, indent=1)
-    for run in summary["runs"]:
-        tiers = "  ".join(f"{tier} (<= {v['threshold']:.4g}): P {v['precision']:.3f} R {v['recall']:.3f}"
-                          for tier, v in run["max_distance"].items())
-        print(f"{run['metric']:15s} {run['scale']:9s} same-size {run['same_size']}  R-precision {run['r_precision']:.3f}  recall@10"
-              f" {run['recall_top10']:.3f}  count right {run['count_right']} (within same: {run['count_right_within_same']})"
-              f"  {tiers}")
+               "multi_turn_faces": turning if len(repaired) == len(files) else None, "asked": asked,
+               "store_seed": store_seed, "query_seeds": seeds[1:], "runs": [], "drawn_again": []}
+    for metric, scale, size in runs:
+        mine = summarise(results[(None, metric, scale, size)], limits[metric])
+        summary["runs"].append({"metric": metric, "scale": scale, "same_size": size, **mine})
+        line = f"{metric:15s} {scale:9s} same-size {size}"
+        print(f"{line}  store's seed {store_seed}: {describe(mine)}")
         if args.show_wrong:
-            for w in run["wrong_counts"]:
-                print(f"    wrong count: pin of {w['query']} in {w['file']} ({w['part']}): {w['count']}, truth {w['truth']}")
+            show_wrong(mine)
+        if len(seeds) > 1:
+            per_seed = {seed: summarise(results[(seed, metric, scale, size)], limits[metric]) for seed in seeds[1:]}
+            spread = spread_of(list(per_seed.values()))
+            summary["drawn_again"].append({"metric": metric, "scale": scale, "same_size": size, **spread,
+                                           "per_seed": {str(seed): v for seed, v in per_seed.items()}})
+            print(f"{line}  drawn again, seeds {', '.join(map(str, seeds[1:]))}: {describe_spread(spread)}")
+            if args.show_wrong:
+                for seed, v in per_seed.items():
+                    print(f"  seed {seed}:")
+                    show_wrong(v)
+    text = json.dumps(summary, indent=1)
     if args.json_out:
         Path(args.json_out).write_text(text + "\n")
 
