@@ -145,15 +145,17 @@ def score_leniently(rates: dict, misses: list, copies: set, seeds: int, queries:
 
 
 def same_surface(store: Path, pairs: set) -> set:
-    """The pairs of stored entries that are one surface stored twice: ``shapeidx duplicates``'
-    ``identical`` tier (byte-identical files), or its ``same`` tier (exact moments within 1e-4
-    and sizes within 0.5 % or a unit factor) where the handedness is known in both (some
-    pseudo-scalar finite in each) and they are not mirror images; asked of the two entries
-    directly. No order can tell such entries apart by shape, so a query answered with the
-    other one is answered rightly. A mirror image, or a pair whose handedness is unknown (a
-    long pin header and its mirror image may be one), is not forgiven."""
+    """The pairs of stored entries that are one surface stored twice, so that no order can
+    tell them apart by shape and a query answered with the other one is answered rightly:
+    ``shapeidx duplicates``' ``identical`` tier (byte-identical files), or its ``same`` tier
+    (exact moments within 1e-4, sizes within 0.5 % or a unit factor, asked of the two entries
+    directly) where the two are the same way round: both clearly chiral and not mirror images,
+    or both achiral to rounding (every known pseudo-scalar below 1e-9). Mirror images, and
+    pairs whose handedness is unknown or too faint to tell (a long pin socket and its mirror
+    image), are not forgiven."""
     from shapeidx.families.duplicates import pair_tiers
     from shapeidx.families.table import FamilyTable
+    from shapeidx.signing.chirality import is_chiral
 
     if not pairs:
         return set()
@@ -162,9 +164,25 @@ def same_surface(store: Path, pairs: set) -> set:
     a = np.array([table.index_of(right) for right, _ in pairs])
     b = np.array([table.index_of(first) for _, first in pairs])
     facts = pair_tiers(table, a, b)
-    known = np.isfinite(table.handedness[a]).any(axis=1) & np.isfinite(table.handedness[b]).any(axis=1)
-    same = (facts["tier"] == "same") & known & ~facts["mirrored"]
-    return {pair for pair, tier, ok in zip(pairs, facts["tier"], same) if tier == "identical" or ok}
+    h = table.handedness
+    with np.errstate(invalid="ignore"):
+        achiral = np.isfinite(h).any(axis=1) & ~(np.abs(h) >= 1e-9).any(axis=1)
+    chiral = is_chiral(h)
+    alike = ((chiral[a] & chiral[b]) | (achiral[a] & achiral[b])) & ~facts["mirrored"]
+    return {pair for pair, tier, ok in zip(pairs, facts["tier"], alike) if tier == "identical" or (tier == "same" and ok)}
+
+
+def rescore(kept: dict, plan: dict) -> None:
+    """Each kept question's ``same surface`` figures again from its misses (:func:`same_surface`
+    as it is now), without asking again."""
+    for question, data in kept.items():
+        if "misses" not in data or question not in plan:
+            continue
+        misses = [tuple(x) for x in data["misses"]]
+        seeds = len(next(iter(data["rates"]["plain"].values())))
+        copies = same_surface(plan[question][0], {(right, first) for *_, right, first in misses if first is not None})
+        data["same surface"] = score_leniently(data["rates"], misses, copies, seeds, data["queries"])
+        data["same-surface pairs"] = sorted(copies)
 
 
 def cell(values: list) -> str:
@@ -183,9 +201,10 @@ def section(kept: dict, command: str) -> list:
              f"the seeds {', '.join(map(str, QUERY_SEEDS))} (mean, lowest-highest); a question is answered when its right",
              "entry is the first hit. Chosen on *copy kicad6* and *half A*; the other questions are the check.",
              "The last column also counts as answered a first hit that is one surface with the right entry, stored",
-             "twice under two names: `shapeidx duplicates`' identical tier, or its same tier where both handedness",
-             "values are known and the two are not mirror images (asked of the two entries). No order can tell those",
-             "apart by shape; a mirror image, or a pair of unknown handedness, still counts as wrong.", "",
+             "twice under two names: `shapeidx duplicates`' identical tier, or its same tier where the two are the",
+             "same way round (both clearly chiral and not mirror images, or both achiral to rounding). No order can",
+             "tell those apart by shape; a mirror image, or a pair whose handedness is unknown or too faint to tell",
+             "(a long pin socket), still counts as wrong.", "",
              "The spread between the seeds is wide, and in part it is how far each seed's systematic start",
              "(shapeidx.signing.sampling.random_offsets) lies from the store's seed's, in steps of the points' share of",
              f"the area: {starts}. A copy's distance to its own entry rises with that gap (rank correlation",
@@ -223,6 +242,8 @@ def main(argv=None) -> int:
     parser.add_argument("--library-store", type=Path, help="a store of the whole library (built from --library"
                         " when not given)")
     parser.add_argument("--markdown", type=Path, default=REPO / "docs" / "sampling.md")
+    parser.add_argument("--rescore", action="store_true", help="count the kept questions' same-surface answers"
+                        " again from their misses (no question asked again)")
     args = parser.parse_args(argv)
     folder = args.work / "same-part"
     folder.mkdir(parents=True, exist_ok=True)
@@ -237,6 +258,13 @@ def main(argv=None) -> int:
         print(question, {m: round(float(np.mean(result["rates"]["same part"][m])), 3) for m in METRICS}, file=sys.stderr,
               flush=True)
     kept = {q: json.loads((folder / f"{q}.json").read_text()) for q in QUESTIONS if (folder / f"{q}.json").exists()}
+    if args.rescore:
+        if not plan:
+            plan = questions(args.work, args.library)
+        plan.update(library_questions(args.work, args.library, args.library_store))
+        rescore(kept, plan)
+        for question, data in kept.items():
+            (folder / f"{question}.json").write_text(json.dumps(data))
     command = f"python scripts/same_part_study.py --work {args.work} --library {args.library}"
     text = args.markdown.read_text() if args.markdown.exists() else ""
     if START in text:
