@@ -195,7 +195,8 @@ def section(kept: dict, command: str) -> list:
     lines = [START, "", "## The same-part order: the exact measures beside the metric", "",
              "`shapeidx query --same-part` (shapeidx/search/same_part.py) orders the hits by the metric's distance plus",
              "5 x the query's 11th distance x the gap of the exact measures (size modulo a unit factor, the principal",
-             "radii's proportions, area over the radii squared; 0.1 more for a mirror image by the stored handedness):",
+             "radii's proportions, area over the radii squared; 0.1 more for a mirror image by the stored handedness,",
+             "h1 and h2, or h3 about the one defined axis where two principal radii coincide):",
              "measures integrated from the surface, with no sampling noise at all. Every figure here is through the",
              "search road on a real store, the query signed again with",
              f"the seeds {', '.join(map(str, QUERY_SEEDS))} (mean, lowest-highest); a question is answered when its right",
@@ -265,7 +266,8 @@ def main(argv=None) -> int:
         rescore(kept, plan)
         for question, data in kept.items():
             (folder / f"{question}.json").write_text(json.dumps(data))
-    command = f"python scripts/same_part_study.py --work {args.work} --library {args.library}"
+    command = f"python scripts/same_part_study.py --work {args.work} --library {args.library}" + (
+        f" --library-store {args.library_store}" if args.library_store else "")
     text = args.markdown.read_text() if args.markdown.exists() else ""
     if START in text:
         text = text[: text.index(START)] + "\n".join(section(kept, command)) + text[text.index(END) + len(END):]
