@@ -72,7 +72,9 @@ def _guest_table(entry, store_table, rows):
         rows=np.concatenate([[-1], part.rows]), histograms=hists,
         fractions=join("entries/fractions", part.fractions), means=np.concatenate([means, part.means]),
         hashes=np.concatenate([columns["entries/hash"], part.hashes]),
-        extents=join("entries/extents", part.extents), handedness=None if part.handedness is None else np.concatenate([handedness_columns(columns.__getitem__), part.handedness]),
+        extents=join("entries/extents", part.extents),
+        handedness=None if part.handedness is None else np.concatenate([handedness_columns(columns.__getitem__),
+                                                                         part.handedness]),
         missing_columns=part.missing_columns, bounds=join("entries/bounds", part.bounds),
         moments=join("entries/moments", part.moments), angles=angles)
 

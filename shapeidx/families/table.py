@@ -148,7 +148,8 @@ class FamilyTable:
     hashes : (N,) bytes
     extents : (N, 3) float64
         Principal radii, NaN for entries of a store that predates them.
-    handedness : (N, 2) float64
+    handedness : (N, 3) float64
+        The pseudo-scalars h1, h2, h3 (shapeidx.signing.moments), NaN where undefined or unknown.
     bounds : (N, 6) float64
         Bounding box in file units: min x, y, z, max x, y, z.
     moments : (N, 4) float64

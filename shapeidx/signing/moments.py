@@ -45,7 +45,7 @@ whitened frame (``x -> Sigma^(-1/2) x``, unique even where two radii coincide) l
 
 is even in the sign of ``u``, unchanged by any rotation, and changes sign under a mirroring
 (a triple product of three vectors). It is defined exactly where ``h1, h2`` are not and one
-axis is, and it is far smaller than they are (a long header's h3 is about 3e-4), hence its
+axis is, and it is far smaller than they are (a long SMD pin header's is 2e-4 to 4e-3), hence its
 own threshold (:data:`shapeidx.signing.chirality.AXIAL_CHIRAL_MIN`). Where no axis is
 defined, or the surface is flat, all three are NaN and the part counts as of unknown
 handedness (:mod:`shapeidx.signing.chirality` never calls it mirrored).

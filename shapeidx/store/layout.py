@@ -52,8 +52,9 @@ ENTRY_COLUMNS = {
 }
 #: Added in layout 2 (shapeidx.signing.moments.shape_facts): bounding box (min xyz, max
 #: xyz) and principal radii in file units, the two handedness pseudo-scalars and four
-#: scale-free surface moments (area / sum r^2, |skewness| per axis). Absent from
-#: older files: read as NaN (``StoreReader.missing_columns`` names them).
+#: scale-free surface moments (area / sum r^2, |skewness| per axis); later the third
+#: handedness pseudo-scalar (:data:`HANDEDNESS_COLUMNS`). Absent from older files: read as
+#: NaN (``StoreReader.missing_columns`` names them).
 SHAPE_COLUMNS = {"entries/bounds": 6, "entries/extents": 3, "entries/handedness": 2, "entries/moments": 4,
                  "entries/axial_handedness": 1}
 #: The columns of the three handedness pseudo-scalars of :func:`shapeidx.signing.moments.shape_facts`,
