@@ -990,9 +990,12 @@ def _family_table(store, metric=None, parts: bool = False):
 
     table = FamilyTable.load_store(_store_path(store), METRIC_HISTOGRAMS[metric] if metric else HISTOGRAMS, parts)
     if table.missing_columns:
-        click.echo(f"shapeidx: warning: {_store_path(store)} predates the size and handedness columns"
-                   f" ({', '.join(table.missing_columns)}): sizes and mirroring unknown for its older entries;"
-                   " rebuild with 'shapeidx build DIR --full' to fill them", err=True)
+        only_axial = table.missing_columns == ["entries/axial_handedness"]
+        what = ("the axial handedness column", "the mirroring of parts with two principal radii alike") if only_axial \
+            else ("the size and handedness columns", "sizes and mirroring")
+        click.echo(f"shapeidx: warning: {_store_path(store)} predates {what[0]} ({', '.join(table.missing_columns)}):"
+                   f" {what[1]} unknown for its older entries; rebuild with 'shapeidx build DIR --full' to fill them",
+                   err=True)
     return table
 
 
