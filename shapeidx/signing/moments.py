@@ -107,17 +107,24 @@ def surface_moments(vertices: np.ndarray, faces: np.ndarray):
     return area, centroid, covariance, third
 
 
+def _principal_frame(covariance: np.ndarray):
+    """``(variances, axes, close, flat)``: the principal variances largest first and their axes
+    (columns), which neighbouring pairs are within :data:`AXIS_GAP` of each other (2,), and
+    whether the surface is flat (its smallest variance nothing beside the largest)."""
+    variances, axes = np.linalg.eigh(covariance)
+    variances, axes = variances[::-1], axes[:, ::-1]
+    top = max(float(variances[0]), np.finfo(float).tiny)
+    return variances, axes, -np.diff(variances) / top < AXIS_GAP, bool(variances[2] <= 1e-12 * top)
+
+
 def handedness_of(covariance: np.ndarray, third: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Principal radii (largest first) and the two pseudo-scalars ``(h1, h2)`` (module docstring).
 
     ``h`` is NaN when two principal variances are within :data:`AXIS_GAP` of each other.
     """
-    variances, axes = np.linalg.eigh(covariance)
-    variances, axes = variances[::-1], axes[:, ::-1]
+    variances, axes, close, flat = _principal_frame(covariance)
     radii = np.sqrt(np.maximum(variances, 0.0))
-    top = max(float(variances[0]), np.finfo(float).tiny)
-    gaps = -np.diff(variances) / top
-    if gaps.min() < AXIS_GAP or variances[2] <= 1e-12 * top:
+    if close.any() or flat:
         return radii, np.full(2, np.nan)
     t = np.einsum("ijk,ia,jb,kc->abc", third, axes, axes, axes) / np.einsum("a,b,c->abc", radii, radii, radii)
     det = float(np.sign(np.linalg.det(axes)))
@@ -128,11 +135,8 @@ def axial_handedness(covariance: np.ndarray, third: np.ndarray) -> float:
     """``h3`` (module docstring): the handedness about the one defined principal axis, where
     exactly two principal variances are within :data:`AXIS_GAP` of each other (NaN otherwise:
     ``h1, h2`` are defined, or no axis is, or the surface is flat)."""
-    variances, axes = np.linalg.eigh(covariance)
-    variances, axes = variances[::-1], axes[:, ::-1]
-    top = max(float(variances[0]), np.finfo(float).tiny)
-    close = -np.diff(variances) / top < AXIS_GAP
-    if close.all() or not close.any() or variances[2] <= 1e-12 * top:
+    variances, axes, close, flat = _principal_frame(covariance)
+    if close.all() or not close.any() or flat:
         return float("nan")
     u = axes[:, 2] if close[0] else axes[:, 0]  # the radius that stands apart
     whiten = (axes / np.sqrt(variances)) @ axes.T  # Sigma^(-1/2)
@@ -164,8 +168,7 @@ def shape_facts(vertices: np.ndarray, faces: np.ndarray) -> dict:
     spread = float((radii**2).sum())
     skew = np.full(3, np.nan)
     if np.isfinite(handedness).all():
-        variances, axes = np.linalg.eigh(covariance)
-        axes = axes[:, ::-1]
+        axes = _principal_frame(covariance)[1]
         t = np.einsum("ijk,ia,ja,ka->a", third, axes, axes, axes) / radii**3
         skew = np.abs(t)
     moments = (area / spread if spread > 0 else np.nan, *skew.tolist())
