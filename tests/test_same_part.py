@@ -19,7 +19,8 @@ from clitools import cli
 from storetools import copy_tree
 
 from shapeidx.search import Filters, Query, Searcher, open_searcher
-from shapeidx.search.same_part import MIRROR_GAP, SAME_PART_RANK, same_part_scores, shape_gap, shape_measures
+from shapeidx.search.same_part import (MIRROR_GAP, OTHER_SURFACE_GAP, SAME_PART_RANK, SAME_PART_WEIGHT, SAME_SURFACE,
+                                       same_part_scores, shape_gap, shape_measures)
 from shapeidx.signing import load_part
 from shapeidx.signing.moments import shape_facts
 
@@ -90,7 +91,18 @@ def test_the_scale_is_the_query_s_own_nearest_distances():
     distances = np.arange(1, 31, dtype=float)
     scores = same_part_scores(distances, np.ones(30))
     assert np.allclose(scores - distances, scores[0] - distances[0])
-    assert scores[0] - distances[0] == pytest.approx(5.0 * SAME_PART_RANK)  # d_K = the 11th smallest: 11
+    # d_K = the 11th smallest: 11; a gap of 1 is another surface
+    assert scores[0] - distances[0] == pytest.approx(SAME_PART_WEIGHT * SAME_PART_RANK * (1 + OTHER_SURFACE_GAP))
+
+
+def test_one_surface_comes_before_a_sibling_nearer_by_the_metric():
+    """Two siblings whose measures are nearer than a re-faceting moves them (a HC-18/U and a
+    HC-49/U crystal: 7e-4) are told apart by the surface alone: the copy, at gap 0, comes first
+    though the metric puts it a little farther; within one surface the metric orders."""
+    distances = np.concatenate([[1.00, 0.98, 0.99], np.linspace(1.0, 3.0, 20)])
+    gaps = np.concatenate([[0.0, 7e-4, SAME_SURFACE / 2], np.full(20, 0.5)])
+    scores = same_part_scores(distances, gaps)
+    assert list(np.argsort(scores)[:3]) == [2, 0, 1]
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ for every entry, measures integrated exactly from the surface
 sampling noise at all, and they are what tells siblings apart. With ``same_part`` a query ranks
 by
 
-    score = distance + SAME_PART_WEIGHT * d_K * gap
+    score = distance + SAME_PART_WEIGHT * d_K * (gap + OTHER_SURFACE_GAP [gap > SAME_SURFACE])
 
 where ``distance`` is the metric's, ``d_K`` the query's :data:`SAME_PART_RANK`-th smallest
 distance (the scale of the metric around this query, so one weight serves every metric) and
@@ -20,7 +20,11 @@ export in tenths of an inch), plus :data:`MIRROR_GAP` where the two are mirror i
 handedness the store keeps (:func:`shapeidx.signing.chirality.mirror_relation`): a left and a
 right pin header have every measure alike, and D2 cannot tell them apart (a part whose two
 principal radii nearly coincide has only the handedness about its one axis, ``h3``, and no
-part whose three radii coincide has any: no such gap there). The candidates are
+part whose three radii coincide has any: no such gap there). :data:`OTHER_SURFACE_GAP` more
+for every entry that is not one surface with the query (its gap beyond :data:`SAME_SURFACE`):
+two series siblings can be nearer in every measure than a STEP part and its own VRML export
+(a KiCad HC-18/U and HC-49/U crystal: 7e-4 apart; the median STEP/VRML twin: 1e-3), so that
+only the surface itself tells a stored copy of the query from its sibling. The candidates are
 the :data:`SAME_PART_CANDIDATES` nearest by the metric and as many nearest by the gap. Hits
 keep the metric's distance; their order is the score's.
 
@@ -46,6 +50,11 @@ SAME_PART_RANK = 11
 SAME_PART_CANDIDATES = 200
 #: Gap added for a mirror image: as much as proportions some 10 % off (chosen on the library's SMD pin headers).
 MIRROR_GAP = 0.1
+#: Largest gap of one surface, as duplicates' ``same`` tier (FINGERPRINT_SURFACE): a rotated, rescaled,
+#: mirrored or re-faceted copy keeps its exact moments within it (docs/duplicates.md).
+SAME_SURFACE = 1e-4
+#: Gap added to every entry that is not one surface with the query: as much as for a mirror image.
+OTHER_SURFACE_GAP = MIRROR_GAP
 #: ln of every factor a size may be off by and still be the same part (1 and the unit factors both ways).
 _LOG_FACTORS = np.log(np.array((1.0,) + tuple(f for u in UNIT_FACTORS for f in (u, 1.0 / u))))
 
@@ -93,9 +102,9 @@ def same_part_scores(distances: np.ndarray, gaps: np.ndarray, nearest=None) -> n
     """The order's score of each candidate (see the module docstring). ``nearest``: the query's
     smallest distances (at least :data:`SAME_PART_RANK` of them where there are), when the
     candidates are not all there is (a sharded store's merge); default: ``distances``."""
-    distances = np.asarray(distances, dtype=np.float64)
+    distances, gaps = np.asarray(distances, dtype=np.float64), np.asarray(gaps, dtype=np.float64)
     scale = query_scale(distances if nearest is None else nearest)
-    return distances + SAME_PART_WEIGHT * scale * np.asarray(gaps, dtype=np.float64)
+    return distances + SAME_PART_WEIGHT * scale * (gaps + OTHER_SURFACE_GAP * (gaps > SAME_SURFACE))
 
 
 def query_scale(distances: np.ndarray) -> float:
