@@ -64,6 +64,7 @@ from ..errors import ShapeidxError
 from ..store.candidates import OVERFETCH as OVERFETCH_MOMENTS
 from ..signing.chirality import mirror_relation
 from ..distance.scale import UNIT_FACTORS, check_scale
+from ..search.same_part import SAME_SURFACE
 
 TIERS = ("identical", "same", "converted", "similar", "near")
 DEFAULT_METRIC = default_metric("duplicates")
@@ -78,11 +79,11 @@ DEFAULT_TIERS = ("identical", "same", "converted")
 SIZE_TOLERANCE = 0.005
 #: Candidate neighbours per entry.
 DEFAULT_NEIGHBOURS = 20
-#: Largest :func:`fingerprint_gap` for ``same``: one surface. Of 1,200 copies of library parts
-#: (rotated, rescaled, mirrored, re-faceted STL) 1,190 keep their moments within it; of the
-#: library's pairs within :data:`FINGERPRINT_SAME`, those beyond it were nearly all one body
-#: with other pins (docs/duplicates.md).
-FINGERPRINT_SURFACE = 1e-4
+#: Largest :func:`fingerprint_gap` for ``same``: one surface, the tolerance the same-part order
+#: uses too. Of 1,200 copies of library parts (rotated, rescaled, mirrored, re-faceted STL) 1,190
+#: keep their moments within it; of the library's pairs within :data:`FINGERPRINT_SAME`, those
+#: beyond it were nearly all one body with other pins (docs/duplicates.md).
+FINGERPRINT_SURFACE = SAME_SURFACE
 #: Largest :func:`fingerprint_gap` for ``similar`` and ``converted`` (the STEP files of 300
 #: library parts, faceted again by OpenCASCADE: within 0.0057 at the 99th percentile), and
 #: for ``near`` (docs/duplicates.md).

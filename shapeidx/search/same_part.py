@@ -50,8 +50,8 @@ SAME_PART_RANK = 11
 SAME_PART_CANDIDATES = 200
 #: Gap added for a mirror image: as much as proportions some 10 % off (chosen on the library's SMD pin headers).
 MIRROR_GAP = 0.1
-#: Largest gap of one surface, as duplicates' ``same`` tier (FINGERPRINT_SURFACE): a rotated, rescaled,
-#: mirrored or re-faceted copy keeps its exact moments within it (docs/duplicates.md).
+#: Largest gap of one surface (also duplicates' ``same`` tier, FINGERPRINT_SURFACE): a rotated,
+#: rescaled, mirrored or re-faceted copy keeps its exact moments within it (docs/duplicates.md).
 SAME_SURFACE = 1e-4
 #: Gap added to every entry that is not one surface with the query: as much as for a mirror image.
 OTHER_SURFACE_GAP = MIRROR_GAP
