@@ -23,6 +23,8 @@ SIZE_BAND = 2.0
 #: mm, inch to mm, foot to inch, m to cm, foot to mm, m to mm; and their inverses (duplicates'
 #: ``converted`` tier and the same-part order of a query, :mod:`shapeidx.search.same_part`).
 UNIT_FACTORS = (2.54, 10.0, 25.4, 12.0, 100.0, 304.8, 1000.0)
+#: Every factor two sizes of one part may differ by: 1 and the unit factors both ways.
+SAME_SIZE_FACTORS = (1.0,) + tuple(f for u in UNIT_FACTORS for f in (u, 1.0 / u))
 
 
 def check_scale(scale: str) -> str:

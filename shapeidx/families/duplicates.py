@@ -63,7 +63,7 @@ from ..distance.metrics import default_metric
 from ..errors import ShapeidxError
 from ..store.candidates import OVERFETCH as OVERFETCH_MOMENTS
 from ..signing.chirality import mirror_relation
-from ..distance.scale import UNIT_FACTORS, check_scale
+from ..distance.scale import SAME_SIZE_FACTORS, check_scale
 from ..search.same_part import SAME_SURFACE
 
 TIERS = ("identical", "same", "converted", "similar", "near")
@@ -280,10 +280,10 @@ def _candidates(table, metric, k, method, threads, limit, judge=None) -> dict:
 
 def unit_factor(ratios: np.ndarray, scale: str = "invariant") -> tuple[np.ndarray, np.ndarray]:
     """Whether each size ratio means one size: (ok, factor), factor 1 for equal sizes, one of
-    :data:`UNIT_FACTORS` (or its inverse) for a unit change, NaN where it is neither. An unknown
+    :data:`~shapeidx.distance.scale.UNIT_FACTORS` (or its inverse) for a unit change, NaN where it is neither. An unknown
     ratio (NaN: a store without sizes) is ok with factor NaN."""
     ratios = np.asarray(ratios, dtype=np.float64)
-    factors = np.sort(np.array((1.0,) + tuple(f for u in UNIT_FACTORS for f in (u, 1.0 / u))))
+    factors = _ALL_FACTORS
     if check_scale(scale) == "sensitive":
         factors = np.ones(1)
     logs = np.log(factors)
@@ -360,7 +360,7 @@ def _pair_facts(table, a, b, d, limits: dict, scale: str) -> dict:
 
 #: Every size factor a pair can be apart by (1, each unit factor and its inverse), sorted: a
 #: pair's place in it codes the unit part of its conversion kind.
-_ALL_FACTORS = np.sort(np.array((1.0,) + tuple(f for u in UNIT_FACTORS for f in (u, 1.0 / u))))
+_ALL_FACTORS = np.sort(np.array(SAME_SIZE_FACTORS))
 
 
 def _conversion_kind(table, a, b, factor, reverse: bool = False) -> np.ndarray:

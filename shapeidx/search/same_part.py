@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..distance.scale import UNIT_FACTORS
+from ..distance.scale import SAME_SIZE_FACTORS
 from ..signing.chirality import mirror_relation
 
 #: Weight of the exact-measure gap, in units of the query's SAME_PART_RANK-th distance.
@@ -55,8 +55,8 @@ MIRROR_GAP = 0.1
 SAME_SURFACE = 1e-4
 #: Gap added to every entry that is not one surface with the query: as much as for a mirror image.
 OTHER_SURFACE_GAP = MIRROR_GAP
-#: ln of every factor a size may be off by and still be the same part (1 and the unit factors both ways).
-_LOG_FACTORS = np.log(np.array((1.0,) + tuple(f for u in UNIT_FACTORS for f in (u, 1.0 / u))))
+#: ln of every factor a size may be off by and still be the same part.
+_LOG_FACTORS = np.log(np.array(SAME_SIZE_FACTORS))
 
 
 def shape_measures(extents, moments, handedness) -> np.ndarray:
@@ -93,9 +93,16 @@ def shape_gap(query: np.ndarray, entries: np.ndarray) -> np.ndarray:
     entries = np.atleast_2d(np.asarray(entries, dtype=np.float64))
     query = np.asarray(query, dtype=np.float64)
     shape = np.nan_to_num(np.abs(entries[:, 1:4] - query[1:4]), nan=0.0).sum(axis=1)
-    size = np.abs((query[0] - entries[:, 0])[:, None] - _LOG_FACTORS).min(axis=1)
+    size = size_gap(query[0], entries[:, 0])
     mirrored = mirror_relation(query[4:], entries[:, 4:])
     return shape + np.nan_to_num(size, nan=0.0) + MIRROR_GAP * mirrored
+
+
+def size_gap(ln_a, ln_b) -> np.ndarray:
+    """``|ln a - ln b|`` of two sizes (broadcast), modulo a unit factor: the smallest over
+    :data:`shapeidx.distance.scale.SAME_SIZE_FACTORS` (NaN where a size is unknown)."""
+    d = np.subtract(np.asarray(ln_a, dtype=np.float64), np.asarray(ln_b, dtype=np.float64))
+    return np.abs(d[..., None] - _LOG_FACTORS).min(axis=-1)
 
 
 def same_part_scores(distances: np.ndarray, gaps: np.ndarray, nearest=None) -> np.ndarray:
