@@ -39,7 +39,7 @@ from shapeidx.evaluation.evaluate import labelled_features
 from shapeidx.evaluation.learn import class_folds, fit_weights
 from shapeidx.evaluation.retrieval import retrieval_scores
 from shapeidx.search import Searcher
-from shapeidx.search.same_part import _LOG_FACTORS
+from shapeidx.search.same_part import radii_of_measures, size_gap
 
 BEGIN = "<!-- the kinds section: written by scripts/kinds_study.py; do not edit by hand -->"
 END = "<!-- end of the kinds section -->"
@@ -73,16 +73,14 @@ def collection(work: Path, name: str):
     store = quiet_build(COLLECTIONS[name], work / f"{name.replace('/', '-')}.shapeidx")
     with Searcher(store) as searcher:
         data = labelled_features(searcher)
-    m = data.measures  # ln r1, ln r2/r1, ln r3/r1, ...
-    ln_r = np.stack([m[:, 0], m[:, 0] + m[:, 1], m[:, 0] + m[:, 2]], axis=1)
+    ln_r = np.log(radii_of_measures(data.measures))
     return data.learned_features("combined-angle"), np.asarray(data.labels).astype(str), ln_r
 
 
 def apart(values: np.ndarray, modulo_units: bool = False) -> np.ndarray:
     """(n, n) ``|a - b|`` of per-part logs (modulo a unit factor: the smallest over them); 0 where unknown."""
-    d = values[:, None] - values[None, :]
-    d = np.abs(d[..., None] - _LOG_FACTORS).min(axis=-1) if modulo_units else np.abs(d)
-    return np.nan_to_num(d)
+    a, b = values[:, None], values[None, :]
+    return np.nan_to_num(size_gap(a, b) if modulo_units else np.abs(a - b))
 
 
 def nearest(M: np.ndarray, k: int) -> np.ndarray:
