@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 from scipy.special import ndtr
 
-from _common import COLLECTIONS, REPO, machine, quiet_build
+from _common import COLLECTIONS, DATA, REPO, machine, quiet_build
 from shapeidx.evaluation.evaluate import labelled_features
 from shapeidx.evaluation.learn import class_folds, fit_weights
 from shapeidx.evaluation.retrieval import retrieval_scores
@@ -47,6 +47,8 @@ END = "<!-- end of the kinds section -->"
 BEFORE = "<!-- the ceilings section: written by scripts/ceiling_study.py; do not edit by hand -->"
 FOLDS, DEALS = 4, 5
 SHOWN = ("nn", "ft", "st", "dcg")
+#: The sizes' variant that the product offers as ``--metric combined-size``.
+BEST = "sqrt Δr2, sqrt Δr3"
 
 
 INTRO = [
@@ -168,12 +170,48 @@ def reading(reranked: dict, sized: dict, best: str, held_out: list) -> list:
         f" {mean['nn'][1]:.3f} and the mean FT from {mean['ft'][0]:.3f} to {mean['ft'][1]:.3f} (each collection has a",
         "few dozen parts: one query is 0.014 to 0.025 of NN).",
         "",
-        "**Not a metric yet.** Every metric today is scale-invariant, as the paper's are; one with the sizes is not",
-        "(a part and its copy at twice the size differ), so it serves a library kept in one unit and hurts one that",
-        "mixes units (ndr's exporters differ by a factor of about 1,000), and the unit-free version loses the gain.",
-        "As a metric it needs the exact radii at every comparison: in the signature a query carries, the ranking",
-        "view, the families' table and the all-pairs embedding, with a registry flag that it is size-aware.",
     ]
+
+
+def metric_reading(ndr: dict, files: int) -> list:
+    """The product's metric, from its own figures on ndr."""
+    return [
+        "",
+        f"### The metric: `--metric combined-size` ({BEST}, the weights of `combined_size_metric.json`)",
+        "",
+        "The variant above is what the product offers as `combined-size` (checked here: its features, through the search",
+        "road, are these). Every other metric is scale-invariant, as the paper's are; this one is not (a part and its",
+        "copy at twice the size differ), so it serves a library kept in one unit and hurts one that mixes units. On",
+        "ndr, whose exporters differ by a factor of about 1,000 (as scripts/unified_study.py measures it: of the files",
+        "that share their folder with another, the share whose nearest other file is from that folder):",
+        "",
+        "| metric | ndr same folder |",
+        "|---|---|",
+    ] + [f"| {name} | {rate:.3f} ({round(rate * files)} of {files}) |" for name, rate in ndr.items()] + [
+        "",
+        "So no task uses it unasked (the defaults stay scale-invariant); name it for a library of one unit.",
+    ]
+
+
+def product_features(work: Path, extra) -> None:
+    """Refuse to write a section whose study variant is not the product's ``combined-size`` features."""
+    store = quiet_build(COLLECTIONS["kicad6"], work / "kicad6.shapeidx")
+    with Searcher(store) as searcher:
+        product = labelled_features(searcher).learned_features("combined-size")
+    if not np.allclose(product[-len(extra):], np.stack(extra), rtol=0, atol=1e-12):
+        raise SystemExit(f"combined-size's size features are not the study's {BEST}")
+
+
+def ndr_same_folder(work: Path) -> dict:
+    """The ndr same-folder rate (scripts/unified_study.py's) of the scale-invariant metrics and combined-size."""
+    from shapeidx.evaluation.evaluate import distance_matrices
+    from unified_study import same_folder_rate
+
+    store = quiet_build(DATA / "ndr", work / "ndr.shapeidx")
+    with Searcher(store) as searcher:
+        data = labelled_features(searcher)
+    matrices = distance_matrices(data, ("weighted", "combined-angle", "combined-size"))
+    return {name: same_folder_rate(d, data.paths) for name, d in matrices.items()} | {"files": len(data.paths)}
 
 
 def main(argv=None) -> int:
@@ -199,7 +237,7 @@ def main(argv=None) -> int:
         sized[name] = cross_validated(with_sizes(features, extra), labels)
         L.append(scores_row(name, sized[name]))
         print(L[-1], f"(NN spread over the deals {sized[name]['std_nn']:.3f})", flush=True)
-    best = "sqrt Δr2, sqrt Δr3"
+    best = BEST
     L.append(scores_row(f"{best}, then local scaling (k = 20)",
                         cross_validated(with_sizes(features, sizes[best]), labels, RERANKINGS["local scaling, k = 20"])))
     print(L[-1], flush=True)
@@ -216,6 +254,9 @@ def main(argv=None) -> int:
         L.append(f"| {name} | {len(lab)} | {plain['nn']:.3f} | {plain['ft']:.3f} | {with_size['nn']:.3f} | {with_size['ft']:.3f} |")
         print(L[-1], flush=True)
     L += [""] + reading(reranked, sized, best, held_out)
+    product_features(args.work, sizes[best])
+    ndr = ndr_same_folder(args.work)
+    L += metric_reading(ndr, ndr.pop("files"))
     command = "python scripts/kinds_study.py " + " ".join(argv if argv is not None else sys.argv[1:])
     L += ["", f"Command: `{command}`; {datetime.date.today()}; {machine()}.", "", END]
     section = "\n".join(L) + "\n"

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Learn the weights of a learned metric on a labelled collection; write them with their
 cross-validated figures to its file in shapeidx/distance/ (combined_metric.json,
-combined_angle_metric.json).
+combined_angle_metric.json, combined_size_metric.json).
 
     python scripts/learn_metric.py ../shared/data/kicad6 --store kicad6.h5
     python scripts/learn_metric.py ../shared/data/kicad6 --store kicad6.h5 --metric combined-angle
@@ -48,8 +48,10 @@ def main(argv=None) -> int:
     with open_store(args.store) as reader:
         data = labelled_features(reader)
         points = reader.params.points
-    if set(names) - set(data.named()):
-        sys.exit(f"{args.store}: built before the normal-angle histograms; rebuild it to learn {args.metric}")
+    missing = [name for name in names if name not in data.named()]
+    if missing:
+        sys.exit(f"{args.store}: its entries lack {', '.join(missing)} (built before the normal-angle histograms"
+                 f" or the exact sizes); rebuild it to learn {args.metric}")
     features = data.learned_features(args.metric)
     cv = cross_validate(features, data.labels, folds=args.folds, repeats=args.repeats)
     weights = fit_weights(features, data.labels)

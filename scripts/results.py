@@ -35,7 +35,8 @@ from shapeidx.store import open_store
 
 PAPER_D = "L1 / bins (the paper's D)"  # the row other histogram comparisons are measured against
 LABELS = {"all": "ALL (plain D2)", "avg3": "AvgOf3", "avg4": "AvgOf4", "weighted": "Weighted", "combined": "combined",
-          "combined-angle": "combined-angle", "all-angle": "all-angle (twins)", "unified": "unified"}
+          "combined-angle": "combined-angle", "combined-size": "combined-size (one unit)", "all-angle": "all-angle (twins)",
+          "unified": "unified"}
 
 
 def store_of(work: Path, name: str, directory: Path, points: int = 1024) -> Path:
@@ -76,6 +77,7 @@ def cross_validation(lines, data):
     cv = cross_validate(data.features, data.labels, folds=4, repeats=5)
     angle = cross_validate(data.learned_features("combined-angle"), data.labels, folds=4, repeats=5)
     unified = cross_validate_unified(data, folds=4, repeats=5)
+    sized = cross_validate(data.learned_features("combined-size"), data.labels, folds=4, repeats=5)
     paper = retrieval_scores(distance_matrices(data, ("weighted",))["weighted"], data.labels)
     plain = retrieval_scores(distance_matrices(data, ("all",))["all"], data.labels)
     lines += [
@@ -93,13 +95,18 @@ def cross_validation(lines, data):
         "| combined, cross-validated | " + " | ".join(f"{cv[s]:.3f} ± {cv['std'][s]:.3f}" for s in SCORES) + " |",
         "| combined-angle, cross-validated | " + " | ".join(f"{angle[s]:.3f} ± {angle['std'][s]:.3f}" for s in SCORES) + " |",
         "| unified, cross-validated | " + " | ".join(f"{unified[s]:.3f} ± {unified['std'][s]:.3f}" for s in SCORES) + " |",
+        "| combined-size, cross-validated | " + " | ".join(f"{sized[s]:.3f} ± {sized['std'][s]:.3f}" for s in SCORES) + " |",
         "",
         f"Weighted beats plain D2 by {paper['nn'] - plain['nn']:+.3f} NN and {paper['ft'] - plain['ft']:+.3f} FT; the combined metric",
         f"adds {cv['nn'] - paper['nn']:+.3f} NN and {cv['ft'] - paper['ft']:+.3f} FT on top of Weighted, cross-validated;",
         f"combined-angle (the class features and the normal-angle histograms' Hellinger distances, below) adds",
         f"{angle['nn'] - paper['nn']:+.3f} NN and {angle['ft'] - paper['ft']:+.3f} FT on top of Weighted; unified (combined-angle",
         f"with the pairs all-angle finds to be one part moved first: docs/unified.md) {unified['nn'] - angle['nn']:+.3f} NN and",
-        f"{unified['ft'] - angle['ft']:+.3f} FT against combined-angle.",
+        f"{unified['ft'] - angle['ft']:+.3f} FT against combined-angle. combined-size (combined-angle's features and the",
+        f"exact sizes: sqrt|Δ ln r| of the middle and smallest principal radii; docs/unified.md, \"Parts of a kind\")",
+        f"{sized['nn'] - angle['nn']:+.3f} NN and {sized['ft'] - angle['ft']:+.3f} FT against combined-angle: kicad6 is one unit, and",
+        "some of its classes differ by size alone (pin headers and sockets of 1.00 to 2.54 mm pitch). It is not",
+        "scale-invariant, so it is no metric for a collection of mixed units (ndr, below).",
         "",
     ]
 

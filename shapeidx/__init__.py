@@ -32,7 +32,7 @@ _NAMES = {
     **dict.fromkeys(["ShapeidxError", "LoadError", "StoreError"], ".errors"),
     "Signature": ".signing.histogram",
     "Solid": ".signing.solid",
-    "METRICS": ".distance.metrics",
+    **dict.fromkeys(["METRICS", "SIZE_METRICS"], ".distance.metrics"),
 }
 __all__ = sorted(_NAMES)
 __getattr__, __dir__ = attach(__name__, _NAMES)

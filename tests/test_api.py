@@ -78,7 +78,10 @@ class TestOneSignatureForEveryForm:
 class TestDistancesAndQueries:
     def test_compare_is_scale_invariant_and_knows_a_different_part(self, data_dir):
         box = trimesh.creation.box((10, 20, 5))
-        assert shapeidx.compare(box, (box.vertices * 3, box.faces)) == pytest.approx({m: 0.0 for m in shapeidx.METRICS}, abs=1e-9)
+        scaled = shapeidx.compare(box, (box.vertices * 3, box.faces))
+        invariant = [m for m in shapeidx.METRICS if m not in shapeidx.SIZE_METRICS]
+        assert {m: scaled[m] for m in invariant} == pytest.approx({m: 0.0 for m in invariant}, abs=1e-9)
+        assert all(scaled[m] > 0.1 for m in shapeidx.SIZE_METRICS)  # reads the exact sizes: 3x is another size
         tube = trimesh.creation.annulus(r_min=4, r_max=5, height=20)
         assert shapeidx.compare(box, tube)["weighted"] > 0.01
 

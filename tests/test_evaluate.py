@@ -53,7 +53,7 @@ def test_cli_json_per_class_and_cross_validation(collection):
     assert result.exit_code == 0, result.stderr
     data = json.loads(result.stdout)
     assert set(data["metrics"]) == set(METRICS) | {"combined (cross-validated)", "combined-angle (cross-validated)",
-                                                "unified (cross-validated)"}
+                                                "combined-size (cross-validated)", "unified (cross-validated)"}
     per_class = data["metrics"]["weighted"]["per_class"]
     assert set(per_class) == set(CLASSES) and all(c["queries"] == 10 for c in per_class.values())
     # the mean over classes of equal size is the overall mean

@@ -13,8 +13,8 @@ from ..ragged import offsets_of
 from ..signing.histogram import Signature
 from ..signing.parameters import HISTOGRAMS
 from ..signing.angles import angle_probabilities
-from .combined import angle_features, class_scales, metric_values, signature_means
-from .metrics import ANGLE_METRICS, PAPER_METRICS, REGISTRY
+from .combined import angle_features, class_scales, metric_values, signature_means, size_features
+from .metrics import ANGLE_METRICS, PAPER_METRICS, REGISTRY, SIZE_METRICS
 
 
 #: Histograms each metric reads (its registry record's): ranking skips the others.
@@ -134,7 +134,7 @@ def padded_l1(counts: np.ndarray, totals: np.ndarray, query_p: np.ndarray, width
 
 
 def features_to_many(query: Signature, banks: dict, fractions: np.ndarray, means: np.ndarray | None = None, histograms=HISTOGRAMS,
-                     distances: dict | None = None, angles: np.ndarray | None = None) -> dict:
+                     distances: dict | None = None, angles: np.ndarray | None = None, radii: np.ndarray | None = None) -> dict:
     """The per-pair features (:data:`FEATURES`) from one signature to every row of a table.
 
     Parameters
@@ -154,6 +154,9 @@ def features_to_many(query: Signature, banks: dict, fractions: np.ndarray, means
         Each row's normal-angle probabilities (:func:`angle_probabilities`); with them and a
         query that has its own, the angle features are added (NaN for rows whose angles are
         unknown).
+    radii : (N, 3) float64, optional
+        Each row's principal radii (NaN: unknown); with them the size features
+        (:data:`~shapeidx.distance.combined.SIZE_FEATURES`) are added (0 where a size is unknown).
     """
     if distances is not None:
         features = {f"d_{h}": distances[h] if h in histograms else 0.0 for h in HISTOGRAMS}
@@ -168,15 +171,17 @@ def features_to_many(query: Signature, banks: dict, fractions: np.ndarray, means
             features[f"scale_{c}"] = scale_gap[:, i]
     if angles is not None and query.angles is not None:
         features.update(angle_features(angle_probabilities(query.angles)[None], angles))
+    if radii is not None:
+        features.update(size_features(None if query.radii is None else query.radii[None], radii))
     return features
 
 
 def distances_to_many(query: Signature, banks: dict, fractions: np.ndarray, means: np.ndarray | None = None, metrics=PAPER_METRICS,
-                      angles: np.ndarray | None = None) -> dict:
+                      angles: np.ndarray | None = None, radii: np.ndarray | None = None) -> dict:
     """Distances from one signature to every row of a table, vectorised.
 
     Parameters are those of :func:`features_to_many`; ``means`` is needed for ``combined``,
-    ``angles`` (and the query's own) for ``combined-angle``.
+    ``angles`` (and the query's own) for ``combined-angle``, ``radii`` (and the query's own) for ``combined-size``.
 
     Returns
     -------
@@ -185,5 +190,6 @@ def distances_to_many(query: Signature, banks: dict, fractions: np.ndarray, mean
     """
     needed = {h for m in metrics for h in METRIC_HISTOGRAMS[m]}
     features = features_to_many(query, banks, fractions, means, needed,
-                                angles=angles if set(metrics) & set(ANGLE_METRICS) else None)
+                                angles=angles if set(metrics) & set(ANGLE_METRICS) else None,
+                                radii=radii if set(metrics) & set(SIZE_METRICS) else None)
     return metric_values(features, metrics)

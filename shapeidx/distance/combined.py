@@ -23,6 +23,16 @@ unknown).
 IN / OUT / MIXED class, which differs between exports of one part (open against closed
 meshes), and no learned weight.
 
+**combined-size**: combined-angle's features and two of the part's exact sizes: how much the
+middle and the smallest principal radii of the surface differ, ``sqrt|ln rA - ln rB|``
+(:data:`SIZE_FEATURES`), learned the same way (``combined_size_metric.json``). The store keeps
+the radii (integrated from the surface, no sampling noise); the paper's histograms, each
+normalised by its own mean, are blind to size. In a library of one unit some kinds differ by
+size alone (pin headers of 1.00, 2.00 and 2.54 mm pitch: the smallest radius scales with the
+pitch), and on kicad6 cross-validated it is the best for parts of a kind (docs/results.md,
+docs/unified.md "Parts of a kind"). It is not scale-invariant: a part exported in inches is
+far from its own export in mm, so it is no metric for a collection of mixed units (ndr).
+
 **unified**: one metric for both questions (issue 24): combined-angle, discounted where
 all-angle says the two are the same part from another exporter:
 ``combined-angle x min(1, all-angle / UNIFIED_TWIN_DISTANCE) ** UNIFIED_POWER``. Pairs whose
@@ -43,7 +53,7 @@ import numpy as np
 from ..signing.angles import ANGLE_HISTOGRAMS, angle_probabilities
 from ..signing.histogram import Signature
 from ..signing.parameters import HISTOGRAMS
-from .metrics import ALL_ANGLE_WEIGHT, ANGLE_METRICS, METRICS, REGISTRY, learned_weights, metric
+from .metrics import ALL_ANGLE_WEIGHT, METRICS, REGISTRY, learned_weights, metric
 from .paper import histogram_distance
 
 #: The per-pair quantities all metrics are made of, in the order of the combined weights.
@@ -53,6 +63,8 @@ FEATURES = tuple(f"d_{h}" for h in HISTOGRAMS) + tuple(f"gap_{c}" for c in HISTO
 #: Distances of the normal-angle histograms (:mod:`shapeidx.signing.angles`), per histogram:
 #: L1 (``angle_*``, all-angle's) and Hellinger (``hellinger_angle_*``, combined-angle's).
 ANGLE_FEATURES = tuple(f"angle_{h}" for h in ANGLE_HISTOGRAMS) + tuple(f"hellinger_angle_{h}" for h in ANGLE_HISTOGRAMS)
+#: The exact sizes' gaps: ``sqrt|ln rA - ln rB|`` of the largest, middle and smallest principal radius.
+SIZE_FEATURES = tuple(f"size_r{i}" for i in (1, 2, 3))
 #: The learned metrics: their features, in the order of their weights, and their weights' file
 #: (from the registry, :mod:`shapeidx.distance.metrics`).
 LEARNED = {name: (m.features, m.learned) for name, m in REGISTRY.items() if m.learned}
@@ -85,6 +97,23 @@ def require_angles(angles, signature: Signature, metric: str) -> None:
         raise StoreError(f"metric {metric} needs the query's normal-angle histograms, which its signature lacks")
 
 
+def size_features(radii_a, radii_b) -> dict:
+    """:data:`SIZE_FEATURES` between principal radii ``radii_a`` and ``radii_b`` (..., 3), broadcast
+    against each other (None: unknown): name -> (...) array, 0 where either is unknown (an unknown
+    size adds nothing, as in the same-part order: a signature made by hand, an entry of a store
+    written before the exact measures).
+
+    The square root: near sizes count for more than a difference in ln r would give them (two
+    pitches 1.27 and 2.54 mm apart are ln 2 apart, a 0402 and a 2512 resistor ln 6), and far
+    ones for less (NCA on kicad6 preferred it: docs/unified.md, "Parts of a kind").
+    """
+    radii_a, radii_b = (np.full(3, np.nan) if r is None else np.asarray(r, dtype=np.float64) for r in (radii_a, radii_b))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gap = np.abs(np.log(radii_a) - np.log(radii_b))
+    gap = np.sqrt(np.nan_to_num(gap, nan=0.0, posinf=0.0))
+    return {name: gap[..., i] for i, name in enumerate(SIZE_FEATURES)}
+
+
 def class_scales(means: np.ndarray) -> np.ndarray:
     """``ln(class mean / ALL mean)`` for IN, OUT, MIXED from means in :data:`HISTOGRAMS` order.
 
@@ -109,7 +138,9 @@ def metric_values(features: dict, metrics=METRICS) -> dict:
         record = metric(name)
         missing = [f for f in record.features if f not in features]
         if missing:
-            what = "the normal-angle histograms" if record.angles else f"the features {', '.join(missing)}"
+            what = ("the normal-angle histograms" if record.angles and missing[0] in ANGLE_FEATURES
+                    else "the exact sizes (principal radii)" if missing[0] in SIZE_FEATURES
+                    else f"the features {', '.join(missing)}")
             raise ValueError(f"metric {name} needs {what}, which are unknown here")
         values[name] = record.value(features)
     return values
@@ -129,6 +160,12 @@ def combined_angle(features: dict):
     """**combined-angle**: the learned weights of ``combined_angle_metric.json`` over the class
     features and the angle histograms' Hellinger distances."""
     return _learned("combined-angle", features)
+
+
+def combined_size(features: dict):
+    """**combined-size**: the learned weights of ``combined_size_metric.json`` over combined-angle's
+    features and :data:`SIZE_FEATURES` (two of them)."""
+    return _learned("combined-size", features)
 
 
 def all_angle(features: dict):
@@ -182,6 +219,7 @@ def features_between(a: Signature, b: Signature) -> dict:
     if a.angles is not None and b.angles is not None:
         gaps = angle_features(angle_probabilities(a.angles), angle_probabilities(b.angles))
         features.update({name: float(v) for name, v in gaps.items()})
+    features.update({name: float(v) for name, v in size_features(a.radii, b.radii).items()})
     return features
 
 
@@ -189,5 +227,5 @@ def compare(a: Signature, b: Signature) -> dict:
     """Every metric of the registry (:data:`~shapeidx.distance.metrics.METRICS`) between two signatures,
     by name; the metrics that read normal-angle histograms only when both carry them."""
     features = features_between(a, b)
-    metrics = [m for m in METRICS if m not in ANGLE_METRICS or ANGLE_FEATURES[0] in features]
+    metrics = [m for m in METRICS if set(metric(m).features) <= set(features)]
     return {name: float(value) for name, value in metric_values(features, metrics).items()}

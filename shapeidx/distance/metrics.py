@@ -53,6 +53,9 @@ class Metric:
         formula combines.
     angles : bool
         Whether it needs the normal-angle histograms (stores built before them are refused).
+    sizes : bool
+        Whether it reads the parts' exact sizes (their principal radii): then it is not
+        scale-invariant, and a part and its copy in other units are far apart.
     paper : bool
         One of the paper's four distances, exactly as Ip et al. (2002) define them.
     formula : str
@@ -83,6 +86,7 @@ class Metric:
     features: tuple
     formula: str
     angles: bool = False
+    sizes: bool = False
     paper: bool = False
     bounded: bool = True
     learned: str | None = None
@@ -139,6 +143,10 @@ def _scales() -> tuple:
     return tuple(f"scale_{c}" for c in _CLASSES)
 
 
+def _sizes(*radii) -> tuple:
+    return tuple(f"size_r{i}" for i in radii)
+
+
 def _angle(kind: str, histograms=_HISTOGRAMS) -> tuple:
     return tuple(f"{kind}_angle_{h}" if kind else f"angle_{h}" for h in histograms)
 
@@ -166,6 +174,11 @@ REGISTRY: dict[str, Metric] = {
                "learned: normal-angle histograms (Hellinger) and class features; best for parts of the same kind",
                histograms=(), features=_gaps() + _scales() + _angle("hellinger"), formula=".combined:combined_angle",
                angles=True, learned="combined_angle_metric.json", defaults=("duplicates", "check-new", "classify", "cluster")),
+        Metric("combined-size", "combined-size",
+               "learned: combined-angle's features and the exact sizes; for parts of a kind in a library of one unit"
+               " (not scale-invariant)",
+               histograms=(), features=_gaps() + _scales() + _angle("hellinger") + _sizes(2, 3),
+               formula=".combined:combined_size", angles=True, sizes=True, learned="combined_size_metric.json"),
         Metric("all-angle", "all-angle",
                "plain D2 plus the ALL normal-angle histogram: for the same part from another exporter",
                histograms=("all",), features=_d("all") + _angle("", ("all",)), formula=".combined:all_angle", angles=True,
@@ -185,6 +198,8 @@ PAPER_METRICS = tuple(name for name, m in REGISTRY.items() if m.paper)
 BOUNDED_METRICS = tuple(name for name, m in REGISTRY.items() if m.bounded)
 #: Metrics that need the normal-angle histograms.
 ANGLE_METRICS = tuple(name for name, m in REGISTRY.items() if m.angles)
+#: Metrics that read the exact sizes (not scale-invariant).
+SIZE_METRICS = tuple(name for name, m in REGISTRY.items() if m.sizes)
 
 
 @lru_cache(maxsize=None)
@@ -243,7 +258,8 @@ def markdown_table() -> str:
         reads = ", ".join([f"D of {'/'.join(h.upper() for h in m.histograms)}"] if m.histograms else [])
         extra = [what for what, used in (("class fractions", any(f.startswith("gap_") for f in m.features)),
                                          ("class means", any(f.startswith("scale_") for f in m.features)),
-                                         ("normal-angle histograms", m.angles)) if used]
+                                         ("normal-angle histograms", m.angles),
+                                         ("exact sizes", m.sizes)) if used]
         reads = "; ".join([reads] + extra if reads else extra)
         defaults = ", ".join(f"`{task}`" for task in m.defaults)
         rows.append(f"| `{m.name}` | {m.label} | {m.summary} | {reads} | {'yes' if m.duplicate_thresholds else 'no'} | {defaults} |")

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..distance import ANGLE_FEATURES, FEATURES, LEARNED, METRICS, REGISTRY, metric_values, metric as metric_record
+from ..distance import ANGLE_FEATURES, FEATURES, LEARNED, METRICS, REGISTRY, SIZE_FEATURES, metric_values, metric as metric_record
 from ..errors import ShapeidxError
 from ..search.distances import entry_features
 from ..signing.parameters import HISTOGRAMS
@@ -31,11 +31,12 @@ class LabelledFeatures:
     features: np.ndarray  # (len(FEATURES), n, n)
     unlabelled: int  # ok entries outside any class folder, left out
     angle_features: np.ndarray | None = None  # (len(ANGLE_FEATURES), n, n); None: a store without angles
-    measures: np.ndarray | None = None  # (n, 6) exact measures (shapeidx.search.same_part.shape_measures)
+    measures: np.ndarray | None = None  # (n, 7) exact measures (shapeidx.search.same_part.shape_measures)
+    size_features: np.ndarray | None = None  # (len(SIZE_FEATURES), n, n); 0 where a size is unknown
 
     def all_features(self) -> np.ndarray:
-        """``features`` and, when known, ``angle_features``, in the order of :meth:`named`."""
-        return self.features if self.angle_features is None else np.concatenate([self.features, self.angle_features])
+        """``features`` and, when known, ``angle_features`` and ``size_features``, in the order of :meth:`named`."""
+        return np.concatenate([self.features] + [f for f in (self.angle_features, self.size_features) if f is not None])
 
     def learned_features(self, metric: str) -> np.ndarray:
         """The (F, n, n) features of a learned metric (:data:`~shapeidx.distance.LEARNED`), in
@@ -45,7 +46,8 @@ class LabelledFeatures:
 
     def named(self) -> dict:
         """Feature name -> (n, n) matrix."""
-        names = FEATURES + (ANGLE_FEATURES if self.angle_features is not None else ())
+        names = (FEATURES + (ANGLE_FEATURES if self.angle_features is not None else ())
+                 + (SIZE_FEATURES if self.size_features is not None else ()))
         return dict(zip(names, self.all_features()))
 
 
@@ -118,20 +120,22 @@ def labelled_features(store, query_seed: int | None = None) -> LabelledFeatures:
     chosen = order[[c is not None for c in classes]].astype(np.int64)
     angle_p = searcher.view.angle_probabilities(chosen)
     with_angles = np.isfinite(angle_p).all()
-    names = FEATURES + (ANGLE_FEATURES if with_angles else ())
+    names = FEATURES + (ANGLE_FEATURES if with_angles else ()) + SIZE_FEATURES
     features = np.zeros((len(names), len(chosen), len(chosen)))
     for k, i in enumerate(chosen.tolist()):
         signature = searcher.signature_at(i) if query_seed is None else drawn_again(searcher, i, query_seed)
-        values = entry_features(searcher.view, signature, HISTOGRAMS, chosen, with_angles)
+        values = entry_features(searcher.view, signature, HISTOGRAMS, chosen, with_angles, sizes=True)
         for f, name in enumerate(names):
             features[f, k] = values[name]
+    angles_end = len(FEATURES) + (len(ANGLE_FEATURES) if with_angles else 0)
     return LabelledFeatures(
         paths=paths[chosen],
         labels=np.array([class_of(str(paths[i])) for i in chosen], dtype=object),
         features=features[: len(FEATURES)],
         unlabelled=len(paths) - len(chosen),
-        angle_features=features[len(FEATURES) :] if with_angles else None,
+        angle_features=features[len(FEATURES) : angles_end] if with_angles else None,
         measures=searcher.entry_measures()[chosen],
+        size_features=features[angles_end:],
     )
 
 

@@ -141,7 +141,6 @@ class Checker:
         ``size_ratio``, ``unit``, ``mirrored``, ``words``). ``seed``: the new part's points drawn
         with this seed rather than the store's (studies: no stored entry shares its points)."""
         from ..search.searcher import Filters
-        from ..signing.moments import shape_facts
         from ..store.layout import Entry
 
         digest = file_hash(path)
@@ -161,7 +160,7 @@ class Checker:
         solid = query.solid
         st = os.stat(path)
         entry = Entry.indexed("\0new/" + os.path.basename(path), digest, st.st_size, st.st_mtime_ns, query.signature, solid.describe(),
-                              shape_facts(solid.vertices, solid.faces))
+                              solid.facts)
         rows += [r for r in self._moment_neighbours(entry, OVERFETCH * candidates) if r not in rows]
         rows = [r for r in rows if (own is None or self.table.paths[r] != own) and self.table.paths[r] not in mine]
         dups, looks = [], []

@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..distance import ANGLE_FEATURES, ANGLE_METRICS, FEATURES, METRIC_HISTOGRAMS, METRICS, metric_values
+from ..distance import ANGLE_FEATURES, ANGLE_METRICS, FEATURES, METRIC_HISTOGRAMS, METRICS, SIZE_METRICS, metric_values
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
-from ..distance.combined import ANGLE_KINDS, class_scales
+from ..distance.combined import ANGLE_KINDS, class_scales, size_features
 from ..errors import StoreError
 from ..ragged import offsets_of
 from ..search.searcher import check_usable
@@ -326,9 +326,11 @@ class FamilyTable:
             cache[name] = make()
         return cache[name]
 
-    def pair_features(self, a: np.ndarray, b: np.ndarray, histograms=HISTOGRAMS, angles=("l1", "hellinger")) -> dict:
-        """The per-pair :data:`~shapeidx.distance.FEATURES` of entries ``a[k]``, ``b[k]``, and
-        the normal-angle histograms' distances named in ``angles`` (L1, Hellinger)."""
+    def pair_features(self, a: np.ndarray, b: np.ndarray, histograms=HISTOGRAMS, angles=("l1", "hellinger"),
+                      sizes: bool = False) -> dict:
+        """The per-pair :data:`~shapeidx.distance.FEATURES` of entries ``a[k]``, ``b[k]``, the
+        normal-angle histograms' distances named in ``angles`` (L1, Hellinger), and with ``sizes``
+        the exact sizes' gaps (:data:`~shapeidx.distance.SIZE_FEATURES`)."""
         a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
         features = {f"d_{h}": self.histograms[h].distances(a, b) if h in histograms else np.zeros(len(a)) for h in HISTOGRAMS}
         for i, c in enumerate(HISTOGRAMS[1:]):
@@ -347,6 +349,8 @@ class FamilyTable:
                 roots = self._cached("angle_roots", lambda: np.sqrt(self.angles))
                 hellinger = np.sqrt(((roots[a] - roots[b]) ** 2).sum(axis=-1) / 2)
                 features.update({name: hellinger[:, i] for i, name in enumerate(ANGLE_FEATURES[count:])})
+        if sizes:
+            features.update(size_features(self.extents[a], self.extents[b]))
         assert set(FEATURES) <= set(features)
         return features
 
@@ -366,7 +370,8 @@ class FamilyTable:
         out = np.empty(len(a))
         step = PAIR_BLOCK_VALUES // 64  # bounds the (pairs, 4, bins) copies of the angle road
         for lo in range(0, len(a), step):
-            features = self.pair_features(a[lo : lo + step], b[lo : lo + step], METRIC_HISTOGRAMS[metric], angles)
+            features = self.pair_features(a[lo : lo + step], b[lo : lo + step], METRIC_HISTOGRAMS[metric], angles,
+                                          metric in SIZE_METRICS)
             out[lo : lo + step] = metric_values(features, (metric,))[metric]
         return out
 

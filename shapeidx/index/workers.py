@@ -196,14 +196,13 @@ def _index_file(task: Task, params: StoreParams, root: str) -> Outcome:
 def _signed(path: str, digest: str, size: int, mtime: int, solid, params: StoreParams, absolute: str,
             clock: StageClock | None = None) -> Entry:
     """The ok entry of one solid (a file, or a sub-part ``FILE#n``); ``absolute`` names the file in errors."""
-    from ..signing.moments import shape_facts
     from ..signing.pipeline import signature_of_solid
 
     check_signature_headroom(absolute, len(solid.faces))
     signature = signature_of_solid(solid, params.points, params.seed, params.bin_divisor)
     if clock is not None:
         clock.lap("signature")
-    entry = Entry.indexed(path, digest, size, mtime, signature, solid.describe(), shape_facts(solid.vertices, solid.faces))
+    entry = Entry.indexed(path, digest, size, mtime, signature, solid.describe(), solid.facts)
     if clock is not None:
         clock.lap("facts")
     return entry

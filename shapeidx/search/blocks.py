@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..distance.combined import class_scales, signature_means
+from ..distance.combined import SIZE_FEATURES, class_scales, signature_means
 from ..distance.metrics import REGISTRY
 from ..distance.metrics import metric as metric_record
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
@@ -159,7 +159,8 @@ def entry_bounds(view, signature, metric: str, positions: np.ndarray, threads: i
     record = metric_record(metric)
     # a metric of D terms leaves its (non-negative) angle terms out of the bound: 0 bounds them
     angles = record.angles and not record.histograms
-    features = entry_features(view, signature, record.histograms, positions, angles, coarse=True, threads=threads)
+    features = entry_features(view, signature, record.histograms, positions, angles, coarse=True, threads=threads,
+                              sizes=record.sizes)
     if record.angles and not angles:
         features.update(dict.fromkeys(ANGLE_FEATURES, 0.0))
     return np.asarray(record.value(features), dtype=np.float64) * (1 - 1e-9) - 1e-15
@@ -268,6 +269,7 @@ class BlockIndex:
         record = metric_record(metric)
         blocks = len(self.starts)
         features = {f"d_{h}": np.zeros(blocks) for h in HISTOGRAMS}
+        features.update(dict.fromkeys(SIZE_FEATURES, 0.0))  # non-negative terms: 0 bounds them
         for h in record.histograms:
             query_p = np.asarray(signature.histograms[h].p, dtype=np.float64)
             l1 = np.zeros(blocks)
@@ -311,7 +313,7 @@ class BlockIndex:
         if not record.histograms or not set(record.histograms) <= set(self.cached):
             return entry_bounds(self.view, signature, metric, self.perm[at], threads)
         features = {f"d_{h}": 0.0 for h in HISTOGRAMS}
-        features.update(dict.fromkeys(ANGLE_FEATURES, 0.0))
+        features.update(dict.fromkeys(ANGLE_FEATURES + SIZE_FEATURES, 0.0))
         for h in record.histograms:
             p, bins = self.cached[h]
             query_p = np.asarray(signature.histograms[h].p, dtype=np.float64)

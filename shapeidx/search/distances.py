@@ -158,10 +158,10 @@ def _halves(blocks: list, query_bins: int) -> list:
 
 
 def entry_features(view, signature, histograms, positions=None, angles: bool = False, coarse: bool = False,
-                   threads: int = RANK_THREADS, scales: bool = True) -> dict:
+                   threads: int = RANK_THREADS, scales: bool = True, sizes: bool = False) -> dict:
     """The per-pair features from ``signature`` to the live entries at ``positions`` (default
     all): ``d_H`` for the histograms ``histograms`` (lower bounds with ``coarse``), the class
-    gaps and scales, and with ``angles`` the normal-angle distances."""
+    gaps and scales, with ``angles`` the normal-angle distances, with ``sizes`` the exact sizes' gaps."""
     pool = ThreadPoolExecutor(threads) if threads > 1 and len(histograms) and positions is None else None
     try:
         d = {h: histogram_distances(view, h, signature.histograms[h].p, positions, coarse, pool) for h in histograms}
@@ -171,17 +171,25 @@ def entry_features(view, signature, histograms, positions=None, angles: bool = F
     fractions = view.gather("fractions", positions)
     means = view.gather("means", positions) if scales else None  # the scale features: only where read
     angle_p = view.angle_probabilities(positions) if angles else None
-    return features_to_many(signature, None, fractions, means, histograms, distances=d, angles=angle_p)
+    radii = view.numbers("entries/extents", 3, positions) if sizes else None
+    return features_to_many(signature, None, fractions, means, histograms, distances=d, angles=angle_p, radii=radii)
+
+
+def require_inputs(view, signature, record, positions=None) -> None:
+    """Refuse, in one line, a metric whose inputs the store or the query lack (the normal-angle
+    histograms; an unknown size adds nothing, so sizes are never refused)."""
+    if record.angles:
+        require_angles(view.angle_probabilities() if positions is None else view.angle_probabilities(positions),
+                       signature, record.name)
 
 
 def distances(view, signature, metric: str, positions=None, threads: int = RANK_THREADS) -> np.ndarray:
     """The ``metric`` distance from ``signature`` to the live entries at ``positions`` (default all),
     equal to :func:`shapeidx.distance.compare` for each pair, bit for bit."""
     record = metric_record(metric)
-    if record.angles:
-        require_angles(view.angle_probabilities() if positions is None else view.angle_probabilities(positions),
-                       signature, metric)
-    features = entry_features(view, signature, record.histograms, positions, record.angles, threads=threads)
+    require_inputs(view, signature, record, positions)
+    features = entry_features(view, signature, record.histograms, positions, record.angles, threads=threads,
+                              sizes=record.sizes)
     return np.asarray(record.value(features), dtype=np.float64)
 
 
@@ -189,7 +197,7 @@ def lower_bounds(view, signature, metric: str, threads: int = RANK_THREADS) -> n
     """A lower bound of the ``metric`` distance to every live entry (its record must be ``bounded``)."""
     record = metric_record(metric)
     features = entry_features(view, signature, record.histograms, None, record.angles, coarse=True, threads=threads,
-                              scales=any(f.startswith("scale_") for f in record.features))
+                              scales=any(f.startswith("scale_") for f in record.features), sizes=record.sizes)
     # room for rounding: the bound and the distance are sums of different float terms
     return np.asarray(record.value(features), dtype=np.float64) * (1 - 1e-9) - 1e-15
 
@@ -206,8 +214,7 @@ def nearest(view, signature, metric: str, top: int, keep: np.ndarray | None = No
     """
     record = metric_record(metric)
     n = len(view)
-    if record.angles:
-        require_angles(view.angle_probabilities(), signature, metric)
+    require_inputs(view, signature, record)
     if top <= 0 or n == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0)
     if not record.bounded:

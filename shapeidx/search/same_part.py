@@ -80,9 +80,7 @@ def radii_of_measures(measures) -> np.ndarray:
 
 def measures_of_solid(solid) -> np.ndarray:
     """:func:`shape_measures` of a loaded part, as the store computes them for its entries."""
-    from ..signing.moments import shape_facts
-
-    facts = shape_facts(solid.vertices, solid.faces)
+    facts = solid.facts
     return shape_measures(facts["extents"], facts["moments"], facts["handedness"])
 
 

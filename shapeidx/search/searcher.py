@@ -522,10 +522,7 @@ class Searcher:
     def entry_numbers(self, name: str, width: int) -> np.ndarray:
         """(N, width) float64: a numeric per-entry column of every ranked entry (the store's
         ``entries/extents``, ``entries/moments``, ...), NaN where a file has none."""
-        out = np.full((len(self.view), width), np.nan)
-        for i, at, rows in self.view.rows_of(np.arange(len(self.view))):
-            out[at] = self.view.sources[i].column(name)[rows]
-        return out
+        return self.view.numbers(name, width)
 
     def query_measures(self, query: Query) -> np.ndarray | None:
         """The query's exact measures: given, of its loaded part, or its own entry's (None: unknown)."""

@@ -65,16 +65,21 @@ class Signature:
     angles : (4, ANGLE_BINS) int64 or None
         Pair counts of the normal-angle histograms (:mod:`shapeidx.signing.angles`), rows in
         ``ANGLE_HISTOGRAMS`` order; None where unknown (an entry of a store built before them).
+    radii : (3,) float64 or None
+        The principal radii of the surface, largest first, integrated exactly from the surface
+        (:func:`shapeidx.signing.moments.shape_facts`: no sampling noise, in file units; the
+        store's ``entries/extents``), read by the size-aware metric; None where unknown.
     """
 
     points: int
     seed: int
     histograms: dict
     angles: np.ndarray | None = field(default=None, compare=False, repr=False)
+    radii: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     @classmethod
     def from_pairs(cls, distances: np.ndarray, classes: np.ndarray, points: int, seed: int, divisor: int = BIN_DIVISOR,
-                   angles: np.ndarray | None = None):
+                   angles: np.ndarray | None = None, radii: np.ndarray | None = None):
         """Build the four histograms from classified pair distances.
 
         The three class histograms come from one pass: each pair's bin in its own class's
@@ -84,7 +89,7 @@ class Signature:
         mean_all = float(distances.mean()) if len(distances) else 0.0  # numpy's pairwise sum, as Histogram.of's
         if native is not None and mean_all > 0:
             histograms = _histograms_compiled(native, distances, classes, mean_all, divisor)
-            return cls(points=points, seed=seed, histograms=histograms, angles=angles)
+            return cls(points=points, seed=seed, histograms=histograms, angles=angles, radii=radii)
         histograms = {"all": Histogram.of(distances, divisor)}
         n_classes = len(CLASS_NAMES)
         codes = classes.astype(np.intp)  # once: bincount and take would each convert uint8 again
@@ -97,7 +102,7 @@ class Signature:
         key += codes  # each pair's bin, offset by its class
         table = np.bincount(key, minlength=n_classes * stride).reshape(n_classes, stride)
         histograms.update(_class_histograms(table, means, widths))
-        return cls(points=points, seed=seed, histograms=histograms, angles=angles)
+        return cls(points=points, seed=seed, histograms=histograms, angles=angles, radii=radii)
 
     @property
     def fractions(self) -> dict:
@@ -112,11 +117,19 @@ class Signature:
             "seed": self.seed,
             "pairs": self.histograms["all"].total,
             "fractions": self.fractions,
+            "radii": None if self.radii is None else self.radii.tolist(),
             "histograms": {
                 name: {"bin_width": h.bin_width, "mean": h.mean, "pairs": h.total, "p": h.p.tolist()}
                 for name, h in self.histograms.items()
             },
         }
+
+
+def known_radii(extents) -> np.ndarray | None:
+    """Principal radii (``entries/extents``, :func:`shapeidx.signing.moments.shape_facts`) as a
+    signature's :attr:`Signature.radii`: None unless all three are known and positive."""
+    radii = np.asarray(extents, dtype=np.float64)
+    return radii.copy() if radii.shape == (3,) and np.isfinite(radii).all() and (radii > 0).all() else None
 
 
 def _class_histograms(table: np.ndarray, means: np.ndarray, widths: np.ndarray) -> dict:

@@ -4,7 +4,8 @@
          --sampling.sample_surface--> points
          --classify.classify_pairs--> distances, classes
          --Signature.from_pairs--> Signature
-    (the same pairs and the samples' normals --angles.angle_histograms--> Signature.angles)
+    (the same pairs and the samples' normals --angles.angle_histograms--> Signature.angles;
+     the surface's exact principal radii --moments.shape_facts--> Signature.radii)
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import os
 from ..io import LoadLimits, load
 from .angles import angle_histograms
 from .classify import classify_pairs
-from .histogram import Signature
+from .histogram import Signature, known_radii
 from .parameters import BIN_DIVISOR, DEFAULT_POINTS, DEFAULT_SEED
 from .sampling import sample_surface
 from .solid import Solid, make_solid
@@ -38,7 +39,8 @@ def signature_of_solid(
     distances, classes = classify_pairs(solid.vertices, solid.faces, samples, face_index, solid.watertight, threads=threads,
                                         normals_out=normals)
     angles = angle_histograms(normals[0], classes)
-    return Signature.from_pairs(distances, classes, points, seed, divisor, angles=angles)
+    return Signature.from_pairs(distances, classes, points, seed, divisor, angles=angles,
+                                radii=known_radii(solid.facts["extents"]))
 
 
 def signature_of_file(

@@ -19,6 +19,7 @@ closed shell.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -382,6 +383,15 @@ class Solid:
     @property
     def bounds(self) -> np.ndarray:
         return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+
+    @cached_property
+    def facts(self) -> dict:
+        """The exact measures of its surface (:func:`shapeidx.signing.moments.shape_facts`: box,
+        principal radii, moments, handedness), computed once: the signature reads the radii,
+        the store keeps them all."""
+        from .moments import shape_facts
+
+        return shape_facts(self.vertices, self.faces)
 
     def describe(self) -> dict:
         """The facts ``shapeidx inspect --json`` prints.

@@ -154,6 +154,9 @@ def embedding_weights(metric: str) -> dict:
     factors = (("d_", "d2_", lambda w: w * d2), ("hellinger_angle_", "angle_", lambda w: w / np.sqrt(2)),
                ("angle_", "angle_", lambda w: 2.0 * w))
     classes = {"gap_": np.zeros(len(CLASS_NAMES)), "scale_": np.zeros(len(CLASS_NAMES))}
+    # a size term sqrt|ln rA - ln rB| as the block of ln r: |d ln r| is what a Euclidean distance
+    # can hold (the square root is none); it ranks pairs alike, and the exact step decides
+    sizes = np.zeros(3)
     blocks = {}
     for feature, w in metric_record(metric).terms.items():
         for prefix, block, scaled in factors:
@@ -161,11 +164,14 @@ def embedding_weights(metric: str) -> dict:
                 blocks[block + feature[len(prefix):]] = scaled(w)
                 break
         else:
+            if feature.startswith("size_r"):
+                sizes[int(feature[len("size_r"):]) - 1] = w
+                continue
             prefix, _, name = feature.partition("_")
             classes[prefix + "_"][CLASS_NAMES.index(name)] = w
     # fixed block order (the class blocks first): a metric's vector does not depend on its terms' order
-    weights = {block: values for block, values in (("fractions", classes["gap_"]), ("scales", classes["scale_"]))
-               if np.any(values)}
+    weights = {block: values for block, values in (("fractions", classes["gap_"]), ("scales", classes["scale_"]),
+                                                   ("sizes", sizes)) if np.any(values)}
     weights.update(sorted(blocks.items(), key=lambda item: BLOCK_ORDER.index(item[0])))
     return weights
 
@@ -174,7 +180,7 @@ def embedding_basis(table, blocks) -> dict:
     """The named blocks of every entry's basis vector: ``d2_H`` (:func:`d2_basis` rows: the
     store's own when it keeps them, else made from the loaded histograms), ``angle_H`` (the
     normal-angle probabilities, square-rooted), ``fractions``, ``scales`` (ln of each class's
-    mean over the ALL mean). Each a function of its own entry only."""
+    mean over the ALL mean), ``sizes`` (ln of the principal radii). Each a function of its own entry only."""
     out = {}
     stored = getattr(table, "d2_basis", None) or {}
     for block in blocks:
@@ -191,6 +197,9 @@ def embedding_basis(table, blocks) -> dict:
             out[block] = table.fractions
         elif block == "scales":
             out[block] = class_scales(table.means)
+        elif block == "sizes":
+            with np.errstate(divide="ignore", invalid="ignore"):
+                out[block] = np.log(table.extents)  # unknown: NaN, 0 in the vector (embed)
     return out
 
 

@@ -19,7 +19,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS, angle_probabilities
-from ..signing.histogram import Histogram, Signature
+from ..signing.histogram import Histogram, Signature, known_radii
 from ..signing.parameters import CLASS_NAMES, HISTOGRAMS
 from .layout import STATUS_OK
 from .rank import path_keys
@@ -132,6 +132,20 @@ class RankedView:
             self._gathered["angle_p"] = p
         return p
 
+    def numbers(self, name: str, width: int, positions: np.ndarray | None = None) -> np.ndarray:
+        """(n, width) float64: the numeric per-entry column ``name`` of the store's entries
+        (``entries/extents``, ``entries/moments``, ...) for the live entries at ``positions``
+        (default all, kept for later calls); NaN where a file has none."""
+        if positions is None and name in self._gathered:
+            return self._gathered[name]
+        at = np.arange(len(self)) if positions is None else np.asarray(positions, dtype=np.int64)
+        out = np.full((len(at), width), np.nan)
+        for i, mine, rows in self.rows_of(at):
+            out[mine] = self.sources[i].column(name)[rows]
+        if positions is None:
+            self._gathered[name] = out
+        return out
+
     def by_file(self, positions: np.ndarray):
         """``(file, indices into positions, rank positions in that file)`` of the live entries at
         ``positions``, file by file."""
@@ -212,4 +226,5 @@ class RankedView:
             raise source.damaged(f"histograms of {source.path_at(row)} do not hold {pairs} pairs")
         angles = np.asarray(source.value_at("entries/angles", row), dtype=np.float64)
         angles = angles.reshape(len(ANGLE_HISTOGRAMS), ANGLE_BINS).astype(np.int64) if np.isfinite(angles).all() else None
-        return Signature(points=params.points, seed=params.seed, histograms=histograms, angles=angles)
+        return Signature(points=params.points, seed=params.seed, histograms=histograms, angles=angles,
+                         radii=known_radii(source.column("entries/extents")[row]))

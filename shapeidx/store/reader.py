@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import NoAnswer, StoreDamagedError, StoreError
 from ..ragged import offsets_of, take_ragged
-from ..signing.histogram import Histogram, Signature
+from ..signing.histogram import Histogram, Signature, known_radii
 from ..signing.angles import ANGLE_BINS, ANGLE_HISTOGRAMS
 from ..signing.parameters import HISTOGRAMS
 from .files import batch_files, is_one_file_store, main_file, recovery_commands
@@ -436,7 +436,8 @@ class StoreReader:
             histograms[name] = Histogram(counts.astype(np.int64), mean, width)
         angles = self.column("entries/angles")[index]
         angles = angles.reshape(len(ANGLE_HISTOGRAMS), ANGLE_BINS).astype(np.int64) if np.isfinite(angles).all() else None
-        return Signature(points=self.params.points, seed=self.params.seed, histograms=histograms, angles=angles)
+        return Signature(points=self.params.points, seed=self.params.seed, histograms=histograms, angles=angles,
+                         radii=known_radii(self.column("entries/extents")[index]))
 
     def size_on_disk(self) -> int:
         """Bytes of the store: every file of its directory (main file, journal, metadata,
