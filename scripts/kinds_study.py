@@ -35,6 +35,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from _common import COLLECTIONS, DATA, REPO, machine, quiet_build
+from shapeidx.distance import label
 from shapeidx.evaluation.evaluate import labelled_features
 from shapeidx.evaluation.learn import class_folds, fit_weights
 from shapeidx.evaluation.retrieval import retrieval_scores
@@ -176,7 +177,6 @@ def reading(reranked: dict, sized: dict, best: str, held_out: list) -> list:
 def metric_reading(ndr: dict, files: int) -> list:
     """The product's metric, from its own figures on ndr."""
     return [
-        "",
         f"### The metric: `--metric combined-size` ({BEST}, the weights of `combined_size_metric.json`)",
         "",
         "The variant above is what the product offers as `combined-size` (checked here: its features, through the search",
@@ -187,7 +187,7 @@ def metric_reading(ndr: dict, files: int) -> list:
         "",
         "| metric | ndr same folder |",
         "|---|---|",
-    ] + [f"| {name} | {rate:.3f} ({round(rate * files)} of {files}) |" for name, rate in ndr.items()] + [
+    ] + [f"| {label(name)} | {rate:.3f} ({round(rate * files)} of {files}) |" for name, rate in ndr.items()] + [
         "",
         "So no task uses it unasked (the defaults stay scale-invariant); name it for a library of one unit.",
     ]
