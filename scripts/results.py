@@ -2,6 +2,7 @@
 """Retrieval results of every distance on every labelled collection; writes docs/results.md.
 
     python scripts/results.py --work /tmp/shapeidx-results
+    python scripts/results.py --work /tmp/shapeidx-results --section library --library-store LIBRARY
 
 Stores are built in ``--work`` (reused when run again). Every figure in the document comes
 from this run: the main table through ``shapeidx.evaluation.evaluate`` (what ``shapeidx evaluate``
@@ -21,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from shapeidx import __version__
-from _common import COLLECTIONS, REPO, quiet_build
+from _common import COLLECTIONS, DATA, REPO, quiet_build
 from shapeidx.distance import FEATURES, METRICS, MIN_AGREEMENT
 from shapeidx.evaluation.evaluate import cross_validate_unified, distance_matrices, evaluate, labelled_features
 from shapeidx.evaluation.learn import cross_validate
@@ -99,11 +100,11 @@ def cross_validation(lines, data):
         "",
         f"Weighted beats plain D2 by {paper['nn'] - plain['nn']:+.3f} NN and {paper['ft'] - plain['ft']:+.3f} FT; the combined metric",
         f"adds {cv['nn'] - paper['nn']:+.3f} NN and {cv['ft'] - paper['ft']:+.3f} FT on top of Weighted, cross-validated;",
-        f"combined-angle (the class features and the normal-angle histograms' Hellinger distances, below) adds",
+        "combined-angle (the class features and the normal-angle histograms' Hellinger distances, below) adds",
         f"{angle['nn'] - paper['nn']:+.3f} NN and {angle['ft'] - paper['ft']:+.3f} FT on top of Weighted; unified (combined-angle",
         f"with the pairs all-angle finds to be one part moved first: docs/unified.md) {unified['nn'] - angle['nn']:+.3f} NN and",
         f"{unified['ft'] - angle['ft']:+.3f} FT against combined-angle. combined-size (combined-angle's features and the",
-        f"exact sizes: sqrt|Δ ln r| of the middle and smallest principal radii; docs/unified.md, \"Parts of a kind\")",
+        "exact sizes: sqrt|Δ ln r| of the middle and smallest principal radii; docs/unified.md, \"Parts of a kind\")",
         f"{sized['nn'] - angle['nn']:+.3f} NN and {sized['ft'] - angle['ft']:+.3f} FT against combined-angle: kicad6 is one unit, and",
         "some of its classes differ by size alone (pin headers and sockets of 1.00 to 2.54 mm pitch). It is not",
         "scale-invariant, so it is no metric for a collection of mixed units (ndr, below).",
@@ -538,6 +539,64 @@ def families(lines, work):
 FAMILIES_HEADING = "## Categories and clusters (the paper's first task)"
 
 
+LIBRARY_HEADING = "## The whole KiCad 6 library, its folders as classes"
+
+
+def whole_library(lines, store: Path, command: str) -> None:
+    """Every distance on Debian's whole KiCad 6 library, its folders as the classes: every part
+    queried (its stored signature) against all others; also the queries that are not kicad6's
+    parts, whose labels no learned weight has seen."""
+    with open_store(store) as reader:
+        data = labelled_features(reader)
+    kicad6 = {line.split("\t")[0] for line in (DATA / "kicad6" / "SOURCES.tsv").read_text().splitlines()[1:]}
+    seen = np.array([str(path).replace(".3dshapes/", "/", 1) in kicad6 for path in data.paths])
+    folders = len(set(data.labels))
+    lines += [
+        LIBRARY_HEADING,
+        "",
+        f"(This section: `{command}`, {datetime.date.today()}; the store: `shapeidx build TREE --store LIBRARY",
+        "--follow-outside-links`, TREE a tree of links to the package's `.wrl` files, as",
+        "scripts/same_part_study.py makes it.)",
+        "",
+        f"Debian's kicad-packages3d: {len(data.paths):,} parts in {folders} folders (`Package_SO.3dshapes`,",
+        "`Connector_PinHeader_2.54mm.3dshapes`, ...), each folder a class, every part queried against all",
+        "others. The folders are coarser than kicad6's picked classes (a folder holds every size and",
+        "pin count of its series, and some hold several kinds), so FT and ST are low for every",
+        f"distance. {int(seen.sum())} of these parts are kicad6's, whose labels the learned weights saw: the",
+        "last column scores only the other queries.",
+        "",
+        "| distance | NN | FT | ST | E | DCG | NN, FT: queries outside kicad6 |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for metric in METRICS:
+        scores = retrieval_scores(distance_matrices(data, (metric,))[metric], data.labels, per_query=True)
+        outside = ~seen[scores["per_query"]["index"]]
+        held = {s: float(np.mean(scores["per_query"][s][outside])) for s in ("nn", "ft")}
+        lines.append(row(LABELS[metric], scores, f" {held['nn']:.3f}, {held['ft']:.3f} |"))
+    lines.append("")
+
+
+def replace_library_section(output: Path, store: Path, command: str) -> int:
+    """Put a freshly generated whole-library section into ``output`` (before the peers' section)."""
+    lines = []
+    whole_library(lines, store, command)
+    output.write_text(with_library_section(output.read_text(), "\n".join(lines) + "\n"))
+    print(f"wrote the whole-library section of {output}")
+    return 0
+
+
+def with_library_section(text: str, section: str) -> str:
+    """``text`` with its whole-library section replaced by ``section`` (else put before the peers')."""
+    if LIBRARY_HEADING in text:
+        start = text.index(LIBRARY_HEADING)
+        end = text.find("\n## ", start + len(LIBRARY_HEADING))
+        return text[:start] + section + (text[end:] if end >= 0 else "")
+    if PEERS_HEADING in text:
+        at = text.index(PEERS_HEADING)
+        return text[:at] + section + "\n" + text[at:]
+    return text + "\n" + section
+
+
 def replace_section(output: Path, work: Path, command: str) -> int:
     """Put a freshly generated families section into ``output`` (before the histogram comparisons)."""
     text = output.read_text()
@@ -563,8 +622,13 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--work", type=Path, required=True, help="folder for the stores (reused)")
     parser.add_argument("--output", type=Path, default=REPO / "docs" / "results.md")
-    parser.add_argument("--section", choices=("families",), help="regenerate only this section of --output, in place")
+    parser.add_argument("--section", choices=("families", "library"),
+                        help="regenerate only this section of --output, in place")
+    parser.add_argument("--library-store", type=Path,
+                        help="a store of Debian's whole KiCad 6 library (--section library)")
     args = parser.parse_args(argv)
+    if args.section == "library" and args.library_store is None:
+        parser.error("--section library needs --library-store")
     keep_freed_memory()
     args.work.mkdir(parents=True, exist_ok=True)
     command = "python scripts/results.py " + " ".join(argv if argv is not None else sys.argv[1:])
@@ -579,6 +643,8 @@ def main(argv=None) -> int:
     ]
     if args.section == "families":  # regenerate only this section of the existing file, in place
         return replace_section(args.output, args.work, command)
+    if args.section == "library":
+        return replace_library_section(args.output, args.library_store, command)
     main_table(lines, args.work)
     with open_store(store_of(args.work, "kicad6", COLLECTIONS["kicad6"])) as reader:
         data = labelled_features(reader)
@@ -590,27 +656,33 @@ def main(argv=None) -> int:
     other_shape_functions(lines, data)
     angle_section(lines, args.work, data)
     text = "\n".join(lines) + "\n"
-    kept = other_scripts_sections(args.output)
+    kept, kept_names = other_scripts_sections(args.output)
     args.output.write_text(text + ("\n" + kept if kept else ""))
-    print(f"wrote {args.output}" + (" (the peers section kept, scripts/peers.py's)" if kept else ""))
+    print(f"wrote {args.output}" + (" (kept as they were: " + ", ".join(kept_names) + ")" if kept else ""))
     return 0
 
 
-#: The section of docs/results.md that another script writes (scripts/peers.py), kept as it is.
+#: The sections of docs/results.md that a full run keeps as they are: the peers' (scripts/peers.py
+#: writes it) and the whole library's (``--section library``: its store is not built here).
 PEERS_HEADING = "## Beside the classic peers"
+KEPT_HEADINGS = (LIBRARY_HEADING, PEERS_HEADING)
 
 
-def other_scripts_sections(output: Path) -> str:
-    """The peers section of the existing ``output`` (to the next top heading), or ""."""
+def other_scripts_sections(output: Path) -> tuple[str, list]:
+    """The kept sections of the existing ``output`` (each to the next top heading), and their names."""
     try:
         text = output.read_text()
     except OSError:
-        return ""
-    start = text.find(PEERS_HEADING)
-    if start < 0:
-        return ""
-    end = text.find("\n## ", start + len(PEERS_HEADING))
-    return text[start:] if end < 0 else text[start:end + 1]
+        return "", []
+    kept, names = [], []
+    for heading in KEPT_HEADINGS:
+        start = text.find(heading)
+        if start < 0:
+            continue
+        end = text.find("\n## ", start + len(heading))
+        kept.append((text[start:] if end < 0 else text[start:end]).rstrip("\n") + "\n")
+        names.append(heading.lstrip("# "))
+    return "\n\n".join(kept), names
 
 
 if __name__ == "__main__":

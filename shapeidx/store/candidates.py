@@ -155,7 +155,8 @@ def embedding_weights(metric: str) -> dict:
                ("angle_", "angle_", lambda w: 2.0 * w))
     classes = {"gap_": np.zeros(len(CLASS_NAMES)), "scale_": np.zeros(len(CLASS_NAMES))}
     # a size term sqrt|ln rA - ln rB| as the block of ln r: |d ln r| is what a Euclidean distance
-    # can hold (the square root is none); it ranks pairs alike, and the exact step decides
+    # can hold (the square root is none); it ranks pairs alike, and the exact step decides.
+    # The weight itself, unscaled, had the best whole-library recall (docs/performance-families.md)
     sizes = np.zeros(3)
     blocks = {}
     for feature, w in metric_record(metric).terms.items():
