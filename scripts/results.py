@@ -585,12 +585,21 @@ def replace_library_section(output: Path, store: Path, command: str) -> int:
     return 0
 
 
+def top_section(text: str, heading: str) -> tuple[int, int] | None:
+    """Where the section under ``heading`` lies in ``text``: from the heading to the newline before
+    the next top heading (or the end); None if it is not there."""
+    start = text.find(heading)
+    if start < 0:
+        return None
+    end = text.find("\n## ", start + len(heading))
+    return start, len(text) if end < 0 else end
+
+
 def with_library_section(text: str, section: str) -> str:
     """``text`` with its whole-library section replaced by ``section`` (else put before the peers')."""
-    if LIBRARY_HEADING in text:
-        start = text.index(LIBRARY_HEADING)
-        end = text.find("\n## ", start + len(LIBRARY_HEADING))
-        return text[:start] + section + (text[end:] if end >= 0 else "")
+    span = top_section(text, LIBRARY_HEADING)
+    if span is not None:
+        return text[:span[0]] + section + text[span[1]:]
     if PEERS_HEADING in text:
         at = text.index(PEERS_HEADING)
         return text[:at] + section + "\n" + text[at:]
@@ -676,12 +685,10 @@ def other_scripts_sections(output: Path) -> tuple[str, list]:
         return "", []
     kept, names = [], []
     for heading in KEPT_HEADINGS:
-        start = text.find(heading)
-        if start < 0:
-            continue
-        end = text.find("\n## ", start + len(heading))
-        kept.append((text[start:] if end < 0 else text[start:end]).rstrip("\n") + "\n")
-        names.append(heading.lstrip("# "))
+        span = top_section(text, heading)
+        if span is not None:
+            kept.append(text[span[0]:span[1]].rstrip("\n") + "\n")
+            names.append(heading.lstrip("# "))
     return "\n\n".join(kept), names
 
 
